@@ -1,0 +1,16 @@
+"""cdcr-ctl: controller daemon for cable-driven continuum robot (CDCR) rigs.
+
+Layers (dependencies point down):
+
+- ``cdcr_ctl.cli`` / ``cdcr_ctl.daemon``  application: command line, control socket, service
+- ``cdcr_ctl.control``                     the real-time loop wiring model, drives and sensors
+- ``cdcr_ctl.model``                       pure physics (numpy/scipy), no I/O, no clocks
+- ``cdcr_ctl.drives`` / ``cdcr_ctl.sensors``  protocol code: counts and modes, newtons and millimetres
+- ``cdcr_ctl.config``                      the validated YAML rig config
+- ``cdcr_ctl.errors``                      one exception tree
+
+``cdcr_ctl.sim`` stands beside them: simulated EPOS nodes, load cells, tracker and truth physics.
+Production modules never import it.
+"""
+
+__version__ = "0.1.0"

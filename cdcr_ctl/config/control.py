@@ -1,0 +1,62 @@
+"""Control-loop, limit, logging and daemon sections of the rig config."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from cdcr_ctl.config.base import Section
+from cdcr_ctl.config.robot import PositiveFloat
+
+
+class ControlConfig(Section):
+    """The real-time loop.
+
+    ``compensation``: ``off`` sends the ideal inverse kinematics; ``model`` adds the force-transfer
+    feedforward delta of Qi et al. 2023 eq. 37 from modelled tensions; ``measured`` uses the load-cell
+    tensions in place of modelled ones.
+    """
+
+    rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0
+    compensation: Literal["off", "model", "measured"] = "model"
+    realtime_priority: Annotated[int, Field(ge=0, le=99)] = 0
+    lock_memory: bool = False
+
+
+class LimitsConfig(Section):
+    """Safety limits, checked every cycle by the supervisor."""
+
+    cable_displacement_mm: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [-20.0, 20.0]
+    )
+    cable_velocity_mm_s: PositiveFloat = 50.0
+    tension_N: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [0.2, 60.0]
+    )
+    bend_rad: PositiveFloat = 2.0
+    tracker_divergence_mm: PositiveFloat = 30.0
+    sensor_timeout_s: PositiveFloat = 0.2
+
+    @model_validator(mode="after")
+    def _ordered(self) -> LimitsConfig:
+        for key in ("cable_displacement_mm", "tension_N"):
+            lo, hi = getattr(self, key)
+            if lo >= hi:
+                raise ValueError(f"{key} must be [min, max] with min < max")
+        return self
+
+
+class LoggingConfig(Section):
+    """Run logs: one directory per run below ``directory``."""
+
+    directory: str = "runs"
+    fsync_every_s: PositiveFloat = 0.5
+
+
+class DaemonConfig(Section):
+    """The daemon's control socket (Unix domain, mode 0660; no TCP listener)."""
+
+    socket_path: str = "/run/cdcr-ctl/control.sock"
+    socket_mode: Annotated[int, Field(ge=0, le=0o777)] = 0o660
+    watchdog: bool = True

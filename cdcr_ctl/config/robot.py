@@ -1,0 +1,124 @@
+"""Robot section of the rig config: segments, cables, pulleys, gravity.
+
+Frames: the robot base frame has z along the straight backbone, x towards the hole at angle 0.
+Hole angles are measured about z from x, in every disk (the constant-curvature frames of Qi et al.
+2023 eq. 1 carry no net twist, so one angle per cable holds along the whole robot).
+Units are in the key names: mm, N, rad, MPa (= N/mm^2), g.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+from pydantic import Field, model_validator
+
+from cdcr_ctl.config.base import Section
+
+PositiveFloat = Annotated[float, Field(gt=0)]
+NonNegativeFloat = Annotated[float, Field(ge=0)]
+Name = Annotated[str, Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")]
+
+
+class BackboneConfig(Section):
+    """Elastic backbone of one segment: give ``EI_Nmm2`` or both ``E_MPa`` and ``diameter_mm``."""
+
+    E_MPa: PositiveFloat | None = None
+    diameter_mm: PositiveFloat | None = None
+    EI_Nmm2: PositiveFloat | None = None
+
+    @model_validator(mode="after")
+    def _one_stiffness(self) -> BackboneConfig:
+        has_ed = self.E_MPa is not None and self.diameter_mm is not None
+        if self.EI_Nmm2 is None and not has_ed:
+            raise ValueError("give EI_Nmm2, or both E_MPa and diameter_mm")
+        if self.EI_Nmm2 is not None and (self.E_MPa is not None or self.diameter_mm is not None):
+            raise ValueError("give EI_Nmm2 or E_MPa + diameter_mm, not both")
+        return self
+
+    @property
+    def EI(self) -> float:
+        """Bending stiffness E*I in N*mm^2 (solid round rod: I = pi d^4 / 64)."""
+        if self.EI_Nmm2 is not None:
+            return self.EI_Nmm2
+        assert self.E_MPa is not None and self.diameter_mm is not None  # checked by validator
+        return self.E_MPa * math.pi * self.diameter_mm**4 / 64.0
+
+
+class DisksConfig(Section):
+    """Spacer disks of a segment, equally spaced; ``count`` disks after the base disk."""
+
+    count: Annotated[int, Field(ge=1, le=200)]
+    mass_g: NonNegativeFloat = 0.0
+    thickness_mm: NonNegativeFloat = 0.0
+
+
+class SegmentConfig(Section):
+    """One bending segment, base to tip. ``length_mm`` is the backbone arc length."""
+
+    name: Name
+    length_mm: PositiveFloat
+    backbone: BackboneConfig
+    disks: DisksConfig
+
+
+class PulleyConfig(Section):
+    """A guide pulley between actuator and robot base (Qi et al. 2023 eq. 25-32).
+
+    ``alpha`` and ``n`` are the non-linear friction law f = alpha * N^n (eq. 25); n = 1 and
+    alpha = mu is Amontons' law. ``wrap_angle_rad`` is the contact angle of the cable on the pulley.
+    """
+
+    name: Name
+    radius_mm: PositiveFloat
+    wrap_angle_rad: Annotated[float, Field(ge=0, le=2 * math.pi)]
+    alpha: NonNegativeFloat
+    n: Annotated[float, Field(gt=0, le=1)] = 1.0
+
+
+class CableConfig(Section):
+    """One drive cable, from its actuator through pulleys and disk holes to the disk it ends on.
+
+    ``segment`` names the segment whose tip disk the cable is fixed to; it runs through every
+    proximal segment. ``pulleys`` lists pulley names from the actuator towards the robot.
+    ``free_length_mm`` is the straight cable between actuator and robot base (it stretches too).
+    ``mu_disk`` is the Coulomb friction coefficient in the disk holes (eq. 16-24).
+    Give the axial stiffness as ``E_MPa`` (with ``diameter_mm``, solid section) or ``EA_N``.
+    """
+
+    name: Name
+    segment: Name
+    hole_angle_rad: Annotated[float, Field(ge=-2 * math.pi, le=2 * math.pi)]
+    routing_radius_mm: PositiveFloat
+    diameter_mm: PositiveFloat
+    E_MPa: PositiveFloat | None = None
+    EA_N: PositiveFloat | None = None
+    pretension_N: NonNegativeFloat
+    mu_disk: NonNegativeFloat = 0.0
+    free_length_mm: NonNegativeFloat = 0.0
+    pulleys: list[Name] = Field(default_factory=list)
+
+    @model_validator(mode="after")
+    def _one_axial_stiffness(self) -> CableConfig:
+        if (self.E_MPa is None) == (self.EA_N is None):
+            raise ValueError("give exactly one of E_MPa or EA_N")
+        return self
+
+    @property
+    def EA(self) -> float:
+        """Axial stiffness E*A in N (solid round section of ``diameter_mm``)."""
+        if self.EA_N is not None:
+            return self.EA_N
+        assert self.E_MPa is not None
+        return self.E_MPa * math.pi * self.diameter_mm**2 / 4.0
+
+
+class RobotConfig(Section):
+    """The robot: segments base to tip, cables, guide pulleys and gravity in the base frame."""
+
+    segments: Annotated[list[SegmentConfig], Field(min_length=1)]
+    cables: Annotated[list[CableConfig], Field(min_length=1)]
+    pulleys: list[PulleyConfig] = Field(default_factory=list)
+    gravity_mm_s2: Annotated[list[float], Field(min_length=3, max_length=3)] = Field(
+        default_factory=lambda: [0.0, 0.0, -9810.0]
+    )
