@@ -14,8 +14,8 @@ class ControlConfig(Section):
     """The real-time loop.
 
     ``compensation``: ``off`` sends the ideal inverse kinematics; ``model`` adds the force-transfer
-    feedforward delta of Qi et al. 2023 eq. 37 from modelled tensions; ``measured`` uses the load-cell
-    tensions in place of modelled ones.
+    feedforward delta of Qi et al. 2023 eq. 37 from modelled tensions; ``measured`` uses the
+    load-cell tensions in place of modelled ones.
     """
 
     rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from cdcr_ctl.config.base import Section
 from cdcr_ctl.config.robot import Name, PositiveFloat
 
 #: Bit rates a CAN controller can run (CiA 301 table of standard bit rates).
 STANDARD_BITRATES = (10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
+
 
 class CanBusConfig(Section):
     """The CAN bus: python-can ``interface`` and ``channel``, bit rate and SYNC period.
@@ -34,11 +35,12 @@ class CanBusConfig(Section):
     max_bus_load: Annotated[float, Field(gt=0, le=1.0)] = 0.70
     log_traffic: bool = True
 
-    @model_validator(mode="after")
-    def _standard_bitrate(self) -> CanBusConfig:
-        if self.bitrate not in STANDARD_BITRATES:
+    @field_validator("bitrate")
+    @classmethod
+    def _standard_bitrate(cls, value: int) -> int:
+        if value not in STANDARD_BITRATES:
             raise ValueError(f"bitrate must be one of {STANDARD_BITRATES}")
-        return self
+        return value
 
 
 class HomingConfig(Section):
@@ -55,7 +57,7 @@ class HomingConfig(Section):
     def _known_method(self) -> HomingConfig:
         allowed = {-4, -3, -2, -1, 1, 2, 7, 11, 17, 18, 23, 27, 33, 34, 35, 37}
         if self.method not in allowed:
-            raise ValueError(f"homing method {self.method} is not an EPOS4 method {sorted(allowed)}")
+            raise ValueError(f"method {self.method} is not an EPOS4 method {sorted(allowed)}")
         return self
 
 

@@ -45,7 +45,7 @@ class LoadCellConfig(Section):
 
 
 class LoadCellsConfig(Section):
-    """All load cells on one serial bus: Modbus RTU (several slaves) or continuous ASCII (one cell)."""
+    """All load cells on one serial bus: Modbus RTU (several slaves) or ASCII stream (one cell)."""
 
     protocol: Literal["modbus_rtu", "ascii"] = "modbus_rtu"
     serial: SerialPortConfig

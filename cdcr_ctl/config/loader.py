@@ -150,7 +150,10 @@ def load_rig_config(path: str | Path) -> RigConfig:
     problems = cross_check(cfg)
     if problems:
         raise ConfigErrors(
-            [ConfigError(_origin_of(k, origin, str(path)), format_key(k), m, v) for k, m, v in problems]
+            [
+                ConfigError(_origin_of(k, origin, str(path)), format_key(k), m, v)
+                for k, m, v in problems
+            ]
         )
     return cfg
 
@@ -175,14 +178,22 @@ def cross_check(cfg: RigConfig) -> list[tuple[KeyPath, str, Any]]:
     for i, cable in enumerate(robot.cables):
         if cable.segment not in segments:
             problems.append(
-                (("robot", "cables", i, "segment"), f"no segment of that name {sorted(segments)}", cable.segment)
+                (
+                    ("robot", "cables", i, "segment"),
+                    f"no segment of that name {sorted(segments)}",
+                    cable.segment,
+                )
             )
         for j, pulley in enumerate(cable.pulleys):
             if pulley not in pulleys:
-                problems.append((("robot", "cables", i, "pulleys", j), "no pulley of that name", pulley))
+                problems.append(
+                    (("robot", "cables", i, "pulleys", j), "no pulley of that name", pulley)
+                )
     for s, seg in enumerate(robot.segments):
         if not any(c.segment == seg.name for c in robot.cables):
-            problems.append((("robot", "segments", s, "name"), "no cable ends in this segment", seg.name))
+            problems.append(
+                (("robot", "segments", s, "name"), "no cable ends in this segment", seg.name)
+            )
 
     unique(cfg.drives, "name", ("drives",))
     unique(cfg.drives, "node_id", ("drives",))
@@ -191,10 +202,14 @@ def cross_check(cfg: RigConfig) -> list[tuple[KeyPath, str, Any]]:
         if drive.cable not in cables:
             problems.append((("drives", i, "cable"), "no cable of that name", drive.cable))
         if drive.node_id == cfg.can.master_node_id:
-            problems.append((("drives", i, "node_id"), "clashes with can.master_node_id", drive.node_id))
+            problems.append(
+                (("drives", i, "node_id"), "clashes with can.master_node_id", drive.node_id)
+            )
     for i, cable in enumerate(robot.cables):
         if cable.name not in driven:
-            problems.append((("robot", "cables", i, "name"), "no drive pulls this cable", cable.name))
+            problems.append(
+                (("robot", "cables", i, "name"), "no drive pulls this cable", cable.name)
+            )
 
     lc = cfg.sensors.load_cells
     if lc is not None:

@@ -14,7 +14,7 @@ Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 
 
 class RigidTransformConfig(Section):
-    """A rigid transform: rotation as a rotation vector (axis * angle, rad) then translation (mm)."""
+    """A rigid transform: rotation vector (axis * angle, rad), then translation (mm)."""
 
     rotvec_rad: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     translation_mm: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])

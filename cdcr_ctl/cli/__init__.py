@@ -1,0 +1,1 @@
+"""The ``cdcr-ctl`` command line."""

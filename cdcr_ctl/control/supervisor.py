@@ -1,0 +1,194 @@
+"""Safety supervisor: per-cycle checks of commands and measurements against the rig's limits.
+
+Pure logic, no I/O: the loop feeds it one :class:`CycleCheck` per cycle and applies the returned
+:class:`Verdict`. Each limit has one defined reaction, in increasing severity:
+
+- ``HOLD``: the offending command is not sent; the last safe command is held and the running
+  trajectory ends (displacement limit, slack cable).
+- ``HALT``: the trajectory ends and the drives hold the last command, still enabled (velocity limit,
+  stale sensor, tracker-vs-model divergence, log write failure).
+- ``QUICK_STOP``: CiA 402 quick stop of every drive, then disabled (overload tension, drive fault,
+  heartbeat loss, bus failure).
+
+A trip latches until :meth:`Supervisor.reset`; the first cause is kept (later ones are counted), so
+the status and the log name what went wrong first.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from cdcr_ctl.config.control import LimitsConfig
+
+
+class Reaction(enum.IntEnum):
+    """What the loop does about a tripped limit, ordered by severity."""
+
+    NONE = 0
+    HOLD = 1
+    HALT = 2
+    QUICK_STOP = 3
+
+
+@dataclass(frozen=True)
+class Trip:
+    """One tripped limit: ``cause`` is machine-readable (``tension_high:cable2``), ``detail`` text."""
+
+    cause: str
+    reaction: Reaction
+    detail: str
+    t_s: float
+
+
+@dataclass(frozen=True)
+class CycleCheck:
+    """What the supervisor sees in one cycle. Cables indexed 0..K-1; NaN means not measured.
+
+    ``q_cmd_mm``: displacement about to be sent; ``q_prev_mm``: the one sent last cycle;
+    ``tension_N``/``tension_age_s``: latest load-cell samples and their ages (s);
+    ``tip_error_mm``: distance between tracked tip and model tip (NaN when no tracker);
+    ``tip_age_s``: age of the tracker sample (inf when none yet).
+    """
+
+    t_s: float
+    dt_s: float
+    q_cmd_mm: Sequence[float]
+    q_prev_mm: Sequence[float]
+    tension_N: Sequence[float] = ()
+    tension_age_s: Sequence[float] = ()
+    tip_error_mm: float = math.nan
+    tip_age_s: float = math.inf
+    moving: bool = True
+
+
+@dataclass
+class Supervisor:
+    """Checks every cycle against ``limits``; trips latch until :meth:`reset`.
+
+    ``use_tension``/``use_tracker`` say whether those sensors are part of this rig (a rig without
+    load cells does not trip on stale tensions).
+    """
+
+    limits: LimitsConfig
+    use_tension: bool = False
+    use_tracker: bool = False
+    trip: Trip | None = None
+    later_trips: int = 0
+    history: list[Trip] = field(default_factory=list)
+
+    def check(self, c: CycleCheck) -> Trip | None:
+        """Return the most severe new trip of this cycle (None when all is well or already latched)."""
+        found = self._find(c)
+        if not found:
+            return None
+        worst = max(found, key=lambda t: t.reaction)
+        if self.trip is None:
+            self.trip = worst
+            self.history.append(worst)
+            return worst
+        if worst.reaction > self.trip.reaction:
+            # Escalate (e.g. a hold followed by an overload): the stronger reaction wins.
+            self.trip = worst
+            self.history.append(worst)
+            return worst
+        self.later_trips += 1
+        return None
+
+    def external(self, cause: str, reaction: Reaction, detail: str, t_s: float) -> Trip | None:
+        """Trip from outside the per-cycle checks: drive EMCY, heartbeat loss, bus or log failure."""
+        trip = Trip(cause, reaction, detail, t_s)
+        if self.trip is None or reaction > self.trip.reaction:
+            self.trip = trip
+            self.history.append(trip)
+            return trip
+        self.later_trips += 1
+        return None
+
+    def reset(self) -> None:
+        """Operator acknowledges the trip; the history is kept."""
+        self.trip = None
+
+    def _find(self, c: CycleCheck) -> list[Trip]:
+        lim = self.limits
+        out: list[Trip] = []
+        lo, hi = lim.cable_displacement_mm
+        vmax = lim.cable_velocity_mm_s
+        for k, q in enumerate(c.q_cmd_mm):
+            if not math.isfinite(q):
+                out.append(
+                    Trip(f"command_invalid:cable{k + 1}", Reaction.HALT, f"q_cmd={q}", c.t_s)
+                )
+            elif q < lo or q > hi:
+                out.append(
+                    Trip(
+                        f"displacement_limit:cable{k + 1}",
+                        Reaction.HOLD,
+                        f"q_cmd {q:.3f} mm outside [{lo}, {hi}] mm",
+                        c.t_s,
+                    )
+                )
+            if c.dt_s > 0 and k < len(c.q_prev_mm) and math.isfinite(q):
+                v = abs(q - c.q_prev_mm[k]) / c.dt_s
+                if v > vmax:
+                    out.append(
+                        Trip(
+                            f"velocity_limit:cable{k + 1}",
+                            Reaction.HALT,
+                            f"{v:.1f} mm/s above {vmax} mm/s",
+                            c.t_s,
+                        )
+                    )
+        if self.use_tension:
+            t_lo, t_hi = lim.tension_N
+            for k, (f, age) in enumerate(zip(c.tension_N, c.tension_age_s, strict=False)):
+                if not (age <= lim.sensor_timeout_s):
+                    out.append(
+                        Trip(
+                            f"stale_tension:cable{k + 1}",
+                            Reaction.HALT,
+                            f"load-cell sample {age:.3f} s old (limit {lim.sensor_timeout_s} s)",
+                            c.t_s,
+                        )
+                    )
+                    continue
+                if f > t_hi:
+                    out.append(
+                        Trip(
+                            f"tension_high:cable{k + 1}",
+                            Reaction.QUICK_STOP,
+                            f"{f:.2f} N above {t_hi} N",
+                            c.t_s,
+                        )
+                    )
+                elif f < t_lo and c.moving:
+                    out.append(
+                        Trip(
+                            f"tension_low:cable{k + 1}",
+                            Reaction.HOLD,
+                            f"{f:.2f} N below {t_lo} N (slack)",
+                            c.t_s,
+                        )
+                    )
+        if self.use_tracker:
+            if not (c.tip_age_s <= lim.sensor_timeout_s):
+                out.append(
+                    Trip(
+                        "stale_tracker",
+                        Reaction.HALT,
+                        f"tracker sample {c.tip_age_s:.3f} s old (limit {lim.sensor_timeout_s} s)",
+                        c.t_s,
+                    )
+                )
+            elif c.tip_error_mm > lim.tracker_divergence_mm:
+                out.append(
+                    Trip(
+                        "tracker_divergence",
+                        Reaction.HALT,
+                        f"tip {c.tip_error_mm:.1f} mm from model (limit {lim.tracker_divergence_mm} mm)",
+                        c.t_s,
+                    )
+                )
+        return out

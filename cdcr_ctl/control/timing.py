@@ -1,0 +1,146 @@
+"""Fixed-rate scheduling on absolute monotonic deadlines, with lateness statistics.
+
+The loop wakes at ``t0 + n * period`` (never ``now + period``, which drifts). Lateness is how far
+after its deadline a cycle started; a cycle whose work ends after the next deadline is an overrun.
+After an overrun the schedule skips the missed deadlines instead of bursting to catch up, and
+counts them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: Histogram bin edges for lateness (us): fine near zero, coarse in the tail.
+LATENESS_EDGES_US = np.array(
+    [0, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10_000, 100_000, np.inf], dtype=float
+)
+
+#: Sleep this much less than needed and spin the rest (s): time.sleep overshoots by ~50-100 us.
+SPIN_MARGIN_S = 150e-6
+
+
+@dataclass
+class LatenessStats:
+    """Streaming lateness statistics: histogram plus a bounded reservoir for percentiles."""
+
+    histogram: np.ndarray = field(default_factory=lambda: np.zeros(len(LATENESS_EDGES_US) - 1, int))
+    cycles: int = 0
+    overruns: int = 0
+    skipped: int = 0
+    max_us: float = 0.0
+    _recent: np.ndarray = field(default_factory=lambda: np.zeros(65536))
+    _n_recent: int = 0
+
+    def add(self, lateness_s: float) -> None:
+        us = lateness_s * 1e6
+        self.cycles += 1
+        self.max_us = max(self.max_us, us)
+        i = int(np.searchsorted(LATENESS_EDGES_US, us, side="right")) - 1
+        self.histogram[min(max(i, 0), len(self.histogram) - 1)] += 1
+        self._recent[self._n_recent % len(self._recent)] = us
+        self._n_recent += 1
+
+    def percentiles_us(self, qs: tuple[float, ...] = (50, 99, 99.9)) -> dict[str, float]:
+        n = min(self._n_recent, len(self._recent))
+        if n == 0:
+            return {f"p{q:g}": float("nan") for q in qs}
+        vals = np.percentile(self._recent[:n], qs)
+        return {f"p{q:g}": float(v) for q, v in zip(qs, vals, strict=True)}
+
+    def summary(self) -> dict[str, object]:
+        edges = LATENESS_EDGES_US
+        hist = {
+            f"{edges[i]:g}-{edges[i + 1]:g}us": int(c) for i, c in enumerate(self.histogram) if c
+        }
+        return {
+            "cycles": self.cycles,
+            "overruns": self.overruns,
+            "skipped_deadlines": self.skipped,
+            "lateness_max_us": round(self.max_us, 1),
+            **{f"lateness_{k}_us": round(v, 1) for k, v in self.percentiles_us().items()},
+            "lateness_histogram": hist,
+        }
+
+
+class Ticker:
+    """Yields cycle deadlines at ``period_s`` on ``time.monotonic``.
+
+    ``wait()`` sleeps until the next deadline (sleep, then a short spin for precision) and returns
+    ``(deadline, lateness_s)``; ``done()`` marks the end of the cycle's work for overrun counting.
+    """
+
+    def __init__(self, period_s: float, spin: bool = True) -> None:
+        if period_s <= 0:
+            raise ValueError("period_s must be positive")
+        self.period_s = period_s
+        self.spin = spin
+        self.stats = LatenessStats()
+        self._t0 = time.monotonic()
+        self._n = 0
+
+    @property
+    def next_deadline(self) -> float:
+        return self._t0 + self._n * self.period_s
+
+    def wait(self) -> tuple[float, float]:
+        deadline = self.next_deadline
+        while True:
+            now = time.monotonic()
+            remaining = deadline - now
+            if remaining <= 0:
+                break
+            if remaining > SPIN_MARGIN_S or not self.spin:
+                time.sleep(max(remaining - (SPIN_MARGIN_S if self.spin else 0.0), 0.0))
+                if not self.spin:
+                    now = time.monotonic()
+                    break
+        now = time.monotonic()
+        lateness = max(now - deadline, 0.0)
+        self.stats.add(lateness)
+        return deadline, lateness
+
+    def done(self) -> None:
+        """End of one cycle's work: schedule the next deadline, skipping any already missed."""
+        self._n += 1
+        now = time.monotonic()
+        if now > self.next_deadline:
+            self.stats.overruns += 1
+            missed = int((now - self.next_deadline) // self.period_s)
+            if missed > 0:
+                self.stats.skipped += missed
+                self._n += missed
+
+
+def try_realtime(priority: int, lock_memory: bool) -> list[str]:
+    """Ask for SCHED_FIFO at ``priority`` and mlockall; return log lines saying what was granted."""
+    notes = []
+    if priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            notes.append(f"SCHED_FIFO priority {priority}")
+        except (PermissionError, OSError) as exc:
+            notes.append(
+                f"SCHED_FIFO {priority} not permitted ({exc.strerror}); running SCHED_OTHER"
+            )
+    if lock_memory:
+        libc_name = ctypes.util.find_library("c")
+        ok = False
+        if libc_name:
+            with contextlib.suppress(OSError, AttributeError):
+                libc = ctypes.CDLL(libc_name, use_errno=True)
+                MCL_CURRENT, MCL_FUTURE = 1, 2
+                ok = libc.mlockall(MCL_CURRENT | MCL_FUTURE) == 0
+        notes.append("mlockall done" if ok else "mlockall not permitted; memory may page")
+    for line in notes:
+        log.info("realtime: %s", line)
+    return notes

@@ -1,0 +1,193 @@
+"""Control-socket protocol: newline-delimited JSON requests and replies over a Unix socket.
+
+Request: ``{"cmd": "<name>", "args": {...}, "id": <int>}``; reply:
+``{"id": <int>, "ok": true, "result": {...}}`` or ``{"id": <int>, "ok": false, "error": "...",
+"field": "args.theta_rad"}``. Every request is validated against the model of its command before
+anything moves; an error names the field at fault. Lines longer than :data:`MAX_LINE_BYTES` are
+refused.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from cdcr_ctl.errors import RigError
+
+#: Longest request line accepted (a 10-minute trajectory at 100 Hz for 3 segments fits easily).
+MAX_LINE_BYTES = 16 * 1024 * 1024
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+
+
+class ProtocolError(RigError):
+    """A request that cannot be accepted; ``field`` names the part at fault."""
+
+    def __init__(self, message: str, field: str = "") -> None:
+        self.field = field
+        super().__init__(f"{field}: {message}" if field else message)
+
+
+class _Args(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+
+class NoArgs(_Args):
+    pass
+
+
+class JogArgs(_Args):
+    """Jog one segment to (theta, phi) or one cable by ``delta_mm``, at a bounded speed.
+
+    Segment and cable numbers start at 1, like the log columns.
+    """
+
+    segment: Annotated[int, Field(ge=1, le=16)] | None = None
+    theta_rad: Finite | None = None
+    phi_rad: Finite | None = None
+    cable: Annotated[int, Field(ge=1, le=64)] | None = None
+    delta_mm: Finite | None = None
+    speed: Annotated[float, Field(gt=0, le=10.0, allow_inf_nan=False)] = 0.3
+
+    @model_validator(mode="after")
+    def _one_target(self) -> JogArgs:
+        seg = self.segment is not None
+        cab = self.cable is not None
+        if seg == cab:
+            raise ValueError("give either segment (+ theta_rad, phi_rad) or cable (+ delta_mm)")
+        if seg and (self.theta_rad is None or self.phi_rad is None):
+            raise ValueError("a segment jog needs theta_rad and phi_rad")
+        if cab and self.delta_mm is None:
+            raise ValueError("a cable jog needs delta_mm")
+        return self
+
+
+class TrajectoryArgs(_Args):
+    """A trajectory to run: timed samples ``[t_s, seg1_theta, seg1_phi, ...]`` (validated again by
+    the daemon against the rig), a name for the log, and the compensation mode for this run."""
+
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    samples: Annotated[list[list[Finite]], Field(min_length=2, max_length=2_000_000)]
+    compensation: Literal["off", "model", "measured"] | None = None
+    log: bool = True
+
+
+class StopArgs(_Args):
+    mode: Literal["halt", "quick_stop"] = "quick_stop"
+
+
+class LogStartArgs(_Args):
+    name: Annotated[str, Field(min_length=1, max_length=200)] = "manual"
+
+
+class CompensationArgs(_Args):
+    mode: Literal["off", "model", "measured"]
+
+
+class FaultArgs(_Args):
+    """Simulator fault injection is not on this socket; this resets a latched supervisor fault."""
+
+    confirm: bool = False
+
+
+#: Command name -> argument model.
+COMMANDS: dict[str, type[_Args]] = {
+    "status": NoArgs,
+    "enable": NoArgs,
+    "disable": NoArgs,
+    "home": NoArgs,
+    "jog": JogArgs,
+    "trajectory": TrajectoryArgs,
+    "stop": StopArgs,
+    "log_start": LogStartArgs,
+    "log_stop": NoArgs,
+    "compensation": CompensationArgs,
+    "reset_fault": FaultArgs,
+    "shutdown": NoArgs,
+}
+
+
+class Request(BaseModel):
+    model_config = ConfigDict(frozen=True)
+
+    id: int
+    cmd: str
+    args: _Args
+
+
+def _field(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else ("." if out else "") + str(part)
+    return out
+
+
+def parse_request(line: bytes | str) -> Request:
+    """Decode and validate one request line; raise :class:`ProtocolError` naming the field."""
+    if isinstance(line, bytes):
+        if len(line) > MAX_LINE_BYTES:
+            raise ProtocolError(f"request longer than {MAX_LINE_BYTES} bytes")
+        try:
+            line = line.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ProtocolError(f"not UTF-8 at byte {exc.start}") from exc
+    try:
+        obj = json.loads(line)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        pos = getattr(exc, "pos", "?")
+        raise ProtocolError(f"not JSON (at character {pos})") from exc
+    if not isinstance(obj, dict):
+        raise ProtocolError("a request must be a JSON object")
+    extra = set(obj) - {"id", "cmd", "args"}
+    if extra:
+        raise ProtocolError("unknown key", field=sorted(extra)[0])
+    rid = obj.get("id", 0)
+    if not isinstance(rid, int) or isinstance(rid, bool):
+        raise ProtocolError("must be an integer", field="id")
+    cmd = obj.get("cmd")
+    if not isinstance(cmd, str):
+        raise ProtocolError("missing or not a string", field="cmd")
+    model = COMMANDS.get(cmd)
+    if model is None:
+        raise ProtocolError(f"unknown command {cmd!r}; known: {sorted(COMMANDS)}", field="cmd")
+    raw_args = obj.get("args", {})
+    if not isinstance(raw_args, dict):
+        raise ProtocolError("must be an object", field="args")
+    try:
+        args = model.model_validate(raw_args)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        msg = err["msg"].removeprefix("Value error, ")
+        raise ProtocolError(msg, field=_field(("args", *err["loc"]))) from exc
+    return Request(id=rid, cmd=cmd, args=args)
+
+
+def encode_request(cmd: str, args: dict[str, Any] | None = None, rid: int = 0) -> bytes:
+    """One request line, validated first so a client never sends what the daemon would refuse."""
+    line = json.dumps({"id": rid, "cmd": cmd, "args": args or {}}, allow_nan=False)
+    parse_request(line)
+    return line.encode() + b"\n"
+
+
+def _clean(value: Any) -> Any:
+    """Make a result JSON-safe: NaN/inf become null (JSON has no NaN)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_clean(v) for v in value]
+    return value
+
+
+def encode_reply(rid: int, result: Any = None, error: RigError | str | None = None) -> bytes:
+    if error is None:
+        body: dict[str, Any] = {"id": rid, "ok": True, "result": _clean(result)}
+    else:
+        body = {"id": rid, "ok": False, "error": str(error)}
+        if isinstance(error, ProtocolError) and error.field:
+            body["field"] = error.field
+    return json.dumps(body, allow_nan=False).encode() + b"\n"
