@@ -51,7 +51,8 @@ class CommError(RigError):
 class DriveFault(RigError):
     """A drive reported a fault or stopped answering.
 
-    ``node`` is the CANopen node id, ``code`` the EMCY/error code (0 when none), ``text`` its meaning.
+    ``node`` is the CANopen node id, ``code`` the EMCY/error code (0 when none), ``text`` its
+    meaning.
     """
 
     def __init__(self, node: int, code: int, text: str) -> None:
