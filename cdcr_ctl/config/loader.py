@@ -1,7 +1,9 @@
 """Load and validate YAML config files; every error names the file, the key path and the value.
 
-A config may list ``overlays``: further YAML files (paths relative to it) merged on top in order,
-e.g. the fitted parameters written by ``cdcr-ctl identify``. Mappings merge key by key; lists of
+A config may name a parent with ``extends: other.yaml`` (its keys are merged on top of the
+parent's: the simulated rig's config is the real rig's with other ports), and may list ``overlays``:
+further YAML files merged on top in order, e.g. the fitted parameters written by
+``cdcr-ctl identify``. Paths are relative to the file that names them. Mappings merge key by key; lists of
 mappings that carry a ``name`` merge item by item on that name; anything else is replaced.
 An error in a key that came from an overlay names the overlay file.
 """
@@ -49,13 +51,13 @@ def read_yaml(path: str | Path) -> Any:
         raise ConfigError(str(p), where, f"YAML syntax error: {problem}") from exc
 
 
-def _merge(base: Any, over: Any, path: KeyPath, origin: dict[KeyPath, str], src: str) -> Any:
+def merge_tree(base: Any, over: Any, path: KeyPath, origin: dict[KeyPath, str], src: str) -> Any:
     """Merge ``over`` onto ``base``; record in ``origin`` which paths ``src`` supplied."""
     if isinstance(base, dict) and isinstance(over, dict):
         out = dict(base)
         for key, value in over.items():
             out[key] = (
-                _merge(base[key], value, (*path, key), origin, src)
+                merge_tree(base[key], value, (*path, key), origin, src)
                 if key in base
                 else _mark(value, (*path, key), origin, src)
             )
@@ -66,7 +68,7 @@ def _merge(base: Any, over: Any, path: KeyPath, origin: dict[KeyPath, str], src:
         for item in over:
             if item["name"] in index:
                 i = index[item["name"]]
-                out_list[i] = _merge(out_list[i], item, (*path, i), origin, src)
+                out_list[i] = merge_tree(out_list[i], item, (*path, i), origin, src)
             else:
                 out_list.append(_mark(item, (*path, len(out_list)), origin, src))
         return out_list
@@ -121,9 +123,27 @@ def load_yaml_model(path: str | Path, model: type[M]) -> M:
     return validate_mapping(data, model, str(path), origin)
 
 
-def _read_with_overlays(path: Path) -> tuple[Any, dict[KeyPath, str]]:
+#: How deep ``extends`` chains may go (a cycle is an error, not a hang).
+MAX_EXTENDS_DEPTH = 8
+
+
+def _read_with_overlays(path: Path, depth: int = 0) -> tuple[Any, dict[KeyPath, str]]:
     data = read_yaml(path)
     origin: dict[KeyPath, str] = {}
+    if isinstance(data, dict) and "extends" in data:
+        parent_rel = data.pop("extends")
+        if not isinstance(parent_rel, str):
+            raise ConfigError(str(path), "extends", "must be a file path", parent_rel)
+        if depth >= MAX_EXTENDS_DEPTH:
+            raise ConfigError(str(path), "extends", f"chain deeper than {MAX_EXTENDS_DEPTH}")
+        parent_path = (path.parent / parent_rel).resolve()
+        parent, parent_origin = _read_with_overlays(parent_path, depth + 1)
+        if not isinstance(parent, dict):
+            raise ConfigError(str(parent_path), "", "top level must be a mapping")
+        # Keys the parent supplied are the parent's (or its own parents'/overlays') to answer for.
+        origin = {(k,): str(parent_path) for k in parent}
+        origin.update(parent_origin)
+        data = merge_tree(parent, data, (), origin, str(path))
     if not isinstance(data, dict) or "overlays" not in data:
         return data, origin
     overlays = data.pop("overlays")
@@ -134,7 +154,7 @@ def _read_with_overlays(path: Path) -> tuple[Any, dict[KeyPath, str]]:
         over = read_yaml(over_path)
         if not isinstance(over, dict):
             raise ConfigError(str(over_path), "", "an overlay must be a mapping")
-        data = _merge(data, over, (), origin, str(over_path))
+        data = merge_tree(data, over, (), origin, str(over_path))
     return data, origin
 
 

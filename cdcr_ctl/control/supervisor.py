@@ -78,13 +78,18 @@ class Supervisor:
     trip: Trip | None = None
     later_trips: int = 0
     history: list[Trip] = field(default_factory=list)
+    #: The worst limit violated in the last checked cycle, latched or not: the loop never sends a
+    #: command that violates a limit, even while an earlier trip is latched.
+    cycle_worst: Trip | None = None
 
     def check(self, c: CycleCheck) -> Trip | None:
         """Return the most severe new trip of this cycle (None when all is well or already latched)."""
         found = self._find(c)
         if not found:
+            self.cycle_worst = None
             return None
         worst = max(found, key=lambda t: t.reaction)
+        self.cycle_worst = worst
         if self.trip is None:
             self.trip = worst
             self.history.append(worst)

@@ -193,3 +193,38 @@ def test_overlay_merges_by_name_and_errors_name_the_overlay(tmp_path):
         load_rig_config(main)
     assert info.value.file == str(over_path.resolve())
     assert info.value.key == "robot.cables[1].mu_disk"
+
+
+def test_extends_merges_child_over_parent_and_blames_the_right_file(tmp_path):
+    parent = _write(tmp_path, _base(), "parent.yaml")
+    child = {
+        "extends": "parent.yaml",
+        "can": {"interface": "slcan", "channel": "/tmp/x/can"},
+        "robot": {"cables": [{"name": "c3", "pretension_N": 3.5}]},
+    }
+    child_path = _write(tmp_path, child, "child.yaml")
+    cfg = load_rig_config(child_path)
+    assert (cfg.can.interface, cfg.can.channel, cfg.can.bitrate) == ("slcan", "/tmp/x/can", 1_000_000)
+    assert [c.pretension_N for c in cfg.robot.cables] == [2.0, 2.0, 3.5]
+
+    child["can"]["bitrate"] = 7  # a bad key written in the child is the child's
+    _write(tmp_path, child, "child.yaml")
+    with pytest.raises(ConfigError) as info:
+        load_rig_config(child_path)
+    assert (info.value.file, info.value.key) == (str(child_path), "can.bitrate")
+
+    data = _base()
+    data["drives"][0]["node_id"] = 0  # a bad key inherited from the parent is the parent's
+    _write(tmp_path, data, "parent.yaml")
+    del child["can"]["bitrate"]
+    _write(tmp_path, child, "child.yaml")
+    with pytest.raises(ConfigError) as info:
+        load_rig_config(child_path)
+    assert (info.value.file, info.value.key) == (str(parent.resolve()), "drives[0].node_id")
+
+
+def test_extends_cycle_is_an_error_not_a_hang(tmp_path):
+    _write(tmp_path, "extends: b.yaml\nname: a\n", "a.yaml")
+    _write(tmp_path, "extends: a.yaml\nname: b\n", "b.yaml")
+    with pytest.raises(ConfigError, match="chain deeper"):
+        load_rig_config(tmp_path / "a.yaml")

@@ -1,0 +1,127 @@
+"""What the loop needs from drives and sensors, as small protocols.
+
+The loop never sees ``can.Message`` or serial bytes: it sees counts, newtons and millimetres with
+ages. Adapters in :mod:`cdcr_ctl.control.io` wrap the protocol layers (``cdcr_ctl.drives``,
+``cdcr_ctl.sensors``) into these shapes; tests can pass plain fakes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DriveState:
+    """Latest feedback of one drive: position (counts), CiA 402 state name, fault text or ''."""
+
+    position_counts: int
+    state: str
+    fault: str
+    age_s: float
+
+
+class DrivePort(Protocol):
+    """All drives of the rig, in cable order."""
+
+    def send_cycle(self, targets_counts: Sequence[int]) -> None:
+        """Send one cycle's position targets (counts) and the SYNC that applies them."""
+
+    def feedback(self) -> list[DriveState]:
+        """Latest feedback per drive; never blocks."""
+
+    def first_fault(self) -> tuple[str, str] | None:
+        """(cause, text) of the first drive/bus fault seen since the last reset, or None."""
+
+    def enable(self) -> None: ...
+
+    def disable(self) -> None: ...
+
+    def quick_stop(self) -> None:
+        """CiA 402 quick stop of every drive; must not raise (best effort on a broken bus)."""
+
+    def home(self) -> list[int]:
+        """Home every drive (blocking, not on the loop's path); return the home counts."""
+
+    def reset_faults(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class TensionPort(Protocol):
+    def latest(self) -> tuple[np.ndarray, np.ndarray]:
+        """(force_N per cable, age_s per cable); NaN force where a cell has no sample."""
+
+    def close(self) -> None: ...
+
+
+class TipPort(Protocol):
+    def latest(self) -> tuple[np.ndarray, float]:
+        """(tip xyz in the robot base frame, mm; age_s). NaNs and inf age when none."""
+
+    def close(self) -> None: ...
+
+
+class NoTension:
+    """A rig without load cells."""
+
+    def __init__(self, n: int) -> None:
+        self._f = np.full(n, np.nan)
+        self._age = np.full(n, np.inf)
+
+    def latest(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._f, self._age
+
+    def close(self) -> None:
+        pass
+
+
+class NoTip:
+    """A rig without a tracker."""
+
+    def latest(self) -> tuple[np.ndarray, float]:
+        return np.full(3, np.nan), float("inf")
+
+    def close(self) -> None:
+        pass
+
+
+class SetpointSource(Protocol):
+    """A timed setpoint: segment (theta, phi) per segment, shape (S, 2), rad."""
+
+    @property
+    def duration_s(self) -> float: ...
+
+    def sample(self, t_s: float) -> np.ndarray: ...
+
+
+class RobotModelPort(Protocol):
+    """The design's model as the loop uses it; one implementation per design in ``cdcr_ctl.model``.
+
+    ``psi`` is (S, 2): bend theta and direction phi per segment (rad). Cable displacements are mm
+    pulled in, in cable order. ``state`` carries friction/hysteresis memory between cycles.
+    """
+
+    n_segments: int
+    n_cables: int
+
+    def new_state(self) -> object: ...
+
+    def q_nominal(self, psi: np.ndarray) -> np.ndarray:
+        """Ideal inverse kinematics (no compensation), mm."""
+
+    def q_command(
+        self,
+        psi: np.ndarray,
+        q_nominal: np.ndarray,
+        state: object,
+        mode: str,
+        measured_N: np.ndarray | None,
+    ) -> np.ndarray:
+        """Displacement to send: ``q_nominal`` plus the compensation of ``mode`` (mm)."""
+
+    def tip(self, psi: np.ndarray) -> np.ndarray:
+        """Tip position in the robot base frame (mm) for ``psi``."""

@@ -1,0 +1,96 @@
+"""The simulated rig's own YAML: which rig it plays, and how its "truth" differs from the
+controller's belief.
+
+The controller and the simulator read different files. The simulator's file names the rig config
+the controller uses (``rig``) for geometry, drives and connection points, and then states the truth:
+``truth.robot`` is merged over the rig's ``robot`` section item by item (cables and segments by
+``name``), so the world's friction, stiffness and pretension can differ from the nominal values the
+controller starts with. Effects the controller's config has no key for (backlash, actuator scale
+error, tracker frame offset, sensor noise) live only here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import Field
+
+from cdcr_ctl.config.base import Section
+from cdcr_ctl.config.loader import load_rig_config, merge_tree, read_yaml, validate_mapping
+from cdcr_ctl.config.robot import NonNegativeFloat, PositiveFloat, RobotConfig
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.config.tracking import RigidTransformConfig
+from cdcr_ctl.errors import ConfigError
+
+Probability = Annotated[float, Field(ge=0, le=1)]
+
+
+class TruthEffects(Section):
+    """Physical effects of the simulated world beyond the robot section."""
+
+    backlash_mm: NonNegativeFloat = 0.0
+    counts_per_mm_scale: Annotated[list[PositiveFloat], Field(min_length=1)] | None = None
+    gravity: bool = True
+    disk_friction: bool = True
+    pulley_friction: bool = True
+    elongation: bool = True
+    coupling: bool = True
+    tracker_offset: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
+
+
+class NoiseConfig(Section):
+    tracker_mm: NonNegativeFloat = 0.0
+    load_cell_N: NonNegativeFloat = 0.0
+    load_cell_drift_N_per_s: NonNegativeFloat = 0.0
+    load_cell_dropout: Probability = 0.0
+
+
+class TrackerSimConfig(Section):
+    rate_hz: PositiveFloat = 120.0
+    latency_s: NonNegativeFloat = 0.0
+    dropout: Probability = 0.0
+
+
+class SimConfig(Section):
+    """Top level of a simulator YAML file."""
+
+    rig: Annotated[str, Field(min_length=1)]
+    truth_robot: dict[str, Any] = Field(default_factory=dict)
+    effects: TruthEffects = Field(default_factory=TruthEffects)
+    noise: NoiseConfig = Field(default_factory=NoiseConfig)
+    tracker: TrackerSimConfig = Field(default_factory=TrackerSimConfig)
+    physics_rate_hz: PositiveFloat = 500.0
+    seed: int = 1
+
+
+class LoadedSim:
+    """A validated simulator config: the rig as the controller sees it and the truth robot."""
+
+    def __init__(self, path: Path, sim: SimConfig, rig: RigConfig, truth: RobotConfig) -> None:
+        self.path = path
+        self.sim = sim
+        self.rig = rig
+        self.rig_path = (path.parent / sim.rig).resolve()
+        self.truth = truth
+
+
+def load_sim_config(path: str | Path) -> LoadedSim:
+    """Load a simulator YAML, the rig config it names, and merge the truth robot over it."""
+    path = Path(path)
+    data = read_yaml(path)
+    sim = validate_mapping(data, SimConfig, str(path))
+    rig_path = (path.parent / sim.rig).resolve()
+    rig = load_rig_config(rig_path)
+    base = rig.robot.model_dump(exclude_none=True)
+    merged = merge_tree(base, sim.truth_robot, (), {}, str(path))
+    try:
+        truth = validate_mapping(merged, RobotConfig, str(path))
+    except ConfigError as exc:
+        raise ConfigError(str(path), f"truth_robot.{exc.key}", exc.detail, exc.value) from exc
+    scale = sim.effects.counts_per_mm_scale
+    if scale is not None and len(scale) != len(rig.drives):
+        raise ConfigError(
+            str(path), "effects.counts_per_mm_scale", f"needs {len(rig.drives)} values", scale
+        )
+    return LoadedSim(path, sim, rig, truth)
