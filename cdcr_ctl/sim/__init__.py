@@ -1,0 +1,1 @@
+"""The simulated rig: EPOS nodes, load cells, tracker and truth physics. Never imported by production code."""
