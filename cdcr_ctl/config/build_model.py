@@ -1,0 +1,105 @@
+"""Build the constant-curvature disk model (:mod:`cdcr_ctl.model`) from a validated rig config.
+
+The model never imports the config: this module turns the pydantic sections into the model's frozen
+dataclasses, once, at start-up. Cable order is the config's ``robot.cables`` order everywhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from cdcr_ctl.config.robot import RobotConfig
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.model.compensation import CCDiskModel
+from cdcr_ctl.model.params import (
+    CableParams,
+    Effects,
+    Location,
+    PulleyParams,
+    RobotParams,
+    SegmentParams,
+)
+
+
+def robot_params(robot: RobotConfig) -> RobotParams:
+    """Segments, cables (with their pulleys in actuator -> robot order) and gravity, in model units.
+
+    Names are resolved to indices here (the loader's cross-check guarantees they exist).
+    """
+    seg_index = {s.name: i for i, s in enumerate(robot.segments)}
+    pulleys = {
+        p.name: PulleyParams(
+            name=p.name,
+            radius_mm=p.radius_mm,
+            wrap_angle_rad=p.wrap_angle_rad,
+            alpha=p.alpha,
+            n=p.n,
+        )
+        for p in robot.pulleys
+    }
+    segments = tuple(
+        SegmentParams(
+            name=s.name,
+            length_mm=s.length_mm,
+            EI_Nmm2=s.backbone.EI,
+            n_disks=s.disks.count,
+            disk_mass_g=s.disks.mass_g,
+            disk_thickness_mm=s.disks.thickness_mm,
+        )
+        for s in robot.segments
+    )
+    cables = tuple(
+        CableParams(
+            name=c.name,
+            segment=seg_index[c.segment],
+            hole_angle_rad=c.hole_angle_rad,
+            routing_radius_mm=c.routing_radius_mm,
+            diameter_mm=c.diameter_mm,
+            EA_N=c.EA,
+            pretension_N=c.pretension_N,
+            mu_disk=c.mu_disk,
+            free_length_mm=c.free_length_mm,
+            pulleys=tuple(pulleys[name] for name in c.pulleys),
+        )
+        for c in robot.cables
+    )
+    g = robot.gravity_mm_s2
+    return RobotParams(segments=segments, cables=cables, gravity_mm_s2=(g[0], g[1], g[2]))
+
+
+def loadcell_locations(cfg: RigConfig) -> list[Location]:
+    """Per cable (config order): where its load cell sits; ``robot_base`` when it has none."""
+    where: dict[str, Location] = {}
+    if cfg.sensors.load_cells is not None:
+        for cell in cfg.sensors.load_cells.cells:
+            where[cell.cable] = cell.location
+    return [where.get(c.name, "robot_base") for c in cfg.robot.cables]
+
+
+def build_model(
+    cfg: RigConfig,
+    effects: Effects | None = None,
+    reversal_band_mm: float = 0.0,
+    source: str = "rig config",
+) -> CCDiskModel:
+    """The control loop's model (``RobotModelPort``) for a ``cc_disk`` rig.
+
+    ``effects`` defaults to every effect on (the controller's model). ``source`` names the file
+    in errors. Raises :class:`ConfigError` for other designs.
+    """
+    if cfg.design != "cc_disk":
+        raise ConfigError(
+            source, "design", "the constant-curvature model needs cc_disk", cfg.design
+        )
+    return CCDiskModel(
+        robot_params(cfg.robot),
+        effects,
+        locations=loadcell_locations(cfg),
+        reversal_band_mm=reversal_band_mm,
+    )
+
+
+def cable_names(cfg: RigConfig) -> Sequence[str]:
+    """Cable names in model order."""
+    return [c.name for c in cfg.robot.cables]

@@ -1,0 +1,225 @@
+"""Drive compensation q~ = q + delta (Qi et al. 2023 eq. 37) and the control loop's model port.
+
+Given the desired pose psi of every segment and the friction state, the chain of
+:class:`~cdcr_ctl.model.transfer.ForceTransfer` gives: statics -> anchor tensions -> disk friction
+-> base tensions -> pulley friction -> actuator tensions (and the tension at each load cell) ->
+elongation delta -> q~ = q_geom + delta. With the tensions of the load cells in place of the
+modelled ones (mode ``"measured"``) only the friction propagation and the elongation are
+modelled. Zero friction and rigid cables give delta = 0 exactly.
+
+Two ways in:
+
+* :meth:`Compensator.compensate` - stateless: the friction state (``s`` per cable) is given.
+* :meth:`Compensator.step` - stateful, for the loop: the friction state follows the direction in
+  which cable material crosses the base hole (:mod:`cdcr_ctl.model.friction`), with memory when
+  the pose holds, so a reversal flips the friction (the inverse of the forward model's dead zone).
+
+:class:`CCDiskModel` adapts it to :class:`cdcr_ctl.control.ports.RobotModelPort`.
+Units: psi (S, 2) rows (theta, phi) in rad; q in mm pulled in; tensions in N.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.friction import FrictionState, band_update, direction_update
+from cdcr_ctl.model.kinematics import tip_position_fast
+from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.routing import cable_matrix_x
+from cdcr_ctl.model.transfer import ForceTransfer, Transfer
+
+MODES = ("off", "model", "measured")
+
+
+def psi_to_flat_x(psi: np.ndarray | Sequence[Sequence[float]]) -> list[float]:
+    """(S, 2) rows (theta, phi) -> flat bending vectors [x_1, y_1, ...] (plain floats)."""
+    out: list[float] = []
+    for row in psi:
+        th, ph = float(row[0]), float(row[1])
+        out.append(th * math.cos(ph))
+        out.append(th * math.sin(ph))
+    return out
+
+
+@dataclass
+class CompensationState:
+    """Mutable memory of :meth:`Compensator.step`: friction state and actuator-effect states."""
+
+    s: list[float]
+    w_mm: list[float]
+    effect_states: list[object] = field(default_factory=list)
+    last: Transfer | None = None
+
+    def friction(self) -> FrictionState:
+        return FrictionState(s=tuple(self.s), w_mm=tuple(self.w_mm))
+
+
+class Compensator:
+    """Inverse force-transfer model with compensation (eq. 37).
+
+    ``locations`` says per cable where its load cell sits (``"robot_base"`` between the last pulley
+    and the base disk, or ``"actuator"`` between actuator and first pulley); it decides where
+    measured tensions enter and which modelled tension :attr:`Transfer.T_at` reports.
+    ``reversal_band_mm`` > 0 spreads a friction reversal over that much material travel (a smooth
+    dead-zone inverse); 0 flips it at once (the exact inverse of the forward model).
+    """
+
+    def __init__(
+        self,
+        params: RobotParams,
+        effects: Effects | None = None,
+        locations: Sequence[Location] | None = None,
+        reversal_band_mm: float = 0.0,
+    ) -> None:
+        self.params = params
+        self.effects = Effects() if effects is None else effects
+        self.transfer = ForceTransfer(params, self.effects)
+        K = params.n_cables
+        self.locations: list[Location] = (
+            ["robot_base"] * K if locations is None else list(locations)
+        )
+        if len(self.locations) != K:
+            raise ModelError(f"need one load-cell location per cable ({K})")
+        self.reversal_band_mm = float(reversal_band_mm)
+        self._lengths = [s.length_mm for s in params.segments]
+        self._B = cable_matrix_x(params)
+
+    @property
+    def n_segments(self) -> int:
+        return self.params.n_segments
+
+    @property
+    def n_cables(self) -> int:
+        return self.params.n_cables
+
+    # ------------------------------------------------------------------ stateless
+    def q_geometric(self, psi: np.ndarray) -> np.ndarray:
+        """Ideal inverse kinematics q_geom (K,), mm: eq. 4 (or exact chords, per ``effects``)."""
+        xs = psi_to_flat_x(psi)
+        if self.effects.geometry == "cc":
+            return self._B @ np.asarray(xs)
+        return np.asarray(self.transfer.pose(xs).q_geom)
+
+    def compensate(
+        self,
+        psi: np.ndarray,
+        s: Sequence[float] | FrictionState,
+        mode: str = "model",
+        measured_N: Sequence[float] | None = None,
+    ) -> Transfer:
+        """Eq. 37 at pose ``psi`` for friction fractions ``s`` (+1 pulling, -1 paying out).
+
+        Returns the whole :class:`Transfer` (``q`` is q~ = q_geom + delta_in + delta_out).
+        ``mode="measured"`` uses ``measured_N`` (load-cell tensions at :attr:`locations`, NaN
+        where missing) in place of the modelled tensions.
+        """
+        s_list = list(s.s) if isinstance(s, FrictionState) else [float(v) for v in s]
+        xs = psi_to_flat_x(psi)
+        if mode == "measured":
+            if measured_N is None:
+                raise ModelError("mode 'measured' needs load-cell tensions")
+            return self.transfer.evaluate_measured(
+                xs, s_list, [float(v) for v in measured_N], self.locations
+            )
+        if mode not in MODES:
+            raise ModelError(f"compensation mode must be one of {MODES}, not {mode!r}")
+        return self.transfer.evaluate(xs, s_list)
+
+    # ------------------------------------------------------------------ stateful
+    def new_state(self, friction: FrictionState | None = None) -> CompensationState:
+        K = self.n_cables
+        f = FrictionState.initial(K) if friction is None else friction
+        return CompensationState(
+            s=list(f.s),
+            w_mm=list(f.w_mm),
+            effect_states=[e.new_state(K) for e in self.effects.actuator],
+        )
+
+    def step(
+        self,
+        psi: np.ndarray,
+        state: CompensationState,
+        mode: str = "model",
+        measured_N: Sequence[float] | None = None,
+    ) -> Transfer:
+        """Compensation at the next desired pose, updating the friction memory in ``state``.
+
+        The friction fraction of each cable follows the material flow at the base hole:
+        w = q_geom + delta_in rising -> +1, falling -> -1, unchanged -> kept (stick memory);
+        with ``reversal_band_mm`` it moves by dw/band instead of jumping. The model tensions
+        decide the direction in every mode, so measured noise cannot chatter the state.
+        """
+        tr = self.transfer
+        xs = psi_to_flat_x(psi)
+        P = tr.pose(xs)
+        res = tr.evaluate(xs, state.s, pose=P)
+        changed = False
+        band = self.reversal_band_mm
+        new_s = list(state.s)
+        for k in range(self.n_cables):
+            dw = res.w[k] - state.w_mm[k]
+            sk = state.s[k]
+            ns = band_update(sk, dw, band) if band > 0.0 else direction_update(sk, dw, 1e-12)
+            if ns != sk:
+                new_s[k] = ns
+                changed = True
+        if changed:
+            res = tr.evaluate(xs, new_s, pose=P)
+        state.s = new_s
+        state.w_mm = list(res.w)
+        if mode == "measured":
+            if measured_N is None:
+                raise ModelError("mode 'measured' needs load-cell tensions")
+            res = tr.evaluate_measured(
+                xs, new_s, [float(v) for v in measured_N], self.locations, pose=P
+            )
+        state.last = res
+        return res
+
+    def actuator_command(self, q_cable_mm: np.ndarray, state: CompensationState) -> np.ndarray:
+        """Apply the inverse of :attr:`Effects.actuator` (actuator-first order), mm."""
+        q = np.asarray(q_cable_mm, dtype=float)
+        effs = self.effects.actuator
+        for j in range(len(effs) - 1, -1, -1):
+            q = effs[j].to_actuator(q, state.effect_states[j])
+        return q
+
+
+class CCDiskModel(Compensator):
+    """The constant-curvature disk design as the control loop's ``RobotModelPort``."""
+
+    def q_nominal(self, psi: np.ndarray) -> np.ndarray:
+        """Ideal inverse kinematics (mm pulled in), no compensation."""
+        return self.q_geometric(psi)
+
+    def q_command(
+        self,
+        psi: np.ndarray,
+        q_nominal: np.ndarray,
+        state: object,
+        mode: str,
+        measured_N: np.ndarray | None,
+    ) -> np.ndarray:
+        """q_nominal + delta of ``mode`` (off/model/measured), then the actuator effects, mm.
+
+        ``state`` is the object from :meth:`new_state` (mutated). Mode ``off`` still tracks the
+        friction memory so that switching modes mid-run starts from the right state.
+        """
+        if not isinstance(state, CompensationState):
+            raise ModelError("q_command needs the state made by new_state()")
+        if mode not in MODES:
+            raise ModelError(f"compensation mode must be one of {MODES}, not {mode!r}")
+        res = self.step(psi, state, "model" if mode == "off" else mode, measured_N)
+        q = np.asarray(q_nominal, dtype=float)
+        if mode != "off":
+            q = q + (np.asarray(res.q) - np.asarray(res.q_geom))
+        return self.actuator_command(q, state)
+
+    def tip(self, psi: np.ndarray) -> np.ndarray:
+        """Tip position (mm, base frame), eq. 1-3."""
+        return np.array(tip_position_fast(psi_to_flat_x(psi), self._lengths))

@@ -1,0 +1,447 @@
+"""Forward static model: actuator displacements -> pose and tensions, with friction memory.
+
+Unknowns: the bending vectors x (2S, rad), the anchor tensions T (K, N) and the mobilised friction
+fractions s (K). Equations (all effects of :class:`~cdcr_ctl.model.params.Effects` switchable):
+
+* moment balance, 2S (statics.py, moment-vector form of Qi et al. 2023 eq. 9-15)
+* cable compatibility, K: q_act_k = q_geom_k(x) + delta_k(x, T_k, s_k)   (eq. 33-37, material
+  conservation along the whole cable)
+* friction, K (friction.py): stuck cable: w_k = w_prev_k and |s_k| <= 1; sliding: s_k = +-1 with
+  sign(w_k - w_prev_k) = s_k. A slack cable (T would be < 0) has T_k = 0 and no compatibility.
+
+solved by Newton's method (finite-difference columns for x, analytic/cheap columns for T and s,
+the Jacobian reused while convergence is fast, a trust region on the pose) inside an active-set
+loop over the cable modes. A cable coming out of slack carries no friction memory: it re-engages
+sliding in the pull direction. With rigid cables (elongation off) the pose comes
+from the kinematics alone (eq. 4 is linear in x: least squares), the tensions from the inverse
+statics, and the friction state from the direction of motion (the paper's rule).
+
+:class:`ForwardStepper` carries the friction state and the last solution from call to call (warm
+start): the simulator's truth. Its :class:`Effects` and :class:`RobotParams` may differ from the
+controller's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.friction import FrictionState, direction_update
+from cdcr_ctl.model.kinematics import tip_position_fast, x_to_psi
+from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.routing import cable_matrix_x
+from cdcr_ctl.model.transfer import ForceTransfer, Pose
+
+STICK, SLIDE, SLACK, FREE = "stick", "slide", "slack", "free"
+_H_X = 1e-7  # rad, finite-difference step of the bending vectors
+_H_S = 1e-7  # finite-difference step of the friction fraction
+_MODE_ROUNDS = 12
+_MAX_DX = 0.3  # rad, largest change of a bending vector component per Newton step
+
+
+@dataclass(frozen=True)
+class ForwardResult:
+    """A solved static pose (arrays in cable / segment order)."""
+
+    psi: np.ndarray  # (S, 2) theta, phi (rad)
+    x: np.ndarray  # (2S,) bending vectors (rad)
+    tip_mm: np.ndarray  # (3,) base frame
+    tension_distal_N: np.ndarray
+    tension_base_N: np.ndarray
+    tension_actuator_N: np.ndarray
+    q_geom_mm: np.ndarray
+    delta_mm: np.ndarray
+    state: FrictionState
+    modes: tuple[str, ...]
+    iterations: int
+    residual: float  # largest scaled residual (rad-equivalent); rigid cables: mm
+
+    def tension_at(self, location: str) -> np.ndarray:
+        """Tensions at the load-cell location (``robot_base`` or ``actuator``)."""
+        return self.tension_base_N if location == "robot_base" else self.tension_actuator_N
+
+
+class ForwardModel:
+    """Solve the static pose for actuator displacements (stateless; see :class:`ForwardStepper`)."""
+
+    def __init__(
+        self,
+        params: RobotParams,
+        effects: Effects | None = None,
+        tol: float = 1e-11,
+        max_newton: int = 40,
+    ) -> None:
+        self.params = params
+        self.effects = Effects() if effects is None else effects
+        self.ft = ForceTransfer(params, self.effects)
+        self.S, self.K = params.n_segments, params.n_cables
+        rigid = self.ft.rigid
+        if any(rigid) and not all(rigid):
+            raise ModelError("mixing rigid (EA = inf) and elastic cables is not supported")
+        self.rigid = all(rigid)
+        self.tol = tol
+        self.max_newton = max_newton
+        self._B = cable_matrix_x(params)
+        self._Bpinv = np.linalg.pinv(self._B)
+        self._lengths = [s.length_mm for s in params.segments]
+        kEI = max(self.ft.kEI)
+        r = max(c.routing_radius_mm for c in params.cables)
+        self._w_mom = 1.0 / kEI  # N*mm -> rad
+        self._w_len = 1.0 / r  # mm -> rad
+        self._T_scale = max(1.0, max(c.pretension_N for c in params.cables))
+        self._Jraw: np.ndarray | None = None  # last raw Jacobian (chord Newton, warm start)
+        self._slow = True
+
+    # ------------------------------------------------------------------ public
+    def solve(
+        self,
+        q_act_mm: np.ndarray,
+        state: FrictionState | None = None,
+        x_guess: np.ndarray | None = None,
+        T_guess: np.ndarray | None = None,
+        modes_hint: tuple[str, ...] | None = None,
+    ) -> ForwardResult:
+        """Pose, tensions and new friction state for cable displacements ``q_act_mm`` (K,).
+
+        ``q_act_mm`` is the cable pulled in at the actuator (after any actuator effects), mm.
+        ``state`` is the friction state before this step (default: straight, nothing mobilised);
+        ``x_guess``/``T_guess`` warm-start bending vectors and anchor tensions, ``modes_hint`` the
+        cable modes (``stick``/``slide``/``slack``/``free``). Raises :class:`ModelError` when no
+        consistent solution is found (e.g. a segment whose own cables all went slack).
+        """
+        K, S = self.K, self.S
+        q_act = [float(v) for v in np.asarray(q_act_mm, dtype=float).reshape(K)]
+        st = FrictionState.initial(K) if state is None else state
+        if self.rigid:
+            return self._solve_rigid(q_act, st, x_guess)
+        x0 = [0.0] * (2 * S) if x_guess is None else [float(v) for v in x_guess]
+        T0 = (
+            [c.pretension_N for c in self.params.cables]
+            if T_guess is None
+            else [float(v) for v in T_guess]
+        )
+        z = x0 + T0 + [float(v) for v in st.s]
+        w_prev = list(st.w_mm)
+        P = self.ft.pose(x0)
+        modes = list(modes_hint) if modes_hint is not None else [STICK] * K
+        sigma = [1.0 if v >= 0 else -1.0 for v in st.s]
+        hold = list(st.s)
+        for k in range(K):
+            if not self.ft.has_friction[k] or self.ft.friction_capacity(P, k) < 1e-12:
+                if modes[k] != SLACK:
+                    modes[k] = FREE
+            elif modes[k] == FREE:
+                modes[k] = STICK
+        total_it = 0
+        for _ in range(_MODE_ROUNDS):
+            z, it, res = self._newton(z, q_act, w_prev, modes, sigma, hold)
+            total_it += it
+            changed = self._update_modes(z, q_act, w_prev, modes, sigma, hold)
+            if not changed:
+                break
+        else:
+            if res > 1e-6:
+                raise ModelError("forward model: friction/slack modes did not settle")
+        if res > 1e-6:
+            raise ModelError(f"forward model did not converge (residual {res:.3g})")
+        return self._result(z, modes, total_it, res, w_prev)
+
+    # ------------------------------------------------------------------ rigid cables
+    def _solve_rigid(
+        self, q_act: list[float], st: FrictionState, x_guess: np.ndarray | None
+    ) -> ForwardResult:
+        K = self.K
+        if self.effects.geometry == "cc":
+            x = self._Bpinv @ np.asarray(q_act)
+        else:
+            x = np.zeros(2 * self.S) if x_guess is None else np.asarray(x_guess, dtype=float)
+            for _ in range(50):
+                P = self.ft.pose(x.tolist())
+                r = np.asarray(P.q_geom) - np.asarray(q_act)
+                J = self._arm_matrix(P)
+                dx = np.linalg.lstsq(J, -r, rcond=None)[0]
+                x = x + dx
+                if np.max(np.abs(dx)) < 1e-14:
+                    break
+        xs = x.tolist()
+        P = self.ft.pose(xs)
+        s_new = [direction_update(st.s[k], P.q_geom[k] - st.w_mm[k], 1e-12) for k in range(K)]
+        res = self.ft.evaluate(xs, s_new, pose=P)
+        resid = float(np.max(np.abs(np.asarray(res.q_geom) - np.asarray(q_act))))
+        state = FrictionState(s=tuple(s_new), w_mm=tuple(res.w))
+        modes = tuple(SLIDE if abs(v) == 1.0 else STICK for v in s_new)
+        return self._pack(xs, res, state, modes, 0, resid)
+
+    def _arm_matrix(self, P: Pose) -> np.ndarray:
+        J = np.zeros((self.K, 2 * self.S))
+        for k in range(self.K):
+            for i, (ax, ay) in enumerate(P.arm[k]):
+                J[k, 2 * i] = ax
+                J[k, 2 * i + 1] = ay
+        return J
+
+    # ------------------------------------------------------------------ elastic cables
+    def _raw(self, z: list[float]):
+        """Pose, factors and per-cable (Tb, Ta, w, q) at z = [x, T, s]."""
+        S2, K = 2 * self.S, self.K
+        xs = z[:S2]
+        T = z[S2 : S2 + K]
+        # beyond +-3 a stuck cable is far past sliding anyway; clamping keeps exp() finite
+        s = [-3.0 if v < -3.0 else (3.0 if v > 3.0 else v) for v in z[S2 + K :]]
+        P = self.ft.pose(xs)
+        Fb, Eb = self.ft.factors(P, s)
+        mom = self.ft.moment_residual(P, Fb, T)
+        cab = [self.ft.cable(P, k, T[k], s[k], Fb[k], Eb[k]) for k in range(K)]
+        return P, Fb, Eb, mom, cab
+
+    def _residual(self, raw, z, q_act, w_prev, modes, sigma, hold) -> np.ndarray:
+        _, _, _, mom, cab = raw
+        S2, K = 2 * self.S, self.K
+        r = np.empty(S2 + 2 * K)
+        r[:S2] = np.asarray(mom) * self._w_mom
+        for k in range(K):
+            m = modes[k]
+            if m == SLACK:
+                r[S2 + k] = z[S2 + k] / self._T_scale
+            else:
+                r[S2 + k] = (cab[k][3] - q_act[k]) * self._w_len
+            if m == STICK:
+                r[S2 + K + k] = (cab[k][2] - w_prev[k]) * self._w_len
+            elif m == SLIDE:
+                r[S2 + K + k] = z[S2 + K + k] - sigma[k]
+            else:
+                r[S2 + K + k] = z[S2 + K + k] - hold[k]
+        return r
+
+    def _jacobian(self, raw, z, modes) -> np.ndarray:
+        """Jacobian of the raw functions [mom (2S), q (K), w (K)] w.r.t. z = [x, T, s]."""
+        S2, K = 2 * self.S, self.K
+        n = S2 + 2 * K
+        J = np.zeros((S2 + 2 * K, n))
+        P, Fb, Eb, mom, cab = raw
+        base = np.concatenate((mom, [c[3] for c in cab], [c[2] for c in cab]))
+        for j in range(S2):
+            zz = list(z)
+            zz[j] += _H_X
+            _, _, _, m2, c2 = self._raw(zz)
+            J[:, j] = (np.concatenate((m2, [c[3] for c in c2], [c[2] for c in c2])) - base) / _H_X
+        T = z[S2 : S2 + K]
+        s = z[S2 + K :]
+        crossing = self.ft.crossing
+        for k in range(K):
+            # T_k column: mom rows exactly, cable rows by a central difference
+            for i in range(self.S):
+                if k in crossing[i]:
+                    ax, ay = P.arm[k][i]
+                    J[2 * i, S2 + k] = Fb[k][i] * ax
+                    J[2 * i + 1, S2 + k] = Fb[k][i] * ay
+            h = 1e-6 * max(1.0, abs(T[k]))
+            cp = self.ft.cable(P, k, T[k] + h, s[k], Fb[k], Eb[k])
+            cm = self.ft.cable(P, k, T[k] - h, s[k], Fb[k], Eb[k])
+            J[S2 + k, S2 + k] = (cp[3] - cm[3]) / (2 * h)
+            J[S2 + K + k, S2 + k] = (cp[2] - cm[2]) / (2 * h)
+            # s_k column (every cable with friction, so a cached Jacobian serves any mode)
+            if self.ft.has_friction[k]:
+                sp, sm = s[k] + _H_S, s[k] - _H_S
+                rp, ep = self.ft.factors_k(P, k, sp)
+                rm, em = self.ft.factors_k(P, k, sm)
+                for i in range(self.S):
+                    if k in crossing[i]:
+                        ax, ay = P.arm[k][i]
+                        d = T[k] * (rp[i] - rm[i]) / (2 * _H_S)
+                        J[2 * i, S2 + K + k] = d * ax
+                        J[2 * i + 1, S2 + K + k] = d * ay
+                cp = self.ft.cable(P, k, T[k], sp, rp, ep)
+                cm = self.ft.cable(P, k, T[k], sm, rm, em)
+                J[S2 + k, S2 + K + k] = (cp[3] - cm[3]) / (2 * _H_S)
+                J[S2 + K + k, S2 + K + k] = (cp[2] - cm[2]) / (2 * _H_S)
+        return J
+
+    def _assemble(self, Jraw: np.ndarray, modes) -> np.ndarray:
+        S2, K = 2 * self.S, self.K
+        J = np.zeros_like(Jraw)
+        J[:S2] = Jraw[:S2] * self._w_mom
+        for k in range(K):
+            m = modes[k]
+            if m == SLACK:
+                J[S2 + k, S2 + k] = 1.0 / self._T_scale
+            else:
+                J[S2 + k] = Jraw[S2 + k] * self._w_len
+            if m == STICK:
+                J[S2 + K + k] = Jraw[S2 + K + k] * self._w_len
+            else:
+                J[S2 + K + k, S2 + K + k] = 1.0
+        return J
+
+    def _newton(self, z, q_act, w_prev, modes, sigma, hold):
+        S2, K = 2 * self.S, self.K
+        z = list(z)
+        for k in range(K):  # fixed fractions enter exactly
+            if modes[k] == SLIDE:
+                z[S2 + K + k] = sigma[k]
+            elif modes[k] in (SLACK, FREE):
+                z[S2 + K + k] = hold[k]
+            if modes[k] == SLACK:
+                z[S2 + k] = 0.0
+        raw = self._raw(z)
+        r = self._residual(raw, z, q_act, w_prev, modes, sigma, hold)
+        norm = float(np.max(np.abs(r)))
+        it = 0
+        need_jac = self._Jraw is None or self._slow
+        while norm > self.tol and it < self.max_newton:
+            it += 1
+            # chord Newton: reuse the last Jacobian while it keeps converging fast
+            fresh = need_jac or self._Jraw is None
+            if fresh:
+                self._Jraw = self._jacobian(raw, z, modes)
+            J = self._assemble(self._Jraw, modes)
+            dz = np.linalg.lstsq(J, -r, rcond=None)[0]
+            big = float(np.max(np.abs(dz[:S2]))) if S2 else 0.0
+            if big > _MAX_DX:  # trust region on the pose
+                dz *= _MAX_DX / big
+            alpha = 1.0
+            f0 = float(r @ r)
+            accepted = False
+            while alpha >= 1e-4:
+                zn = [z[j] + alpha * dz[j] for j in range(len(z))]
+                try:
+                    rawn = self._raw(zn)
+                    rn = self._residual(rawn, zn, q_act, w_prev, modes, sigma, hold)
+                    fn = float(rn @ rn)
+                except (OverflowError, ValueError, ZeroDivisionError):
+                    fn = math.inf
+                if np.isfinite(fn) and fn <= (1.0 - 1e-4 * alpha) * f0:
+                    accepted = True
+                    break
+                alpha *= 0.5
+            if not accepted:
+                if fresh:
+                    break  # stagnated even with a fresh Jacobian
+                need_jac = True
+                continue
+            z, raw, r = zn, rawn, rn
+            new_norm = float(np.max(np.abs(r)))
+            self._slow = need_jac = new_norm > 0.1 * norm
+            norm = new_norm
+            # a stuck cable that needs far more than full friction will slide: stop early
+            if any(modes[k] == STICK and abs(z[S2 + K + k]) > 2.0 for k in range(K)):
+                break
+        return z, it, norm
+
+    def _update_modes(self, z, q_act, w_prev, modes, sigma, hold) -> bool:
+        S2, K = 2 * self.S, self.K
+        P, Fb, Eb, _, cab = self._raw(z)
+        changed = False
+        tol_w = 1e-9
+        for k in range(K):
+            T_k = z[S2 + k]
+            s_k = z[S2 + K + k]
+            m = modes[k]
+            if m != SLACK and T_k < -1e-9:
+                modes[k] = SLACK
+                changed = True
+                continue
+            if m == SLACK:
+                # taut again when the cable at zero tension would be shorter than its path.
+                # A slack cable carries no friction, so it re-engages sliding in the pull
+                # direction (no stick memory survives slack): FREE with s = +1 for this step.
+                _, _, _, q0 = self.ft.cable(P, k, 0.0, s_k, Fb[k], Eb[k])
+                if q_act[k] > q0 + 1e-12:
+                    modes[k] = FREE
+                    hold[k] = 1.0 if self.ft.has_friction[k] else hold[k]
+                    changed = True
+                continue
+            if m == STICK and abs(s_k) > 1.0 + 1e-12:
+                modes[k] = SLIDE
+                sigma[k] = 1.0 if s_k > 0 else -1.0
+                changed = True
+            elif m == SLIDE and (cab[k][2] - w_prev[k]) * sigma[k] < -tol_w:
+                modes[k] = STICK
+                changed = True
+        return changed
+
+    def _result(self, z, modes, it, res, w_prev) -> ForwardResult:
+        S2, K = 2 * self.S, self.K
+        xs = z[:S2]
+        T = [max(0.0, v) if modes[k] == SLACK else v for k, v in enumerate(z[S2 : S2 + K])]
+        s = [max(-1.0, min(1.0, v)) for v in z[S2 + K :]]
+        P = self.ft.pose(xs)
+        tr = self.ft.evaluate(xs, s, T_distal=T, pose=P)
+        for k in range(K):
+            if modes[k] == FREE:
+                s[k] = direction_update(s[k], tr.w[k] - w_prev[k], 1e-12)
+        state = FrictionState(s=tuple(s), w_mm=tuple(tr.w))
+        return self._pack(xs, tr, state, tuple(modes), it, res)
+
+    def _pack(self, xs, tr, state, modes, it, res) -> ForwardResult:
+        x = np.asarray(xs, dtype=float)
+        return ForwardResult(
+            psi=x_to_psi(x.reshape(-1, 2)),
+            x=x,
+            tip_mm=np.array(tip_position_fast(list(xs), self._lengths)),
+            tension_distal_N=np.asarray(tr.T_distal),
+            tension_base_N=np.asarray(tr.T_base),
+            tension_actuator_N=np.asarray(tr.T_actuator),
+            q_geom_mm=np.asarray(tr.q_geom),
+            delta_mm=np.asarray(tr.q) - np.asarray(tr.q_geom),
+            state=state,
+            modes=modes,
+            iterations=it,
+            residual=res,
+        )
+
+
+class ForwardStepper:
+    """Stateful forward model for a simulator: ``step(q_act) -> ForwardResult``.
+
+    Carries the friction state (stick memory), the cable modes and the last pose and tensions
+    (warm start) from call to call, and applies the actuator effects of ``effects.actuator``
+    (actuator -> cable, in order) before the robot.
+    """
+
+    def __init__(
+        self,
+        params: RobotParams,
+        effects: Effects | None = None,
+        state: FrictionState | None = None,
+    ) -> None:
+        self.model = ForwardModel(params, effects)
+        self.reset(state)
+
+    def reset(self, state: FrictionState | None = None) -> None:
+        """Back to the straight pretensioned pose (or ``state``) with fresh effect memories."""
+        K = self.model.K
+        self.state = FrictionState.initial(K) if state is None else state
+        self.effect_states = [e.new_state(K) for e in self.model.effects.actuator]
+        self._x: np.ndarray | None = None
+        self._T: np.ndarray | None = None
+        self._modes: tuple[str, ...] | None = None
+        self.last: ForwardResult | None = None
+
+    def cable_displacement(self, q_act_mm: np.ndarray) -> np.ndarray:
+        """Actuator position -> cable pulled in at the spool, through the actuator effects."""
+        q = np.asarray(q_act_mm, dtype=float)
+        for e, st in zip(self.model.effects.actuator, self.effect_states, strict=True):
+            q = e.to_cable(q, st)
+        return q
+
+    def step(self, q_act_mm: np.ndarray) -> ForwardResult:
+        """Solve the pose for actuator positions ``q_act_mm`` (K,), mm; updates the memory.
+
+        Warm-started from the last solution and its cable modes; if that fails, retried once
+        with every cable starting in stick. Raises :class:`ModelError` if both fail.
+        """
+        q = self.cable_displacement(q_act_mm)
+        try:
+            res = self.model.solve(q, self.state, self._x, self._T, self._modes)
+        except ModelError:
+            res = self.model.solve(q, self.state, self._x, self._T, None)
+        self.state = res.state
+        self._x = res.x
+        self._T = res.tension_distal_N
+        self._modes = res.modes
+        self.last = res
+        return res

@@ -1,0 +1,533 @@
+"""Fast force-transfer chain for one pose (plain floats): the hot path of compensation and forward.
+
+Composes, for S segments and K cables, the equations implemented for reference (numpy) in
+:mod:`~cdcr_ctl.model.kinematics`, :mod:`~cdcr_ctl.model.routing`, :mod:`~cdcr_ctl.model.statics`,
+:mod:`~cdcr_ctl.model.friction`, :mod:`~cdcr_ctl.model.capstan` and
+:mod:`~cdcr_ctl.model.elongation` (the tests check every quantity against those):
+
+    bending vectors x -> q_geom (eq. 4 / chords) -> wrap angles (eq. 21-22, closed forms)
+    -> mean span-tension factors (eq. 23) -> moment demand (eq. 8 + disk weights)
+    -> anchor tensions (eq. 9-15, pretension rule) -> base tensions (eq. 23)
+    -> pulley tensions (eq. 29-32 tables) -> delta_in, delta_out (eq. 33-36) -> q = q_geom + delta
+
+Everything numpy could vectorise is 3x3-sized, where numpy's per-call overhead dominates, so the
+chain runs on Python floats with all constants precomputed at construction.
+
+Units: mm, N, rad. ``xs`` is the flat list of bending vectors (x_1, y_1, x_2, y_2, ...) with
+x_i = theta_i (cos phi_i, sin phi_i); ``s`` the mobilised friction fractions per cable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.capstan import PulleyTransfer
+from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
+from cdcr_ctl.model.params import Effects, Location, RobotParams, cable_radius_mm, is_rigid
+from cdcr_ctl.model.routing import segment_chord_shortening, tangent_angle
+from cdcr_ctl.model.statics import G_MM_S2_TO_N
+
+
+def _ratios(t: float) -> tuple[float, float, float, float, float]:
+    """(s1, c2, d1, d2, e2) of :mod:`cdcr_ctl.model.kinematics` from one sin/cos evaluation."""
+    if abs(t) < SERIES_BELOW:
+        t2 = t * t
+        t4 = t2 * t2
+        t6 = t4 * t2
+        return (
+            1.0 - t2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t4 * t4 / 362880.0,
+            0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t4 * t4 / 3628800.0,
+            -1.0 / 3.0 + t2 / 30.0 - t4 / 840.0 + t6 / 45360.0,
+            -1.0 / 12.0 + t2 / 180.0 - t4 / 6720.0 + t6 / 453600.0,
+            1.0 / 6.0 - t2 / 120.0 + t4 / 5040.0 - t6 / 362880.0,
+        )
+    c, s = math.cos(t), math.sin(t)
+    h = math.sin(0.5 * t)
+    omc = 2.0 * h * h  # 1 - cos t without cancellation
+    it = 1.0 / t
+    it2 = it * it
+    return (
+        s * it,
+        omc * it2,
+        (t * c - s) * it2 * it,
+        (t * s - 2.0 * omc) * it2 * it2,
+        (t - s) * it2 * it,
+    )
+
+
+@dataclass(slots=True)
+class Pose:
+    """Per-pose quantities shared by the inverse and the forward residual (internal, plain lists).
+
+    ``q_seg[k][i]`` shortening of cable k in segment i (mm), ``arm[k][i]`` its gradient w.r.t.
+    x_i (mm/rad, (2,) tuple), ``Zb[i]`` summed wrap (rad) from the base hole to the last span of
+    segment i, ``inner[i]`` = theta_i/n_i, ``m_req[i]`` the moment demand (N*mm, (2,) tuple).
+    """
+
+    theta: list[float]
+    q_geom: list[float]
+    arm: list[list[tuple[float, float]]]
+    Zb: list[float]
+    inner: list[float]
+    m_req: list[tuple[float, float]]
+
+
+@dataclass(slots=True)
+class Transfer:
+    """Result of one evaluation of the chain (lists, cable order; N and mm)."""
+
+    q_geom: list[float]
+    T_distal: list[float]
+    T_base: list[float]
+    T_actuator: list[float]
+    delta_in: list[float]
+    delta_out: list[float]
+    w: list[float]
+    q: list[float]
+
+    def T_at(self, k: int, location: Location) -> float:
+        return self.T_base[k] if location == "robot_base" else self.T_actuator[k]
+
+
+class ForceTransfer:
+    """The force-transfer chain of one robot with one set of effects (precomputed constants)."""
+
+    def __init__(self, params: RobotParams, effects: Effects | None = None) -> None:
+        eff = Effects() if effects is None else effects
+        self.params = params
+        self.effects = eff
+        S, K = params.n_segments, params.n_cables
+        self.S, self.K = S, K
+        segs = params.segments
+        self._l = [s.length_mm for s in segs]
+        self._n = [s.n_disks for s in segs]
+        self._kEI = [s.EI_Nmm2 / s.length_mm for s in segs]
+        self._thick = [s.disk_thickness_mm > 0.0 for s in segs]
+        self._tk = [s.disk_thickness_mm for s in segs]
+        self._inner_frac = [(s.n_disks - 1) / s.n_disks for s in segs]
+        self._half0 = 0.5 / segs[0].n_disks
+        self._gravity = eff.gravity and any(s.disk_mass_g > 0 for s in segs)
+        g = params.gravity_mm_s2
+        self._g = (g[0] * G_MM_S2_TO_N, g[1] * G_MM_S2_TO_N, g[2] * G_MM_S2_TO_N)
+        self._disks = [
+            [(m / s.n_disks, s.disk_mass_g) for m in range(1, s.n_disks + 1)]
+            if s.disk_mass_g > 0
+            else []
+            for s in segs
+        ]
+        cab = params.cables
+        self._a = [c.segment for c in cab]
+        self._r = [c.routing_radius_mm for c in cab]
+        self._gam = [c.hole_angle_rad for c in cab]
+        self._ex = [c.routing_radius_mm * math.cos(c.hole_angle_rad) for c in cab]
+        self._ey = [c.routing_radius_mm * math.sin(c.hole_angle_rad) for c in cab]
+        self._T0 = [c.pretension_N for c in cab]
+        self._rigid = [is_rigid(c, eff) for c in cab]
+        self._iEA = [0.0 if self._rigid[k] else 1.0 / c.EA_N for k, c in enumerate(cab)]
+        self._mu = [c.mu_disk if eff.disk_friction else 0.0 for c in cab]
+        self._pul: list[list[PulleyTransfer]] = []
+        for c in cab:
+            trs = []
+            for p in c.pulleys:
+                alpha = p.alpha if eff.pulley_friction else 0.0
+                trs.append(
+                    PulleyTransfer(
+                        p.radius_mm,
+                        p.wrap_angle_rad,
+                        alpha,
+                        p.n,
+                        cable_radius_mm(c),
+                        eff.capstan_points,
+                    )
+                )
+            self._pul.append(trs)
+        self._pul_rev = [list(reversed(t)) for t in self._pul]
+        self._run = [c.free_length_mm / (len(c.pulleys) + 1) for c in cab]
+        self._own = [list(params.cables_of(i)) for i in range(S)]
+        self._distal = [[k for k in range(K) if self._a[k] > i] for i in range(S)]
+        self._crossing = [[k for k in range(K) if self._a[k] >= i] for i in range(S)]
+        self._has_friction = [
+            self._mu[k] > 0.0 or any(not t.frictionless for t in self._pul[k]) for k in range(K)
+        ]
+        self._chord = eff.geometry == "chord"
+        self._cc_arm = [(self._ex[k], self._ey[k]) for k in range(K)]
+
+    # ------------------------------------------------------------------ geometry and loads
+    def pose(self, xs: list[float]) -> Pose:
+        """Geometry, wrap angles and moment demand at bending vectors ``xs`` (flat, rad)."""
+        S, K = self.S, self.K
+        theta = [0.0] * S
+        ux = [1.0] * S
+        uy = [0.0] * S
+        for i in range(S):
+            X, Y = xs[2 * i], xs[2 * i + 1]
+            t = math.sqrt(X * X + Y * Y)
+            theta[i] = t
+            if t > 0.0:
+                ux[i] = X / t
+                uy[i] = Y / t
+        # wrap angles (routing.py closed forms): base hole, inner holes, boundary disks
+        inner = [theta[i] / self._n[i] for i in range(S)]
+        Zb = [0.0] * S
+        z = theta[0] * self._half0
+        for i in range(S):
+            if i > 0:
+                A = 0.5 * inner[i - 1]
+                B = 0.5 * inner[i]
+                if self._thick[i - 1]:
+                    z += A + B
+                else:
+                    z += tangent_angle(A, ux[i - 1], uy[i - 1], B, ux[i], uy[i])
+            z += theta[i] * self._inner_frac[i]
+            Zb[i] = z
+        # cable shortening and moment arms
+        if not self._chord:
+            sx = sy = 0.0
+            pre = []
+            for i in range(S):
+                sx += xs[2 * i]
+                sy += xs[2 * i + 1]
+                pre.append((sx, sy))
+            q_geom = [
+                self._ex[k] * pre[self._a[k]][0] + self._ey[k] * pre[self._a[k]][1]
+                for k in range(K)
+            ]
+            arm = [[self._cc_arm[k]] * (self._a[k] + 1) for k in range(K)]
+        else:
+            q_geom, arm = self._chord_geometry(xs, theta, ux, uy)
+        m_req = self._moment_demand(xs, theta)
+        return Pose(theta, q_geom, arm, Zb, inner, m_req)
+
+    def _chord_geometry(self, xs, theta, ux, uy):
+        q_geom, arm = [], []
+        for k in range(self.K):
+            r, gam = self._r[k], self._gam[k]
+            qk = 0.0
+            ak = []
+            for i in range(self._a[k] + 1):
+                X, Y, t, n, L = xs[2 * i], xs[2 * i + 1], theta[i], self._n[i], self._l[i]
+                phi = math.atan2(uy[i], ux[i])
+                tk = self._tk[i]
+                qk += segment_chord_shortening(t, phi, L, n, r, gam, tk)
+                # gradient of routing.segment_chord_shortening w.r.t. x_i, a = theta/2n:
+                # l (1 - s1(a)) + s1(a) r e.x - n t (1 - cos a), with ds1(a)/dx = d1(a) x/4n^2
+                a = 0.5 * t / n
+                ex, ey = self._ex[k], self._ey[k]
+                sa = s1(a)
+                f = d1(a) / (4.0 * n * n) * (ex * X + ey * Y - L) - tk * sa / (4.0 * n)
+                ak.append((f * X + sa * ex, f * Y + sa * ey))
+            q_geom.append(qk)
+            arm.append(ak)
+        return q_geom, arm
+
+    def _moment_demand(self, xs: list[float], theta: list[float]) -> list[tuple[float, float]]:
+        """m_i = (EI/l) x_i - Q_x,i; the weights by two passes over the chain (see statics.py)."""
+        S = self.S
+        if not self._gravity:
+            return [(self._kEI[i] * xs[2 * i], self._kEI[i] * xs[2 * i + 1]) for i in range(S)]
+        # pass 1, base -> tip: local rotations, tip positions, gravity (per gram) per base frame
+        gx, gy, gz = self._g
+        Rs, ps, gs, rat = [], [], [], []
+        for i in range(S):
+            X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
+            r = _ratios(t)
+            a, b = r[0], r[1]
+            R = (
+                1.0 - b * X * X, -b * X * Y, a * X,
+                -b * X * Y, 1.0 - b * Y * Y, a * Y,
+                -a * X, -a * Y, 1.0 - b * t * t,
+            )  # fmt: skip
+            Rs.append(R)
+            ps.append((L * b * X, L * b * Y, L * a))
+            gs.append((gx, gy, gz))
+            rat.append(r)
+            gx, gy, gz = (
+                R[0] * gx + R[3] * gy + R[6] * gz,
+                R[1] * gx + R[4] * gy + R[7] * gz,
+                R[2] * gx + R[5] * gy + R[8] * gz,
+            )
+        # pass 2, tip -> base: own disks, then everything distal as one mass and first moment
+        out: list[tuple[float, float]] = [(0.0, 0.0)] * S
+        Ex = Ey = Ez = 0.0  # sum m (x_m - P_i) of the distal disks, in segment i's tip frame
+        Md = 0.0
+        for i in range(S - 1, -1, -1):
+            X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
+            gx, gy, gz = gs[i]
+            Qx = Qy = 0.0
+            ox = oy = oz = om = 0.0
+            for sig, m in self._disks[i]:
+                ss1, cc2, dd1, dd2, _ = _ratios(sig * t)
+                s2 = sig * sig
+                ox += m * s2 * L * cc2 * X
+                oy += m * s2 * L * cc2 * Y
+                oz += m * sig * L * ss1
+                om += m
+                xg = X * gx + Y * gy
+                f = m * s2 * L
+                Qx += f * (cc2 * gx + s2 * dd2 * X * xg + sig * dd1 * X * gz)
+                Qy += f * (cc2 * gy + s2 * dd2 * Y * xg + sig * dd1 * Y * gz)
+            R = Rs[i]
+            Dx = R[0] * Ex + R[1] * Ey + R[2] * Ez
+            Dy = R[3] * Ex + R[4] * Ey + R[5] * Ez
+            Dz = R[6] * Ex + R[7] * Ey + R[8] * Ez
+            if Md > 0.0:
+                _, cc2, dd1, dd2, ee2 = rat[i]
+                Fx, Fy, Fz = Md * gx, Md * gy, Md * gz
+                xF = X * Fx + Y * Fy
+                Qx += L * (cc2 * Fx + dd2 * X * xF + dd1 * X * Fz)
+                Qy += L * (cc2 * Fy + dd2 * Y * xF + dd1 * Y * Fz)
+                tx = Dy * gz - Dz * gy
+                ty = Dz * gx - Dx * gz
+                tz = Dx * gy - Dy * gx
+                k_ = ee2 * (X * tx + Y * ty) + cc2 * tz
+                Qx += ty - Y * k_
+                Qy += -tx + X * k_
+            out[i] = (self._kEI[i] * X - Qx, self._kEI[i] * Y - Qy)
+            p = ps[i]
+            Ex = ox + Md * p[0] + Dx
+            Ey = oy + Md * p[1] + Dy
+            Ez = oz + Md * p[2] + Dz
+            Md += om
+        return out
+
+    # ------------------------------------------------------------------ friction factors
+    def factors(self, pose: Pose, s: list[float]) -> tuple[list[list[float]], list[float]]:
+        """(Fbar[k][i], ln(T_base/T_distal)[k]) for mobilised fractions ``s`` (eq. 23)."""
+        Fb, Eb = [], []
+        for k in range(self.K):
+            row, e = self.factors_k(pose, k, s[k])
+            Fb.append(row)
+            Eb.append(e)
+        return Fb, Eb
+
+    def factors_k(self, pose: Pose, k: int, s_k: float) -> tuple[list[float], float]:
+        """Mean span-tension factors of cable k per crossed segment and its ln(T_base/T_distal).
+
+        Spans of segment i (n_i of them) sit beyond Zb[a] - Zb[i] of wrap from the anchor plus
+        p theta_i/n_i, p = 0..n_i-1, so their mean factor is
+        exp(beta (Zb[a] - Zb[i])) * expm1(n beta theta/n) / (n expm1(beta theta/n)),
+        beta = s mu (:func:`cdcr_ctl.model.friction.mean_geometric`).
+        """
+        a = self._a[k]
+        beta = s_k * self._mu[k]
+        if beta == 0.0:
+            return [1.0] * (a + 1), 0.0
+        Zb, inner, n = pose.Zb, pose.inner, self._n
+        za = Zb[a]
+        row = []
+        for i in range(a + 1):
+            y = beta * inner[i]
+            ni = n[i]
+            G = 1.0 if y == 0.0 else math.expm1(ni * y) / (ni * math.expm1(y))
+            row.append(math.exp(beta * (za - Zb[i])) * G)
+        return row, beta * za
+
+    # ------------------------------------------------------------------ statics
+    def statics(self, pose: Pose, Fb: list[list[float]]) -> list[float]:
+        """Anchor tensions (N): back-substitution tip -> base with the pretension rule.
+
+        The rule acts on the mean tension of each cable along its anchor segment (what the
+        moment balance sees); with friction the anchor tension is that over Fbar_k,a.
+        """
+        T = [0.0] * self.K
+        coupling = self.effects.coupling
+        arm = pose.arm
+        for i in range(self.S - 1, -1, -1):
+            bx, by = pose.m_req[i]
+            if coupling:
+                for k in self._distal[i]:
+                    f = T[k] * Fb[k][i]
+                    ax, ay = arm[k][i]
+                    bx -= f * ax
+                    by -= f * ay
+            # own cables: unknown mean tension M_k = T_k Fbar_k,i along the anchor segment
+            own = self._own[i]
+            cols = []
+            for k in own:
+                ax, ay = arm[k][i]
+                T0 = self._T0[k]
+                cols.append((ax, ay))
+                bx -= ax * T0
+                by -= ay * T0
+            extra = _min_sum_pair(cols, bx, by)
+            if extra is None:
+                raise ModelError(
+                    f"segment {self.params.segments[i].name}: its cables cannot produce the "
+                    f"moment ({bx:.4g}, {by:.4g}) N*mm with tensions >= pretension"
+                )
+            for j, k in enumerate(own):
+                T[k] = (self._T0[k] + extra[j]) / Fb[k][i]
+        return T
+
+    def moment_residual(self, pose: Pose, Fb: list[list[float]], T: list[float]) -> list[float]:
+        """Flat (2S,) residual sum T Fbar arm - m_req (N*mm) of the moment-vector equations."""
+        out = []
+        coupling = self.effects.coupling
+        for i in range(self.S):
+            rx, ry = pose.m_req[i]
+            rx, ry = -rx, -ry
+            for k in self._crossing[i] if coupling else self._own[i]:
+                f = T[k] * Fb[k][i]
+                ax, ay = pose.arm[k][i]
+                rx += f * ax
+                ry += f * ay
+            out.append(rx)
+            out.append(ry)
+        return out
+
+    # ------------------------------------------------------------------ along the cable
+    def outside(self, k: int, T_base: float, s: float) -> tuple[float, float]:
+        """(actuator tension N, delta_out mm) from the base tension: pulleys and free runs."""
+        T0 = self._T0[k]
+        run = self._run[k]
+        T = T_base
+        acc = (T - T0) * run
+        for tr in self._pul_rev[k]:
+            Tn = tr.to_actuator(T, s)
+            acc += tr.stretch_integral(Tn, T, s, T0)
+            T = Tn
+            acc += (T - T0) * run
+        return T, acc * self._iEA[k]
+
+    def base_from_actuator(self, k: int, T_act: float, s: float) -> float:
+        """Tension entering the base hole from the tension between actuator and first pulley."""
+        T = T_act
+        for tr in self._pul[k]:
+            T = tr.to_robot(T, s)
+        return T
+
+    def inside(self, k: int, T_distal: float, Fb_k: list[float]) -> float:
+        """delta_in (mm): sum_i l_i (T_d Fbar_ki - T0) / EA over the segments cable k crosses."""
+        iEA = self._iEA[k]
+        if iEA == 0.0:
+            return 0.0
+        T0 = self._T0[k]
+        acc = 0.0
+        for i, f in enumerate(Fb_k):
+            acc += self._l[i] * (T_distal * f - T0)
+        return acc * iEA
+
+    # ------------------------------------------------------------------ full chain
+    def evaluate(
+        self,
+        xs: list[float],
+        s: list[float],
+        T_distal: list[float] | None = None,
+        pose: Pose | None = None,
+    ) -> Transfer:
+        """The chain at ``xs`` with friction fractions ``s``; statics unless ``T_distal`` given."""
+        P = self.pose(xs) if pose is None else pose
+        Fb, Eb = self.factors(P, s)
+        T = self.statics(P, Fb) if T_distal is None else list(T_distal)
+        return self._along(P, Fb, Eb, T, s)
+
+    def evaluate_measured(
+        self,
+        xs: list[float],
+        s: list[float],
+        measured_N: list[float],
+        locations: list[Location],
+        pose: Pose | None = None,
+    ) -> Transfer:
+        """The chain with load-cell tensions in place of modelled ones (NaN: use the model)."""
+        P = self.pose(xs) if pose is None else pose
+        Fb, Eb = self.factors(P, s)
+        T_model: list[float] | None = None
+        T = [0.0] * self.K
+        for k in range(self.K):
+            v = measured_N[k]
+            if v != v:  # NaN: no reading for this cable
+                if T_model is None:
+                    T_model = self.statics(P, Fb)
+                T[k] = T_model[k]
+                continue
+            Tb = v if locations[k] == "robot_base" else self.base_from_actuator(k, v, s[k])
+            T[k] = Tb * math.exp(-Eb[k])
+        return self._along(P, Fb, Eb, T, s)
+
+    def cable(
+        self, P: Pose, k: int, T_k: float, s_k: float, Fb_k: list[float], Eb_k: float
+    ) -> tuple[float, float, float, float]:
+        """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state."""
+        tb = T_k * math.exp(Eb_k)
+        ta, do = self.outside(k, tb, s_k)
+        wk = P.q_geom[k] + self.inside(k, T_k, Fb_k)
+        return tb, ta, wk, wk + do
+
+    def _along(self, P: Pose, Fb, Eb, T, s) -> Transfer:
+        Tb, Ta, din, dout, w, q = [], [], [], [], [], []
+        for k in range(self.K):
+            tb, ta, wk, qk = self.cable(P, k, T[k], s[k], Fb[k], Eb[k])
+            Tb.append(tb)
+            Ta.append(ta)
+            din.append(wk - P.q_geom[k])
+            dout.append(qk - wk)
+            w.append(wk)
+            q.append(qk)
+        return Transfer(list(P.q_geom), list(T), Tb, Ta, din, dout, w, q)
+
+    def friction_capacity(self, P: Pose, k: int) -> float:
+        """ln(T_high/T_low) of cable k fully sliding at this pose (holes + pulleys at T0)."""
+        cap = self._mu[k] * P.Zb[self._a[k]]
+        for tr in self._pul[k]:
+            cap += tr.ln_kappa(self._T0[k])
+        return cap
+
+    def pulleys(self, k: int) -> list[PulleyTransfer]:
+        """The pulley transfers of cable k, actuator -> robot order."""
+        return list(self._pul[k])
+
+    @property
+    def crossing(self) -> list[list[int]]:
+        """Per segment, the cables whose tension loads it (all crossing, or own if uncoupled)."""
+        return self._crossing if self.effects.coupling else self._own
+
+    @property
+    def has_friction(self) -> list[bool]:
+        return list(self._has_friction)
+
+    @property
+    def rigid(self) -> list[bool]:
+        return list(self._rigid)
+
+    @property
+    def kEI(self) -> list[float]:
+        return list(self._kEI)
+
+
+def _min_sum_pair(
+    cols: list[tuple[float, float]], bx: float, by: float, tol: float = 1e-9
+) -> list[float] | None:
+    """Extra tensions y >= 0 of least sum with sum y_j cols_j = b (statics.pretension_tensions)."""
+    m = len(cols)
+    scale = 1.0
+    for cx, cy in cols:
+        scale = max(scale, abs(cx), abs(cy))
+    if abs(bx) <= tol * scale and abs(by) <= tol * scale:
+        return [0.0] * m
+    if m == 1:
+        cx, cy = cols[0]
+        y = (bx * cx + by * cy) / (cx * cx + cy * cy)
+        return [y] if y >= -tol and abs(by * cx - bx * cy) <= 1e-6 * scale * scale else None
+    best = None
+    best_sum = math.inf
+    for j in range(m - 1):
+        ajx, ajy = cols[j]
+        for k in range(j + 1, m):
+            akx, aky = cols[k]
+            det = ajx * aky - ajy * akx
+            if abs(det) < 1e-14 * scale * scale:
+                continue
+            yj = (bx * aky - by * akx) / det
+            yk = (ajx * by - ajy * bx) / det
+            if yj >= -tol and yk >= -tol and yj + yk < best_sum:
+                best_sum = yj + yk
+                best = (j, k, yj if yj > 0.0 else 0.0, yk if yk > 0.0 else 0.0)
+    if best is None:
+        return None
+    out = [0.0] * m
+    out[best[0]] = best[2]
+    out[best[1]] = best[3]
+    return out
