@@ -3,8 +3,9 @@
 A config may name a parent with ``extends: other.yaml`` (its keys are merged on top of the
 parent's: the simulated rig's config is the real rig's with other ports), and may list ``overlays``:
 further YAML files merged on top in order, e.g. the fitted parameters written by
-``cdcr-ctl identify``. Paths are relative to the file that names them. Mappings merge key by key; lists of
-mappings that carry a ``name`` merge item by item on that name; anything else is replaced.
+``cdcr-ctl identify``. Paths are relative to the file that names them. Mappings merge key by
+key; lists of mappings that carry a ``name`` merge item by item on that name; anything else is
+replaced.
 An error in a key that came from an overlay names the overlay file.
 """
 
