@@ -11,44 +11,85 @@ from cdcr_ctl.config.loadcells import SerialPortConfig
 from cdcr_ctl.config.robot import PositiveFloat
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Port = Annotated[int, Field(ge=1, le=65535)]
+
+#: Tracker units per mm when ``units_to_mm`` is not given: Motive streams metres over NatNet;
+#: the plain line stream (see :mod:`cdcr_ctl.sensors.tracker`) is defined in mm.
+DEFAULT_UNITS_TO_MM = {"natnet": 1000.0, "udp_stream": 1.0, "tcp_stream": 1.0}
 
 
 class RigidTransformConfig(Section):
-    """A rigid transform: rotation vector (axis * angle, rad), then translation (mm)."""
+    """A rigid transform: rotation vector (axis * angle, rad), then translation (mm).
+
+    As a map of points: ``x_to = R(rotvec_rad) @ x_from + translation_mm``.
+    """
 
     rotvec_rad: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
     translation_mm: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
 class TrackerConfig(Section):
-    """Tip tracker: OptiTrack NatNet rigid body, or a plain UDP/TCP stream from a laser tracker.
+    """Tip tracker: OptiTrack NatNet rigid body, or a plain UDP/TCP line stream (laser tracker).
 
-    ``base_from_tracker`` maps tracker-frame points into the robot base frame;
-    ``marker_to_tip`` is the tip point in the rigid body's own frame.
+    ``base_from_tracker`` maps tracker-frame points (mm) into the robot base frame (mm);
+    ``marker_to_tip`` is the tip in the rigid body's own frame (its translation is the tip point,
+    mm; its rotation the tip frame's orientation in the body frame). ``units_to_mm``: mm per
+    tracker unit (None: 1000 for NatNet, whose Motive streams metres; 1 for the line streams).
+
+    ``kind: natnet``: ``host`` is the Motive PC, ``command_port`` its command port (NAT_CONNECT,
+    keep-alives); in unicast mode (``multicast_group`` None) frames come back to the client's own
+    socket; with a multicast group the client also joins it on ``port`` (the data port).
+    ``kind: udp_stream``: the controller listens on ``host``:``port`` for datagrams of lines.
+    ``kind: tcp_stream``: the controller connects to the sender at ``host``:``port``.
+    ``local_address``: local interface to bind (None: 127.0.0.1 when ``host`` is a loopback
+    address, else all interfaces). ``stale_after_s``: a tip older than this is flagged stale (s);
+    ``lost_after_s``: silence after which the tracker counts as lost and the client re-connects
+    (s); ``connect_timeout_s``: wait for the server's reply at start-up (s).
     """
 
     kind: Literal["natnet", "udp_stream", "tcp_stream"] = "natnet"
     host: str = "127.0.0.1"
-    port: Annotated[int, Field(ge=1, le=65535)] = 1511
-    command_port: Annotated[int, Field(ge=1, le=65535)] = 1510
+    port: Port = 1511
+    command_port: Port = 1510
+    multicast_group: str | None = None
+    local_address: str | None = None
     rigid_body_id: int = 1
-    units_to_mm: PositiveFloat = 1000.0
+    units_to_mm: PositiveFloat | None = None
     base_from_tracker: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
     marker_to_tip: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
     stale_after_s: PositiveFloat = 0.1
+    lost_after_s: PositiveFloat = 1.0
+    connect_timeout_s: PositiveFloat = 2.0
+
+    @property
+    def mm_per_unit(self) -> float:
+        """mm per tracker unit: ``units_to_mm`` or the default of ``kind``."""
+        return self.units_to_mm if self.units_to_mm is not None else DEFAULT_UNITS_TO_MM[self.kind]
 
 
 class AttitudeSensorsConfig(Section):
-    """WitMotion JY901/WT901 attitude sensors, one per joint (vertebra design), each on a port."""
+    """WitMotion JY901/WT901 attitude sensors, one per joint (vertebra design), each on a port.
+
+    ``sensors`` in joint order, base first. ``stale_after_s``: an orientation older than this is
+    flagged stale (s).
+    """
 
     sensors: Annotated[list[SerialPortConfig], Field(min_length=1)]
     stale_after_s: PositiveFloat = 0.1
 
 
 class JoystickConfig(Section):
-    """Joystick through Linux evdev: device path and axis codes for the two steering axes."""
+    """Joystick through Linux evdev: device and the axis codes of the two steering axes.
 
-    device: str = "/dev/input/js0"
+    ``device``: an evdev node (``/dev/input/event5``, ``/dev/input/by-id/...-event-joystick``);
+    None: the first input device that has both axes. ``axis_x``/``axis_y``: evdev axis names
+    (``ABS_X``, ``ABS_RY``, ...). ``deadband``: fraction of the half-range around the centre that
+    reads as 0. ``invert_x``/``invert_y``: flip an axis (many sticks report "forward" as negative).
+    """
+
+    device: str | None = None
     axis_x: str = "ABS_X"
     axis_y: str = "ABS_Y"
     deadband: Annotated[float, Field(ge=0, lt=1)] = 0.05
+    invert_x: bool = False
+    invert_y: bool = False
