@@ -80,14 +80,19 @@ def loadcell_locations(cfg: RigConfig) -> list[Location]:
 def build_model(
     cfg: RigConfig,
     effects: Effects | None = None,
-    reversal_band_mm: float = 0.0,
+    reversal_band_mm: float | None = None,
     source: str = "rig config",
 ) -> CCDiskModel:
     """The control loop's model (``RobotModelPort``) for a ``cc_disk`` rig.
 
-    ``effects`` defaults to every effect on (the controller's model). ``source`` names the file
-    in errors. Raises :class:`ConfigError` for other designs.
+    ``effects`` defaults to every effect on, with the cable geometry of ``control.geometry``;
+    ``reversal_band_mm`` defaults to ``control.reversal_band_mm``. ``source`` names the file in
+    errors. Raises :class:`ConfigError` for other designs.
     """
+    if effects is None:
+        effects = Effects(geometry=cfg.control.geometry)
+    if reversal_band_mm is None:
+        reversal_band_mm = cfg.control.reversal_band_mm
     if cfg.design != "cc_disk":
         raise ConfigError(
             source, "design", "the constant-curvature model needs cc_disk", cfg.design

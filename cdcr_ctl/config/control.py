@@ -20,6 +20,11 @@ class ControlConfig(Section):
 
     rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0
     compensation: Literal["off", "model", "measured"] = "model"
+    #: Cable geometry of the model: ``chord`` the straight spans between disk holes (exact for a
+    #: disk robot), ``cc`` the continuous routing of Qi et al. 2023 eq. 4.
+    geometry: Literal["chord", "cc"] = "chord"
+    #: Actuator travel over which friction reverses in the compensation (0: the model's stick rule).
+    reversal_band_mm: Annotated[float, Field(ge=0, le=10)] = 0.0
     realtime_priority: Annotated[int, Field(ge=0, le=99)] = 0
     lock_memory: bool = False
 

@@ -37,6 +37,7 @@ from cdcr_ctl.control.ports import (
 )
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
 from cdcr_ctl.control.timing import Ticker
+from cdcr_ctl.errors import ModelError
 
 log = logging.getLogger(__name__)
 
@@ -92,6 +93,9 @@ class _Pending:
     stop: Reaction | None = None
     mode: str | None = None
     reenabled: bool = False
+    home: np.ndarray | None = None
+    sink_change: bool = False
+    new_sink: Any = None
 
 
 @dataclass
@@ -126,7 +130,9 @@ class ControlLoop:
         self.supervisor = supervisor
         self.on_trip = on_trip
         K = model.n_cables
-        self.home_counts = np.zeros(K, dtype=np.int64) if home_counts is None else np.array(home_counts)
+        self.home_counts = (
+            np.zeros(K, dtype=np.int64) if home_counts is None else np.array(home_counts)
+        )
         self.ticker = Ticker(cfg.period_s)
         self.counters = LoopCounters()
         self._lock = threading.Lock()
@@ -148,6 +154,8 @@ class ControlLoop:
         self._model_state = model.new_state()
         self._last: dict[str, Any] = {}
         self._stopped_drives = False
+        self._paused = False
+        self._manual_sink: Any = None
         self._end_after_cycle: tuple[str, str] | None = None
         # The compensation mode of the last run stays in force while holding, so a run's end does
         # not step the command; the ``compensation`` command changes it.
@@ -190,11 +198,29 @@ class ControlLoop:
     def jog_cable(self, cable: int, delta_mm: float) -> None:
         """Move cable ``cable`` (0-based) by ``delta_mm`` at the cable velocity limit."""
         with self._lock:
-            target = self._q_offset_target.copy() if self._pending.cable_offset_target is None else (
-                self._pending.cable_offset_target.copy()
+            target = (
+                self._q_offset_target.copy()
+                if self._pending.cable_offset_target is None
+                else (self._pending.cable_offset_target.copy())
             )
             target[cable] += delta_mm
             self._pending.cable_offset_target = target
+
+    def pause(self, paused: bool) -> None:
+        """While paused the loop keeps reading feedback and logging but sends no RPDO or SYNC
+        (homing runs the drives in their own mode)."""
+        self._paused = paused
+
+    def set_home(self, home_counts: Sequence[int]) -> None:
+        """New home positions (counts at q = 0): the robot is straight there."""
+        with self._lock:
+            self._pending.home = np.array(home_counts, dtype=np.int64)
+
+    def attach_sink(self, sink: Any) -> None:
+        """Log every cycle to ``sink`` (a manual log) or stop doing so (``None``)."""
+        with self._lock:
+            self._pending.sink_change = True
+            self._pending.new_sink = sink
 
     def set_compensation(self, mode: str) -> None:
         """Compensation mode for holding and for runs that do not name one."""
@@ -273,6 +299,15 @@ class ControlLoop:
             self.cfg.compensation = p.mode
         if p.reenabled:
             self._resume_after_enable()
+        if p.home is not None:
+            self.home_counts = p.home
+            self._psi_cmd = np.zeros_like(self._psi_cmd)
+            self._source, self._t_source0 = Hold(self._psi_cmd), now
+            self._q_offset[:] = 0.0
+            self._q_offset_target[:] = 0.0
+            self._model_state = self.model.new_state()
+        if p.sink_change:
+            self._manual_sink = p.new_sink
 
     def _cycle(self, t_s: float, now: float, lateness_s: float) -> None:
         self._take_pending(now)
@@ -295,11 +330,20 @@ class ControlLoop:
             self._mode = run.compensation
         mode = self._mode
         measured = force_N if mode == "measured" else None
-        q_cmd = self.model.q_command(psi, q_nom, self._model_state, mode, measured) + self._q_offset
+        try:
+            q_cmd = self.model.q_command(psi, q_nom, self._model_state, mode, measured)
+        except ModelError as exc:
+            # The pose needs tension the cables cannot give (or the solver failed): hold the last
+            # command rather than guess.
+            self._react(Trip("model_unreachable", Reaction.HOLD, str(exc), t_s))
+            psi, q_cmd = self._psi_cmd, self._q_cmd - self._q_offset
+        q_cmd = q_cmd + self._q_offset
 
         # Limits
         tip_model = self.model.tip(psi)
-        tip_err = float(np.linalg.norm(tip_mm - tip_model)) if np.all(np.isfinite(tip_mm)) else math.nan
+        tip_err = (
+            float(np.linalg.norm(tip_mm - tip_model)) if np.all(np.isfinite(tip_mm)) else math.nan
+        )
         moving = run is not None and run.state == "running"
         trip = self.supervisor.check(
             CycleCheck(
@@ -329,24 +373,31 @@ class ControlLoop:
             self._end_after_cycle = ("completed", "trajectory completed")
 
         # Targets out: RPDOs then SYNC
-        if self._stopped_drives:
+        if self._paused:
+            targets = None
+        elif self._stopped_drives:
             # Drives are quick-stopped: follow the actual positions so re-enabling does not jump.
             targets = [f.position_counts for f in fb]
         else:
             targets = np.rint(self.home_counts + q_cmd * self.cfg.counts_per_mm).astype(np.int64)
             targets = targets.tolist()
-        self.drives.send_cycle(targets)
+        if targets is not None:
+            self.drives.send_cycle(targets)
         self._q_prev, self._q_cmd, self._psi_cmd = self._q_cmd, q_cmd, psi
 
         # Log
-        q_act = (np.array([f.position_counts for f in fb]) - self.home_counts) / self.cfg.counts_per_mm
+        q_act = (
+            np.array([f.position_counts for f in fb]) - self.home_counts
+        ) / self.cfg.counts_per_mm
         row = self._row(t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event)
         self._last = {k: v for k, v in row.items() if not isinstance(v, float) or math.isfinite(v)}
-        if self._sink is not None:
-            self._sink.write(row)
+        for sink in (self._sink, self._manual_sink):
+            if sink is None:
+                continue
+            sink.write(row)
             self.counters.rows_logged += 1
-            failure = getattr(self._sink, "failure", None)
-            if failure:
+            failure = getattr(sink, "failure", None)
+            if failure and self.supervisor.trip is None:
                 self._react(Trip("log_write_failed", Reaction.HALT, str(failure), t_s))
         if self._end_after_cycle is not None:
             self._finish_run(*self._end_after_cycle)
@@ -401,7 +452,9 @@ class ControlLoop:
         # Absorb the difference between where the drives are and where the command is into the
         # cable offset and hold there: no jump on re-enable. The next run ramps it out.
         fb = self.drives.feedback()
-        q_act = (np.array([f.position_counts for f in fb]) - self.home_counts) / self.cfg.counts_per_mm
+        q_act = (
+            np.array([f.position_counts for f in fb]) - self.home_counts
+        ) / self.cfg.counts_per_mm
         self._q_offset = self._q_offset + (q_act - self._q_cmd)
         self._q_offset_target = self._q_offset.copy()
         self._stopped_drives = False

@@ -35,7 +35,7 @@ class Reaction(enum.IntEnum):
 
 @dataclass(frozen=True)
 class Trip:
-    """One tripped limit: ``cause`` is machine-readable (``tension_high:cable2``), ``detail`` text."""
+    """One tripped limit: ``cause`` machine-readable (``tension_high:cable2``), ``detail`` text."""
 
     cause: str
     reaction: Reaction
@@ -83,7 +83,7 @@ class Supervisor:
     cycle_worst: Trip | None = None
 
     def check(self, c: CycleCheck) -> Trip | None:
-        """Return the most severe new trip of this cycle (None when all is well or already latched)."""
+        """The most severe new trip of this cycle (None when all is well or already latched)."""
         found = self._find(c)
         if not found:
             self.cycle_worst = None
@@ -103,7 +103,7 @@ class Supervisor:
         return None
 
     def external(self, cause: str, reaction: Reaction, detail: str, t_s: float) -> Trip | None:
-        """Trip from outside the per-cycle checks: drive EMCY, heartbeat loss, bus or log failure."""
+        """A trip from outside the per-cycle checks: drive EMCY, heartbeat loss, bus, log."""
         trip = Trip(cause, reaction, detail, t_s)
         if self.trip is None or reaction > self.trip.reaction:
             self.trip = trip
@@ -192,7 +192,8 @@ class Supervisor:
                     Trip(
                         "tracker_divergence",
                         Reaction.HALT,
-                        f"tip {c.tip_error_mm:.1f} mm from model (limit {lim.tracker_divergence_mm} mm)",
+                        f"tip {c.tip_error_mm:.1f} mm from model"
+                        f" (limit {lim.tracker_divergence_mm} mm)",
                         c.t_s,
                     )
                 )

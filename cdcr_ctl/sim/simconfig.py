@@ -12,7 +12,7 @@ error, tracker frame offset, sensor noise) live only here.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
@@ -29,6 +29,7 @@ Probability = Annotated[float, Field(ge=0, le=1)]
 class TruthEffects(Section):
     """Physical effects of the simulated world beyond the robot section."""
 
+    geometry: Literal["chord", "cc"] = "chord"
     backlash_mm: NonNegativeFloat = 0.0
     counts_per_mm_scale: Annotated[list[PositiveFloat], Field(min_length=1)] | None = None
     gravity: bool = True

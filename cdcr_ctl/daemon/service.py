@@ -1,0 +1,345 @@
+"""The daemon: owns the rig I/O and the control loop, answers the control socket, talks to systemd.
+
+Start-up order makes a bad config harmless: the config is validated before anything is opened;
+the bus, drives and sensors are opened next; the drives stay disabled until ``enable``. Shutdown
+(SIGTERM, ``shutdown`` request) ends the running trajectory, closes its log, disables the drives and
+closes the bus, in that order, and every step runs even if an earlier one failed.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.control.loop import ControlLoop, LoopConfig
+from cdcr_ctl.control.ports import DrivePort, RobotModelPort, TensionPort, TipPort
+from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
+from cdcr_ctl.daemon.notify import SystemdNotifier
+from cdcr_ctl.daemon.protocol import ProtocolError, Request
+from cdcr_ctl.daemon.server import ControlServer
+from cdcr_ctl.errors import RigError
+
+log = logging.getLogger(__name__)
+
+#: How long shutdown waits for the loop thread to finish its last cycle (s).
+LOOP_JOIN_TIMEOUT_S = 2.0
+
+
+@dataclass
+class RigIO:
+    """The opened hardware (or simulated hardware) of one rig."""
+
+    drives: DrivePort
+    tensions: TensionPort
+    tip: TipPort
+    close: Callable[[], None]
+
+
+class Daemon:
+    """Wires config, model, I/O, loop and control socket; :meth:`serve` runs until stopped."""
+
+    def __init__(
+        self,
+        cfg: RigConfig,
+        config_path: Path,
+        io: RigIO,
+        model: RobotModelPort,
+        run_sink_factory: Callable[..., Any],
+        trajectory_factory: Callable[..., Any],
+        notifier: SystemdNotifier | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.config_path = config_path
+        self.io = io
+        self.model = model
+        self.new_sink = run_sink_factory
+        self.new_trajectory = trajectory_factory
+        self.notifier = notifier or SystemdNotifier()
+        self.state = "starting"
+        self._stop = threading.Event()
+        self._stop_reason = ""
+        self._cmd_lock = threading.Lock()
+        self.supervisor = Supervisor(
+            cfg.limits,
+            use_tension=cfg.sensors.load_cells is not None,
+            use_tracker=cfg.sensors.tracker is not None,
+        )
+        cable_order = [c.name for c in cfg.robot.cables]
+        by_cable = {d.cable: d for d in cfg.drives}
+        counts_per_mm = np.array([by_cable[c].counts_per_mm for c in cable_order])
+        self.loop = ControlLoop(
+            LoopConfig(
+                period_s=1.0 / cfg.control.rate_hz,
+                counts_per_mm=counts_per_mm,
+                compensation=cfg.control.compensation,
+                cable_velocity_mm_s=cfg.limits.cable_velocity_mm_s,
+            ),
+            model,
+            io.drives,
+            io.tensions,
+            io.tip,
+            self.supervisor,
+            on_trip=self._on_trip,
+        )
+        self.enabled = False
+        self.homed = False
+        self._manual_sink: Any = None
+        self.server: ControlServer | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        # Start the loop before the socket so a connecting client always sees live status.
+        self.loop.start()
+        self.server = ControlServer(
+            self.cfg.daemon.socket_path, self.handle, mode=self.cfg.daemon.socket_mode
+        ).start()
+        self.state = "ready"
+        self.notifier.ready(f"ready: {self.cfg.name}, drives disabled")
+        log.info("daemon ready on %s", self.cfg.daemon.socket_path)
+
+    def serve(self, install_signals: bool = True) -> str:
+        """Run until SIGTERM/SIGINT or a ``shutdown`` request; return the stop reason."""
+        if install_signals:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, self._signal)
+        period = self.notifier.watchdog_period_s() or 1.0
+        while not self._stop.wait(min(period, 1.0)):
+            if self.loop.running:
+                # Pet the watchdog only while the loop is alive: a hung loop gets us restarted.
+                self.notifier.watchdog()
+                self.notifier.status(self._status_line())
+            else:
+                log.error("control loop thread died; stopping")
+                self._stop_reason = "control loop died"
+                break
+        self.shutdown(self._stop_reason or "stopped")
+        return self._stop_reason
+
+    def _signal(self, signum: int, frame: object) -> None:
+        self._stop_reason = f"signal {signal.Signals(signum).name}"
+        self._stop.set()
+
+    def request_stop(self, reason: str) -> None:
+        self._stop_reason = reason
+        self._stop.set()
+
+    def shutdown(self, reason: str) -> None:
+        """Ramp down (end the run, hold), close logs, disable drives, close I/O; never raises."""
+        self.state = "stopping"
+        self.notifier.stopping()
+        steps: list[tuple[str, Callable[[], None]]] = [
+            ("halt", lambda: self.loop.request_stop(Reaction.HALT)),
+            ("settle", lambda: time.sleep(3 * self.loop.cfg.period_s)),
+            ("manual log", self._close_manual_sink),
+            ("disable drives", self.io.drives.disable),
+            ("stop loop", lambda: self.loop.stop(LOOP_JOIN_TIMEOUT_S)),
+            ("close socket", lambda: self.server.close() if self.server else None),
+            ("close io", self.io.close),
+        ]
+        for name, step in steps:
+            try:
+                step()
+            except Exception:
+                log.exception("shutdown step %r failed", name)
+        self.state = "stopped"
+        log.info("daemon stopped: %s", reason)
+
+    # ------------------------------------------------------------------ control socket
+    def handle(self, req: Request) -> Any:
+        method = getattr(self, f"_cmd_{req.cmd}")
+        with self._cmd_lock:
+            return method(req.args)
+
+    def _cmd_status(self, args: Any) -> dict[str, Any]:
+        fb = self.io.drives.feedback()
+        force, force_age = self.io.tensions.latest()
+        tip, tip_age = self.io.tip.latest()
+        trip = self.supervisor.trip
+        snap = self.loop.snapshot()
+        return {
+            "state": self.state,
+            "rig": self.cfg.name,
+            "design": self.cfg.design,
+            "config": str(self.config_path),
+            "enabled": self.enabled,
+            "homed": self.homed,
+            "compensation": self.loop.cfg.compensation,
+            "drives": [
+                {
+                    "cable": c.name,
+                    "position_counts": f.position_counts,
+                    "state": f.state,
+                    "fault": f.fault,
+                }
+                for c, f in zip(self.cfg.robot.cables, fb, strict=False)
+            ],
+            "tension_N": [None if not math.isfinite(v) else round(float(v), 3) for v in force],
+            "tension_age_s": [
+                None if not math.isfinite(v) else round(float(v), 4) for v in force_age
+            ],
+            "tip_mm": [None if not math.isfinite(v) else round(float(v), 3) for v in tip],
+            "tip_age_s": None if not math.isfinite(tip_age) else round(tip_age, 4),
+            "fault": None if trip is None else _trip_dict(trip),
+            "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
+            "run": snap.pop("run"),
+            "runs": [r.__dict__ for r in self.loop.history[-10:]],
+            "loop": snap,
+            "logging": self._manual_sink is not None,
+        }
+
+    def _cmd_enable(self, args: Any) -> dict[str, Any]:
+        if self.supervisor.trip is not None:
+            raise RigError(f"supervisor tripped ({self.supervisor.trip.cause}): reset-fault first")
+        self.io.drives.enable()
+        self.loop.drives_reenabled()
+        self.enabled = True
+        self.state = "enabled"
+        return {"enabled": True}
+
+    def _cmd_disable(self, args: Any) -> dict[str, Any]:
+        self.loop.request_stop(Reaction.HALT)
+        self.io.drives.disable()
+        self.enabled = False
+        self.state = "ready"
+        return {"enabled": False}
+
+    def _cmd_home(self, args: Any) -> dict[str, Any]:
+        if self.loop.snapshot()["run"] is not None:
+            raise RigError("a run is in progress: stop it before homing")
+        self.loop.pause(True)
+        try:
+            home = self.io.drives.home()
+        finally:
+            self.loop.pause(False)
+        self.loop.set_home(home)
+        self.homed = True
+        return {"home_counts": list(home)}
+
+    def _require_ready(self) -> None:
+        if not self.enabled:
+            raise RigError("drives are disabled: run `cdcr-ctl enable` first")
+        if self.supervisor.trip is not None:
+            raise RigError(f"supervisor tripped ({self.supervisor.trip.cause}): reset-fault first")
+
+    def _cmd_jog(self, args: Any) -> dict[str, Any]:
+        self._require_ready()
+        S, K = self.model.n_segments, self.model.n_cables
+        if args.segment is not None:
+            if args.segment > S:
+                raise ProtocolError(f"rig has {S} segment(s)", field="args.segment")
+            if not 0 <= args.theta_rad <= self.cfg.limits.bend_rad:
+                raise ProtocolError(
+                    f"outside [0, {self.cfg.limits.bend_rad}] rad (limits.bend_rad)",
+                    field="args.theta_rad",
+                )
+            start = self.loop.psi_cmd
+            goal = start.copy()
+            goal[args.segment - 1] = (args.theta_rad, args.phi_rad)
+            traj = self.new_trajectory.move(start, goal, speed_rad_s=args.speed)
+            run = self.loop.follow(traj, f"jog seg{args.segment}", None, None)
+            return {"run": run.id, "duration_s": run.duration_s}
+        if args.cable > K:
+            raise ProtocolError(f"rig has {K} cables", field="args.cable")
+        lo, hi = self.cfg.limits.cable_displacement_mm
+        if not lo - hi <= args.delta_mm <= hi - lo:
+            raise ProtocolError("larger than the displacement range", field="args.delta_mm")
+        self.loop.jog_cable(args.cable - 1, args.delta_mm)
+        return {"cable": args.cable, "delta_mm": args.delta_mm}
+
+    def _cmd_trajectory(self, args: Any) -> dict[str, Any]:
+        self._require_ready()
+        traj = self.new_trajectory.from_samples(
+            args.samples,
+            n_segments=self.model.n_segments,
+            bend_limit_rad=self.cfg.limits.bend_rad,
+            source=f"request {args.name!r}",
+        )
+        traj = self.new_trajectory.with_lead_in(self.loop.psi_cmd, traj)
+        sink = None
+        if args.log:
+            sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
+        run = self.loop.follow(traj, args.name, args.compensation, sink)
+        return {
+            "run": run.id,
+            "duration_s": run.duration_s,
+            "log_dir": run.log_dir,
+            "compensation": run.compensation,
+        }
+
+    def _cmd_stop(self, args: Any) -> dict[str, Any]:
+        reaction = Reaction.QUICK_STOP if args.mode == "quick_stop" else Reaction.HALT
+        self.loop.request_stop(reaction)
+        if reaction is Reaction.QUICK_STOP:
+            self.enabled = False
+        return {"stopped": args.mode}
+
+    def _cmd_log_start(self, args: Any) -> dict[str, Any]:
+        if self._manual_sink is not None:
+            raise RigError("a manual log is already running")
+        self._manual_sink = self.new_sink(args.name, self.loop.cfg.compensation)
+        self.loop.attach_sink(self._manual_sink)
+        return {"log_dir": str(getattr(self._manual_sink, "run_dir", ""))}
+
+    def _cmd_log_stop(self, args: Any) -> dict[str, Any]:
+        if self._manual_sink is None:
+            raise RigError("no manual log is running")
+        out = str(getattr(self._manual_sink, "run_dir", ""))
+        self._close_manual_sink()
+        return {"log_dir": out}
+
+    def _close_manual_sink(self) -> None:
+        sink, self._manual_sink = self._manual_sink, None
+        if sink is not None:
+            self.loop.attach_sink(None)
+            sink.close("log stopped")
+
+    def _cmd_compensation(self, args: Any) -> dict[str, Any]:
+        self.loop.set_compensation(args.mode)
+        return {"compensation": args.mode}
+
+    def _cmd_reset_fault(self, args: Any) -> dict[str, Any]:
+        if not args.confirm:
+            raise ProtocolError("set confirm: true to reset a fault", field="args.confirm")
+        self.io.drives.reset_faults()
+        self.supervisor.reset()
+        return {"fault": None}
+
+    def _cmd_shutdown(self, args: Any) -> dict[str, Any]:
+        self.request_stop("shutdown requested")
+        return {"stopping": True}
+
+    # ------------------------------------------------------------------ helpers
+    def _on_trip(self, trip: Trip) -> None:
+        if trip.reaction is Reaction.QUICK_STOP:
+            self.enabled = False
+            self.state = "fault"
+        self.notifier.status(f"TRIP {trip.cause}: {trip.detail}")
+
+    def _status_line(self) -> str:
+        run = self.loop.snapshot()["run"]
+        trip = self.supervisor.trip
+        parts = [self.state, "enabled" if self.enabled else "disabled"]
+        if run:
+            parts.append(f"run {run['name']} {run['elapsed_s']:.1f}/{run['duration_s']:.1f} s")
+        if trip:
+            parts.append(f"trip {trip.cause}")
+        return ", ".join(parts)
+
+
+def _trip_dict(t: Trip) -> dict[str, Any]:
+    return {
+        "cause": t.cause,
+        "reaction": t.reaction.name,
+        "detail": t.detail,
+        "t_s": round(t.t_s, 4),
+    }

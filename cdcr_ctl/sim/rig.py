@@ -1,0 +1,160 @@
+"""The simulated rig: truth physics with simulated EPOS drives, load cells and tracker around it.
+
+What a controller sees is what a real rig offers: CAN frames from EPOS nodes (through an slcan
+pseudo-terminal, or a python-can ``virtual`` bus in-process), Modbus RTU replies on a serial
+pseudo-terminal, NatNet datagrams on 127.0.0.1. Behind them a physics thread reads the drives'
+actual positions, solves the truth model (:mod:`cdcr_ctl.sim.truth`) and publishes tensions and the
+tip pose to the sensor simulators.
+
+The connection points are the ones the rig config (``rig:`` of the simulator YAML) names: the slcan
+pty and load-cell pty are symlinked to ``can.channel`` and ``sensors.load_cells.serial.port``, the
+tracker listens on ``sensors.tracker.host``/``command_port``. So the daemon runs against the
+simulator with the rig config unchanged.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cdcr_ctl.sim.loadcells import SensorNoise, sim_for_config
+from cdcr_ctl.sim.simconfig import LoadedSim
+from cdcr_ctl.sim.tracker import sim_tracker_from_config
+from cdcr_ctl.sim.truth import TruthModel
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SimCounters:
+    physics_steps: int = 0
+    physics_overruns: int = 0
+    physics_max_ms: float = 0.0
+    solve_failures: int = 0
+    faults_injected: list[str] = field(default_factory=list)
+
+
+class SimRig:
+    """Builds and runs every simulated device for one simulator config.
+
+    ``can_interface``: ``"slcan"`` puts the EPOS nodes behind an slcan pty (other processes connect
+    with python-can's slcan interface), ``"virtual"`` puts them on a python-can virtual bus of
+    channel ``can_channel`` in this process (tests).
+    """
+
+    def __init__(
+        self,
+        loaded: LoadedSim,
+        can_interface: str = "slcan",
+        can_channel: str | None = None,
+        link_paths: bool = True,
+    ) -> None:
+        self.loaded = loaded
+        self.rig = loaded.rig
+        self.truth = TruthModel(loaded)
+        self.counters = SimCounters()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.can_interface = can_interface
+        self.can_channel = can_channel or self.rig.can.channel
+        self.link_paths = link_paths
+        self.drives: Any = None
+        self.load_cells: Any = None
+        self.tracker: Any = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> SimRig:
+        from cdcr_ctl.sim.epos.rig import SimDriveBus  # the simulated EPOS nodes on their bus
+
+        noise = self.loaded.sim.noise
+        if self.rig.sensors.load_cells is not None:
+            lc = self.rig.sensors.load_cells
+            link = lc.serial.port if self.link_paths else None
+            if link:
+                Path(link).parent.mkdir(parents=True, exist_ok=True)
+            self.load_cells = sim_for_config(
+                lc,
+                self.truth.cell_tensions,
+                noise=SensorNoise(
+                    noise.load_cell_N,
+                    noise.load_cell_drift_N_per_s,
+                    noise.load_cell_dropout,
+                    self.loaded.sim.seed,
+                ),
+                link=link,
+            )
+            self.load_cells.start()
+        if self.rig.sensors.tracker is not None:
+            self.tracker = sim_tracker_from_config(
+                self.truth.tip_pose, self.rig.sensors.tracker, self.loaded.sim
+            )
+            self.tracker.start()
+        self.drives = SimDriveBus(
+            self.rig,
+            interface=self.can_interface,
+            channel=self.can_channel,
+            link=self.rig.can.channel
+            if (self.link_paths and self.can_interface == "slcan")
+            else None,
+        )
+        self.drives.start()
+        self._thread = threading.Thread(target=self._physics, name="sim-physics", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+        for dev in (self.drives, self.load_cells, self.tracker):
+            if dev is not None:
+                with contextlib.suppress(Exception):
+                    dev.stop()
+
+    def __enter__(self) -> SimRig:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def connection_info(self) -> dict[str, Any]:
+        """Where a controller connects (printed by ``cdcr-ctl sim``)."""
+        info: dict[str, Any] = {
+            "can": {"interface": self.can_interface, "channel": self.drives.channel_path},
+            "pid": os.getpid(),
+        }
+        if self.load_cells is not None:
+            info["load_cells"] = {"port": str(self.load_cells.path)}
+        if self.tracker is not None:
+            info["tracker"] = {
+                "host": self.rig.sensors.tracker.host,
+                "command_port": getattr(self.tracker, "command_port", None),
+                "data_port": getattr(self.tracker, "data_port", None),
+            }
+        return info
+
+    # ------------------------------------------------------------------ physics
+    def _physics(self) -> None:
+        period = 1.0 / self.loaded.sim.physics_rate_hz
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            t0 = time.monotonic()
+            counts = self.drives.actual_positions()
+            self.truth.step(counts)
+            self.counters.physics_steps += 1
+            self.counters.solve_failures = self.truth.failures
+            dt = time.monotonic() - t0
+            self.counters.physics_max_ms = max(self.counters.physics_max_ms, dt * 1e3)
+            next_t += period
+            wait = next_t - time.monotonic()
+            if wait < 0:
+                self.counters.physics_overruns += 1
+                next_t = time.monotonic()
+            else:
+                self._stop.wait(wait)

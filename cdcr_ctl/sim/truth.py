@@ -1,0 +1,123 @@
+"""The simulated world's physics: actuator positions in, robot pose and cable tensions out.
+
+The truth is the same forward static model the controller could use (:mod:`cdcr_ctl.model.forward`),
+with the simulator's own parameters (``truth_robot`` of the simulator YAML) and effects: the exact
+chord geometry of the disk holes, friction with stick at reversals, elastic cables, gravity,
+pulley losses, and transmission effects the controller's config does not know (actuator scale
+error, backlash). Quasi-static: the robot's dynamics are far faster than the cable motion.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdcr_ctl.config.build_model import loadcell_locations, robot_params
+from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model import Effects, ForwardStepper
+from cdcr_ctl.model.kinematics import chain
+from cdcr_ctl.sim.simconfig import LoadedSim
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TruthState:
+    """One solved instant of the simulated world (base frame, mm, N, rad)."""
+
+    q_act_mm: np.ndarray  # (K,) actuator displacement the drives produced
+    psi: np.ndarray  # (S, 2)
+    tip_mm: np.ndarray  # (3,)
+    R_tip: np.ndarray  # (3, 3) tip frame in base frame
+    tension_base_N: np.ndarray  # (K,)
+    tension_actuator_N: np.ndarray  # (K,)
+
+
+class TruthModel:
+    """Thread-safe truth: :meth:`step` from drive counts, getters for the simulated sensors."""
+
+    def __init__(self, loaded: LoadedSim) -> None:
+        rig, eff = loaded.rig, loaded.sim.effects
+        self.params = robot_params(loaded.truth)
+        self.effects = Effects(
+            disk_friction=eff.disk_friction,
+            pulley_friction=eff.pulley_friction,
+            elongation=eff.elongation,
+            coupling=eff.coupling,
+            gravity=eff.gravity,
+            geometry=eff.geometry,
+        )
+        self.stepper = ForwardStepper(self.params, self.effects)
+        by_cable = {d.cable: d for d in rig.drives}
+        scale = eff.counts_per_mm_scale or [1.0] * len(rig.drives)
+        # The truth's transmission: what the drives' counts really mean in cable millimetres.
+        self.counts_per_mm = np.array(
+            [
+                by_cable[c.name].counts_per_mm * s
+                for c, s in zip(rig.robot.cables, scale, strict=True)
+            ]
+        )
+        self.node_ids = [by_cable[c.name].node_id for c in rig.robot.cables]
+        self.lengths_mm = self.params.lengths_mm
+        self.cell_cable_index = []
+        self.cell_location = []
+        if rig.sensors.load_cells is not None:
+            names = [c.name for c in rig.robot.cables]
+            for cell in rig.sensors.load_cells.cells:
+                self.cell_cable_index.append(names.index(cell.cable))
+                self.cell_location.append(cell.location)
+        self.locations = loadcell_locations(rig)
+        self.failures = 0
+        self.steps = 0
+        self._lock = threading.Lock()
+        self._state = self._solve(np.zeros(len(self.counts_per_mm)))
+
+    def _solve(self, q_act: np.ndarray) -> TruthState:
+        r = self.stepper.step(q_act)
+        R, _ = chain(r.psi, self.lengths_mm)[-1]
+        return TruthState(
+            q_act_mm=q_act.copy(),
+            psi=r.psi.copy(),
+            tip_mm=np.array(r.tip_mm, dtype=float),
+            R_tip=np.array(R, dtype=float),
+            tension_base_N=np.array(r.tension_base_N, dtype=float),
+            tension_actuator_N=np.array(r.tension_actuator_N, dtype=float),
+        )
+
+    def step(self, counts: Sequence[int]) -> TruthState:
+        """Advance the world to the drives' present positions (counts, cable order)."""
+        q_act = np.asarray(counts, dtype=float) / self.counts_per_mm
+        try:
+            state = self._solve(q_act)
+        except ModelError as exc:
+            # A pose the statics cannot hold (all cables of a segment slack): keep the last pose;
+            # the controller's supervisor sees the tensions and the tip stop following.
+            self.failures += 1
+            log.warning("truth solve failed at q=%s: %s", np.round(q_act, 3), exc)
+            return self.state
+        with self._lock:
+            self._state = state
+            self.steps += 1
+        return state
+
+    @property
+    def state(self) -> TruthState:
+        with self._lock:
+            return self._state
+
+    def cell_tensions(self) -> list[float]:
+        """True tension at each load cell, in the config's cell order (N)."""
+        s = self.state
+        return [
+            float((s.tension_base_N if loc == "robot_base" else s.tension_actuator_N)[k])
+            for k, loc in zip(self.cell_cable_index, self.cell_location, strict=True)
+        ]
+
+    def tip_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(R_tip, p_tip_mm) in the robot base frame."""
+        s = self.state
+        return s.R_tip, s.tip_mm
