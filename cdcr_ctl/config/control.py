@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from cdcr_ctl.config.base import Section
 from cdcr_ctl.config.robot import PositiveFloat
@@ -20,6 +20,12 @@ class ControlConfig(Section):
 
     rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0
     compensation: Literal["off", "model", "measured"] = "model"
+    @field_validator("compensation", mode="before")
+    @classmethod
+    def _yaml_off(cls, value: object) -> object:
+        # YAML 1.1 reads a bare `off` as false: accept it as the mode it was meant to be.
+        return "off" if value is False else value
+
     #: Cable geometry of the model: ``chord`` the straight spans between disk holes (exact for a
     #: disk robot), ``cc`` the continuous routing of Qi et al. 2023 eq. 4.
     geometry: Literal["chord", "cc"] = "chord"
