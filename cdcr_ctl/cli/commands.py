@@ -1,0 +1,174 @@
+"""The heavier ``cdcr-ctl`` commands: daemon, sim, trajectory, plot, demo.
+
+Imported by :func:`cdcr_ctl.cli.main.main`; each command imports what it needs when it runs, so
+``cdcr-ctl status`` stays fast.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+import click
+
+from cdcr_ctl.cli.main import Ctx, cli, wait_for_run
+
+
+def _setup_logging(verbose: bool) -> None:
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+
+
+@cli.command()
+@click.option("--verbose", "-v", is_flag=True)
+@click.pass_obj
+def daemon(obj: Ctx, verbose: bool) -> None:
+    """Run the controller daemon in the foreground (systemd: Type=notify).
+
+    The config is validated before anything is opened; drives stay disabled until `enable`.
+    """
+    from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.config.build_model import build_model
+    from cdcr_ctl.control import trajectory
+    from cdcr_ctl.control.io import open_rig_io
+    from cdcr_ctl.daemon.service import Daemon
+    from cdcr_ctl.runlog.writer import RunLogFactory
+
+    _setup_logging(verbose)
+    if not obj.config:
+        raise click.UsageError("cdcr-ctl daemon needs --config RIG.yaml")
+    path = Path(obj.config)
+    cfg = load_rig_config(path)  # a bad config stops here: nothing opened, nothing enabled
+    if obj._socket:
+        cfg = cfg.model_copy(
+            update={"daemon": cfg.daemon.model_copy(update={"socket_path": obj._socket})}
+        )
+    model = build_model(cfg, source=str(path))
+    sinks = RunLogFactory.from_config(cfg, path)
+    io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
+    d = Daemon(cfg, path, io, model, sinks, trajectory)
+    try:
+        d.start()
+    except BaseException:
+        d.shutdown("start-up failed")
+        raise
+    reason = d.serve()
+    click.echo(f"daemon stopped: {reason}", err=True)
+
+
+@cli.command()
+@click.argument("sim_config", type=click.Path(exists=True, dir_okay=False))
+@click.option("--duration-s", type=float, default=None, help="Stop after this long (default: run).")
+@click.option("--verbose", "-v", is_flag=True)
+def sim(sim_config: str, duration_s: float | None, verbose: bool) -> None:
+    """Run the simulated rig of SIM_CONFIG in this process until SIGTERM/SIGINT.
+
+    Prints one JSON line with the connection points, then serves: EPOS nodes behind an slcan
+    pseudo-terminal, load cells on a serial pseudo-terminal, tracker on 127.0.0.1.
+    """
+    from cdcr_ctl.sim.rig import SimRig
+    from cdcr_ctl.sim.simconfig import load_sim_config
+
+    _setup_logging(verbose)
+    loaded = load_sim_config(sim_config)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    with SimRig(loaded) as rig:
+        click.echo(json.dumps({"ready": True, **rig.connection_info()}), nl=True)
+        sys.stdout.flush()
+        stop.wait(duration_s)
+        click.echo(json.dumps({"stopped": True, "counters": rig.counters.__dict__}), err=True)
+
+
+@cli.command("trajectory")
+@click.argument("file", required=False, type=click.Path(exists=True, dir_okay=False))
+@click.option(
+    "--builtin",
+    type=click.Choice(["planar_bend", "circle", "go_and_return"]),
+    help="A built-in trajectory of Qi et al. 2023 section 5 instead of FILE.",
+)
+@click.option("--theta-deg", type=float, default=None, help="Bend of the circle / top of a bend.")
+@click.option("--segments", type=int, default=1, show_default=True, help="Segments (built-ins).")
+@click.option("--compensation", type=click.Choice(["off", "model", "measured"]), default=None)
+@click.option("--name", default=None, help="Run name for the log (default: file or built-in).")
+@click.option("--wait/--no-wait", default=True, show_default=True, help="Wait with a progress bar.")
+@click.pass_obj
+def trajectory_cmd(
+    obj: Ctx,
+    file: str | None,
+    builtin: str | None,
+    theta_deg: float | None,
+    segments: int,
+    compensation: str | None,
+    name: str | None,
+    wait: bool,
+) -> None:
+    """Run a trajectory FILE (CSV or YAML of timed setpoints) or a built-in one."""
+    traj = build_trajectory(file, builtin, theta_deg, segments)
+    run_name = name or (Path(file).stem if file else str(builtin))
+    res = obj.call(
+        "trajectory", name=run_name, samples=traj.rows(), compensation=compensation, log=True
+    )
+    if not wait:
+        obj.emit(res)
+        return
+    st = wait_for_run(obj, res["run"], res["duration_s"])
+    done = next((r for r in st.get("runs", []) if r["id"] == res["run"]), None)
+    out = {**res, "state": done["state"] if done else "unknown"}
+    if done:
+        out["end_reason"] = done["end_reason"]
+    if res.get("log_dir"):
+        out["tip_error_mm"] = tip_error_summary(res["log_dir"])
+    obj.emit(out)
+    if done and done["state"] != "completed":
+        raise SystemExit(1)
+
+
+def build_trajectory(file: str | None, builtin: str | None, theta_deg: float | None, S: int):
+    from cdcr_ctl.control import trajectory as tj
+
+    if (file is None) == (builtin is None):
+        raise click.UsageError("give a trajectory FILE or --builtin NAME (not both)")
+    if file is not None:
+        return tj.load_trajectory(file)
+    if builtin == "planar_bend":
+        return tj.planar_bend(n_segments=S, theta_max_rad=math.radians(theta_deg or 90.0))
+    if builtin == "circle":
+        return tj.spatial_circle(n_segments=S, theta_rad=math.radians(theta_deg or 45.0))
+    return tj.go_and_return(n_segments=S, theta_max_rad=math.radians(theta_deg or 60.0))
+
+
+def tip_error_summary(run_dir: str) -> dict[str, Any]:
+    """Mean and max distance between the tracked tip and the commanded tip of a logged run (mm).
+
+    The commanded tip is the forward kinematics of the commanded (theta, phi) with the rig's
+    segment lengths from the run's config copy.
+    """
+    from cdcr_ctl.analysis import tip_errors
+
+    return tip_errors(run_dir).summary()
+
+
+@cli.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
+@click.option("--out", type=click.Path(file_okay=False), default=None, help="Default: RUN_DIR/plots")
+@click.pass_obj
+def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
+    """Plot a logged run: tip path vs command, tip error, cable displacements, tensions."""
+    from cdcr_ctl.analysis import tip_from_psi_for_run
+    from cdcr_ctl.runlog import load_run
+    from cdcr_ctl.runlog.plots import plot_run
+
+    run = load_run(run_dir)
+    files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))
+    obj.emit({"plots": [str(f) for f in files]})
