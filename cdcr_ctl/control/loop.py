@@ -102,6 +102,7 @@ class _Pending:
 class LoopCounters:
     cycles: int = 0
     rows_logged: int = 0
+    rows_dropped: int = 0
     trips: int = 0
     last_cycle_us: float = 0.0
     max_cycle_us: float = 0.0
@@ -284,7 +285,7 @@ class ControlLoop:
                 p.run.state, p.run.end_reason = "refused", reason
                 self.history.append(p.run)
                 if p.sink is not None:
-                    p.sink.close(reason)
+                    p.sink.close(reason, outcome="refused", wait=False)
             else:
                 self._finish_run("stopped", "replaced by a new run")
                 self._source, self._t_source0 = p.source, now
@@ -394,8 +395,10 @@ class ControlLoop:
         for sink in (self._sink, self._manual_sink):
             if sink is None:
                 continue
-            sink.write(row)
-            self.counters.rows_logged += 1
+            if sink.write(row):
+                self.counters.rows_logged += 1
+            else:
+                self.counters.rows_dropped += 1
             failure = getattr(sink, "failure", None)
             if failure and self.supervisor.trip is None:
                 self._react(Trip("log_write_failed", Reaction.HALT, str(failure), t_s))
@@ -441,7 +444,8 @@ class ControlLoop:
             if state != "completed":
                 self._source, self._t_source0 = Hold(self._psi_cmd), time.monotonic()
         if sink is not None:
-            sink.close(reason)
+            # Never wait for the writer's fsync on the loop thread.
+            sink.close(reason, outcome=state, wait=False)
 
     def drives_reenabled(self) -> None:
         """Called by the daemon after re-enabling drives: resume sending computed targets."""

@@ -301,7 +301,7 @@ class Daemon:
         sink, self._manual_sink = self._manual_sink, None
         if sink is not None:
             self.loop.attach_sink(None)
-            sink.close("log stopped")
+            sink.close("log stopped", outcome="completed")
 
     def _cmd_compensation(self, args: Any) -> dict[str, Any]:
         self.loop.set_compensation(args.mode)

@@ -78,8 +78,9 @@ class ListSink:
 
     def write(self, row):
         self.rows.append(row)
+        return True
 
-    def close(self, reason):
+    def close(self, reason, outcome=None, wait=True):
         self.closed = reason
 
 

@@ -1,0 +1,1 @@
+"""The real-time loop and what it follows: setpoint sources (trajectories), supervisor, timing."""
