@@ -6,13 +6,26 @@ which drive pulls which cable. Everything is put in cable order (``robot.cables`
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cdcr_ctl.config.loadcells import LoadCellsConfig
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.config.tracking import TrackerConfig
+from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
+from cdcr_ctl.drives.busload import check_bus_load
+from cdcr_ctl.drives.canbus import open_bus
+from cdcr_ctl.drives.group import DriveGroup
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
+from cdcr_ctl.sensors.tracker import open_tracker
+
+if TYPE_CHECKING:
+    from cdcr_ctl.daemon.service import RigIO
 
 
 class LoadCellTension:
@@ -54,3 +67,115 @@ def open_tension(lc: LoadCellsConfig, cable_names: Sequence[str]) -> LoadCellTen
     sampler = open_load_cells(lc)
     sampler.start()
     return LoadCellTension(sampler, cell_order(lc, cable_names))
+
+
+class TrackerTip:
+    """:class:`~cdcr_ctl.control.ports.TipPort` over a tracker reader (NatNet or line stream)."""
+
+    def __init__(self, tracker: Any) -> None:
+        self.tracker = tracker
+
+    def latest(self) -> tuple[np.ndarray, float]:
+        p, age = self.tracker.position_and_age()
+        return np.asarray(p, dtype=float), float(age)
+
+    def close(self) -> None:
+        self.tracker.close()
+
+
+def open_tip(tracker_cfg: TrackerConfig) -> TrackerTip:
+    """Connect to the tracker (raises SensorError naming host and port when it does not answer)."""
+    return TrackerTip(open_tracker(tracker_cfg))
+
+
+class DriveGroupPort:
+    """:class:`~cdcr_ctl.control.ports.DrivePort` over a :class:`~cdcr_ctl.drives.group.DriveGroup`
+    whose drives are in cable order."""
+
+    def __init__(self, group: DriveGroup) -> None:
+        self.group = group
+        self._clock = group.clock
+
+    def send_cycle(self, targets_counts: Sequence[int]) -> None:
+        self.group.send_cycle(targets_counts)
+
+    def feedback(self) -> list[DriveState]:
+        now = self._clock()
+        fault = self.group.first_fault()
+        text = fault[1] if fault else ""
+        return [
+            DriveState(f.position_counts, f.state.value, text, now - f.t_s)
+            for f in self.group.feedback()
+        ]
+
+    def first_fault(self) -> tuple[str, str] | None:
+        return self.group.first_fault()
+
+    def enable(self) -> None:
+        self.group.enable()
+
+    def disable(self) -> None:
+        self.group.disable()
+
+    def quick_stop(self) -> None:
+        self.group.quick_stop()
+
+    def home(self) -> list[int]:
+        return self.group.home(sync=lambda: self.group.send_sync())
+
+    def reset_faults(self) -> None:
+        self.group.reset_faults()
+
+    def close(self) -> None:
+        self.group.close()
+
+
+def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
+    """Check the bus budget, open the bus, boot and configure every drive (cable order).
+
+    Nothing is enabled here. On any failure the bus is closed again before the error propagates.
+    """
+    check_bus_load(
+        len(cfg.drives), cfg.can.sync_period_s, cfg.can.bitrate, cfg.can.max_bus_load, file
+    )
+    by_cable = {d.cable: d for d in cfg.drives}
+    drives = [by_cable[c.name] for c in cfg.robot.cables]
+    group = DriveGroup(open_bus(cfg.can), cfg.can, drives)
+    try:
+        group.boot()
+        group.configure()
+    except BaseException:
+        group.close()
+        raise
+    return DriveGroupPort(group)
+
+
+def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None = None) -> RigIO:
+    """Open drives, load cells and tracker of ``cfg``; close what was opened if a later one fails."""
+    from cdcr_ctl.daemon.service import RigIO
+
+    opened: list[Any] = []
+    try:
+        drives = open_drives(cfg, str(path))
+        opened.append(drives)
+        names = [c.name for c in cfg.robot.cables]
+        tensions: Any = NoTension(len(names))
+        if cfg.sensors.load_cells is not None:
+            tensions = open_tension(cfg.sensors.load_cells, names)
+            opened.append(tensions)
+        tip: Any = NoTip()
+        if cfg.sensors.tracker is not None:
+            tip = open_tip(cfg.sensors.tracker)
+            opened.append(tip)
+    except BaseException:
+        for dev in reversed(opened):
+            with contextlib.suppress(Exception):
+                dev.close()
+        raise
+
+    def close() -> None:
+        for dev in (tip, tensions, drives):
+            with contextlib.suppress(Exception):
+                dev.close()
+
+    return RigIO(drives=drives, tensions=tensions, tip=tip, close=close)
