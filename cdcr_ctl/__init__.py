@@ -5,7 +5,7 @@ Layers (dependencies point down):
 - ``cdcr_ctl.cli`` / ``cdcr_ctl.daemon``  application: command line, control socket, service
 - ``cdcr_ctl.control``                     the real-time loop wiring model, drives and sensors
 - ``cdcr_ctl.model``                       pure physics (numpy/scipy), no I/O, no clocks
-- ``cdcr_ctl.drives`` / ``cdcr_ctl.sensors``  protocol code: counts and modes, newtons and millimetres
+- ``cdcr_ctl.drives`` / ``cdcr_ctl.sensors``  protocol code: counts and modes, newtons and mm
 - ``cdcr_ctl.config``                      the validated YAML rig config
 - ``cdcr_ctl.errors``                      one exception tree
 

@@ -21,7 +21,6 @@ from cdcr_ctl.runlog import Run, load_run
 from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML as EFFECTIVE_CONFIG
 
 
-
 def run_config(run: Run) -> RigConfig:
     """The validated rig config a run was made with (from its run directory)."""
     path = run.run_dir / EFFECTIVE_CONFIG

@@ -161,7 +161,9 @@ def tip_error_summary(run_dir: str) -> dict[str, Any]:
 
 @cli.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
-@click.option("--out", type=click.Path(file_okay=False), default=None, help="Default: RUN_DIR/plots")
+@click.option(
+    "--out", type=click.Path(file_okay=False), default=None, help="Default: RUN_DIR/plots"
+)
 @click.pass_obj
 def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     """Plot a logged run: tip path vs command, tip error, cable displacements, tensions."""
@@ -172,3 +174,8 @@ def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     run = load_run(run_dir)
     files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))
     obj.emit({"plots": [str(f) for f in files]})
+
+
+from cdcr_ctl.cli.demo import demo  # noqa: E402
+
+cli.add_command(demo)

@@ -194,7 +194,7 @@ def shutdown(obj: Ctx) -> None:
 
 
 def wait_for_run(obj: Ctx, run_id: str, duration_s: float, progress: bool = True) -> dict:
-    """Poll ``status`` until run ``run_id`` has ended; show a progress bar; return the final status."""
+    """Poll ``status`` until run ``run_id`` has ended, with a progress bar; the final status."""
     from tqdm import tqdm
 
     bar = tqdm(

@@ -20,6 +20,7 @@ class ControlConfig(Section):
 
     rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0
     compensation: Literal["off", "model", "measured"] = "model"
+
     @field_validator("compensation", mode="before")
     @classmethod
     def _yaml_off(cls, value: object) -> object:

@@ -33,6 +33,9 @@ class CanBusConfig(Section):
     master_node_id: Annotated[int, Field(ge=1, le=127)] = 127
     master_heartbeat_ms: Annotated[int, Field(ge=0, le=65535)] = 100
     max_bus_load: Annotated[float, Field(gt=0, le=1.0)] = 0.70
+    #: A drive whose TPDO feedback is older than this has stopped answering (s). Default: three
+    #: SYNC periods. Links with more latency (an slcan pty between processes) need more.
+    feedback_timeout_s: Annotated[float, Field(gt=0, le=10.0)] | None = None
     log_traffic: bool = True
 
     @field_validator("bitrate")

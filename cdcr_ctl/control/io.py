@@ -151,7 +151,7 @@ def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
 
 
 def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None = None) -> RigIO:
-    """Open drives, load cells and tracker of ``cfg``; close what was opened if a later one fails."""
+    """Open drives, load cells and tracker of ``cfg``; close what was opened if one fails."""
     from cdcr_ctl.daemon.service import RigIO
 
     opened: list[Any] = []

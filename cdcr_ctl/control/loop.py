@@ -41,6 +41,10 @@ from cdcr_ctl.errors import ModelError
 
 log = logging.getLogger(__name__)
 
+#: Cable offsets (jogs, re-enable slack, compensation switches) ramp out at this fraction of the
+#: cable velocity limit.
+OFFSET_RAMP_FRACTION = 0.5
+
 
 class Hold:
     """A constant setpoint."""
@@ -161,6 +165,7 @@ class ControlLoop:
         # The compensation mode of the last run stays in force while holding, so a run's end does
         # not step the command; the ``compensation`` command changes it.
         self._mode = cfg.compensation
+        self._mode_applied = cfg.compensation
         self.history: list[RunInfo] = []
 
     # ---------------------------------------------------------------- commands (any thread)
@@ -322,7 +327,8 @@ class ControlLoop:
         run = self._run
         if run is not None:
             run.elapsed_s = min(t_run, run.duration_s)
-        step = self.cfg.cable_velocity_mm_s * self.cfg.period_s
+        # Offsets ramp at half the velocity limit, leaving the other half to the trajectory.
+        step = OFFSET_RAMP_FRACTION * self.cfg.cable_velocity_mm_s * self.cfg.period_s
         self._q_offset += np.clip(self._q_offset_target - self._q_offset, -step, step)
 
         # Inverse kinematics and compensation
@@ -330,6 +336,8 @@ class ControlLoop:
         if run is not None:
             self._mode = run.compensation
         mode = self._mode
+        mode_changed = mode != self._mode_applied
+        self._mode_applied = mode
         measured = force_N if mode == "measured" else None
         try:
             q_cmd = self.model.q_command(psi, q_nom, self._model_state, mode, measured)
@@ -338,6 +346,11 @@ class ControlLoop:
             # command rather than guess.
             self._react(Trip("model_unreachable", Reaction.HOLD, str(exc), t_s))
             psi, q_cmd = self._psi_cmd, self._q_cmd - self._q_offset
+        if mode_changed and self.counters.cycles > 0:
+            # Switching compensation steps the command by delta: take the step into the offset
+            # and let it ramp out instead of jumping (and tripping the velocity limit).
+            self._q_offset = self._q_cmd - q_cmd
+            self._q_offset_target = np.zeros_like(self._q_offset)
         q_cmd = q_cmd + self._q_offset
 
         # Limits

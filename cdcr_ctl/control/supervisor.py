@@ -150,6 +150,8 @@ class Supervisor:
             t_lo, t_hi = lim.tension_N
             for k, (f, age) in enumerate(zip(c.tension_N, c.tension_age_s, strict=False)):
                 if not (age <= lim.sensor_timeout_s):
+                    if not c.moving:
+                        continue  # idle: reported in status, tripped on only while moving
                     out.append(
                         Trip(
                             f"stale_tension:cable{k + 1}",
@@ -179,6 +181,8 @@ class Supervisor:
                     )
         if self.use_tracker:
             if not (c.tip_age_s <= lim.sensor_timeout_s):
+                if not c.moving:
+                    return out
                 out.append(
                     Trip(
                         "stale_tracker",

@@ -129,9 +129,7 @@ def pdo_mapping_writes(node_id: int) -> list[tuple[int, int, bytes]]:
     return w
 
 
-def configuration_writes(
-    d: DriveConfig, bus: CanBusConfig
-) -> list[tuple[int, int, bytes]]:
+def configuration_writes(d: DriveConfig, bus: CanBusConfig) -> list[tuple[int, int, bytes]]:
     """Every SDO write that configures drive ``d`` from the rig config (order matters)."""
     mode = MODE_BY_NAME[d.mode]
     period_ms = round(bus.sync_period_s * 1000)
@@ -208,6 +206,7 @@ class DriveGroup:
         self._traffic_lock = threading.Lock()
         self._heartbeat_task: object = None
         self.sync_count = 0
+        self.feedback_timeout_s = bus_cfg.feedback_timeout_s or TPDO_MISSES * bus_cfg.sync_period_s
         for d in drives:
             node = canopen.RemoteNode(d.node_id, canopen.ObjectDictionary())
             node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
@@ -259,12 +258,13 @@ class DriveGroup:
     def frame_dump(self) -> str:
         """The last frames seen and sent, oldest first, for error reports."""
         return "\n".join(
-            f"{t:12.6f} {d} {cid:03X} [{len(b)}] {b.hex(' ')}" for t, d, cid, b in list(self._frames)
+            f"{t:12.6f} {d} {cid:03X} [{len(b)}] {b.hex(' ')}"
+            for t, d, cid, b in list(self._frames)
         )
 
     # ------------------------------------------------------------------ traffic log
     def log_traffic(self, path: str | Path | None) -> None:
-        """Write every frame seen and sent to ``path`` (python-can ASC/BLF by suffix); None stops."""
+        """Log every frame seen and sent to ``path`` (ASC/BLF by suffix); ``None`` stops."""
         with self._traffic_lock:
             old, self._traffic = self._traffic, None
         if old is not None:
@@ -375,7 +375,7 @@ class DriveGroup:
                     f"heartbeat:node{d.cfg.node_id}",
                     f"node {d.cfg.node_id}: heartbeat lost ({now - d.last_heartbeat_s:.3f} s)",
                 )
-            if self.sync_count > TPDO_MISSES and now - d.feedback.t_s > TPDO_MISSES * period + 0.002:
+            if self.sync_count > TPDO_MISSES and now - d.feedback.t_s > self.feedback_timeout_s:
                 self._latch(
                     f"no_feedback:node{d.cfg.node_id}",
                     f"node {d.cfg.node_id}: no TPDO for {now - d.feedback.t_s:.3f} s "

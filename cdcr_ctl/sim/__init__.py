@@ -1,1 +1,2 @@
-"""The simulated rig: EPOS nodes, load cells, tracker and truth physics. Never imported by production code."""
+"""The simulated rig: EPOS nodes, load cells, tracker, truth physics (never imported by
+production code)."""

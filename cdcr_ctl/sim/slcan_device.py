@@ -4,7 +4,7 @@ The simulated rig owns the pty's master side and a python-can bus (usually ``vir
 simulated nodes; a controller in another process opens the pty's slave side with python-can's
 ``slcan`` interface, exactly as it would open a real adapter (``/dev/ttyACM0``).
 
-Host -> adapter commands handled: ``O`` open, ``C`` close, ``L`` listen-only, ``S0``-``S8`` bit rate,
+Host -> adapter commands: ``O`` open, ``C`` close, ``L`` listen-only, ``S0``-``S8`` bit rate,
 ``V``/``v``/``N`` version and serial, ``F`` status flags, ``Z0``/``Z1`` timestamps, and frames
 ``tIIILDD..``, ``TIIIIIIIILDD..``, ``rIIIL``, ``RIIIIIIIIL``. Answers: ``\\r`` (OK) or ``\\a``
 (error); transmitted frames are acknowledged ``z\\r``/``Z\\r``. Adapter -> host: every frame seen on
@@ -92,11 +92,8 @@ class SlcanDevice(can.Listener):
             self.tx_frames += 1
 
     def _write(self, data: bytes) -> None:
-        with self._lock:
-            try:
-                os.write(self.master_fd, data)
-            except OSError:
-                pass
+        with self._lock, contextlib.suppress(OSError):
+            os.write(self.master_fd, data)
 
     # host -> bus
     def _reader(self) -> None:

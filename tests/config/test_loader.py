@@ -204,7 +204,11 @@ def test_extends_merges_child_over_parent_and_blames_the_right_file(tmp_path):
     }
     child_path = _write(tmp_path, child, "child.yaml")
     cfg = load_rig_config(child_path)
-    assert (cfg.can.interface, cfg.can.channel, cfg.can.bitrate) == ("slcan", "/tmp/x/can", 1_000_000)
+    assert (cfg.can.interface, cfg.can.channel, cfg.can.bitrate) == (
+        "slcan",
+        "/tmp/x/can",
+        1_000_000,
+    )
     assert [c.pretension_N for c in cfg.robot.cables] == [2.0, 2.0, 3.5]
 
     child["can"]["bitrate"] = 7  # a bad key written in the child is the child's

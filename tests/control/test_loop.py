@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -96,7 +97,9 @@ class Ramp:
         return np.array([[self.theta_end * min(t / self.duration, 1.0), 0.0]])
 
 
-LIM = LimitsConfig(cable_displacement_mm=[-20.0, 20.0], cable_velocity_mm_s=100.0, tension_N=[0.5, 30.0])
+LIM = LimitsConfig(
+    cable_displacement_mm=[-20.0, 20.0], cable_velocity_mm_s=100.0, tension_N=[0.5, 30.0]
+)
 
 
 def make_loop(tension=None):
@@ -104,7 +107,9 @@ def make_loop(tension=None):
     ten = tension or FakeTension()
     sup = Supervisor(LIM, use_tension=True)
     loop = ControlLoop(
-        LoopConfig(period_s=0.002, counts_per_mm=CPM, compensation="model", cable_velocity_mm_s=100.0),
+        LoopConfig(
+            period_s=0.002, counts_per_mm=CPM, compensation="model", cable_velocity_mm_s=100.0
+        ),
         FakeModel(),
         drives,
         ten,
@@ -144,7 +149,7 @@ def test_trajectory_runs_to_completion_and_logs_every_cycle():
     assert expected in drives.sent
     assert [last[f"cable{k}_tension_N"] for k in (1, 2, 3)] == [3.0, 3.0, 3.0]
     t = [r["t_s"] for r in sink.rows]
-    assert all(b > a for a, b in zip(t, t[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(t))
 
 
 def test_overload_quick_stops_once_and_ends_the_run():

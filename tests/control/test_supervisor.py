@@ -58,8 +58,11 @@ def test_each_limit_has_its_reaction():
         assert trip.detail
 
 
-def test_slack_is_ignored_when_not_moving():
+def test_slack_and_stale_sensors_are_ignored_when_not_moving():
     assert sup().check(check(**{**OK_T, "tension_N": [0.1, 5, 5]}, moving=False)) is None
+    stale = {**OK_T, "tension_age_s": [1.0, 1.0, 1.0], "tip_age_s": 5.0}
+    assert sup().check(check(**stale, moving=False)) is None
+    assert sup().check(check(**stale, moving=True)).reaction is Reaction.HALT
 
 
 def test_trips_latch_escalate_and_reset():

@@ -118,7 +118,9 @@ class SimEpos:
             self._controlword(struct.unpack("<H", data)[0])
         elif index == 0x6060:
             mode = struct.unpack("<b", data)[0]
-            if mode not in (1, 3, 6, 7, 8, 9, 10, -1, -2, -3) or (self.kind == "epos2" and mode == 8):
+            if mode not in (1, 3, 6, 7, 8, 9, 10, -1, -2, -3) or (
+                self.kind == "epos2" and mode == 8
+            ):
                 raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
             with self._lock:
                 self.mode = mode
@@ -241,11 +243,10 @@ class SimEpos:
             elif cw & 0x8F == 0x07:
                 if s in (State.READY_TO_SWITCH_ON, State.OPERATION_ENABLED):
                     self.state = State.SWITCHED_ON
-            elif cw & 0x8F == 0x0F:
-                if s in (State.SWITCHED_ON, State.QUICK_STOP_ACTIVE):
-                    self.state = State.OPERATION_ENABLED
-                    self.target = round(self.position)
-                    self._pending_target = None
+            elif cw & 0x8F == 0x0F and s in (State.SWITCHED_ON, State.QUICK_STOP_ACTIVE):
+                self.state = State.OPERATION_ENABLED
+                self.target = round(self.position)
+                self._pending_target = None
             if self.state is State.OPERATION_ENABLED:
                 if self.mode == Mode.HOMING and cw & 0x10 and not old & 0x10:
                     self._home()

@@ -121,7 +121,14 @@ def build_od(node_id: int, kind: str) -> ObjectDictionary:
         (0x609A, "Homing acceleration", UNSIGNED32, 1000),
         (0x6502, "Supported drive modes", UNSIGNED32, 0x000003ED if kind == "epos4" else 0x6D),
     ]:
-        _simple(od, index, name, dtype, default, "ro" if index in (0x6041, 0x6061, 0x6064, 0x6502) else "rw")
+        _simple(
+            od,
+            index,
+            name,
+            dtype,
+            default,
+            "ro" if index in (0x6041, 0x6061, 0x6064, 0x6502) else "rw",
+        )
     _record(
         od,
         0x607D,

@@ -27,7 +27,11 @@ class SimDriveBus:
     """
 
     def __init__(
-        self, rig: RigConfig, interface: str = "virtual", channel: str = "cdcr", link: str | None = None
+        self,
+        rig: RigConfig,
+        interface: str = "virtual",
+        channel: str = "cdcr",
+        link: str | None = None,
     ) -> None:
         self.rig = rig
         self.interface = interface

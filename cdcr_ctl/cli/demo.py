@@ -1,0 +1,252 @@
+"""``cdcr-ctl demo``: the simulated rig, the daemon and the paper's two experiments, end to end.
+
+Three processes, as on a lab PC: ``cdcr-ctl sim`` (the simulated rig: EPOS nodes behind an slcan
+pty, load cells on a pty, tracker on 127.0.0.1), ``cdcr-ctl daemon`` (the controller, with the
+simulator's rig config) and this process talking to the daemon through its control socket like
+any CLI call. Each experiment of Qi et al. 2023 section 5 runs without and with compensation; the
+tip errors come from the logged runs.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import click
+import yaml
+
+from cdcr_ctl.daemon.client import ControlClient
+from cdcr_ctl.errors import CommError, RigError
+
+ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
+#: How long to wait for the simulator and the daemon to come up (s).
+START_TIMEOUT_S = 60.0
+
+
+def free_port() -> int:
+    """An unused TCP/UDP port number on 127.0.0.1 (asked of the kernel)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def make_session(sim_yaml: Path, work: Path, runs: Path) -> tuple[Path, Path]:
+    """Write a rig config and a simulator config for one demo session in ``work``.
+
+    The rig config extends the simulator config's rig and moves every connection point into
+    ``work`` (pty links, control socket) and onto free loopback ports, so sessions never collide.
+    Returns (rig config, simulator config).
+    """
+    sim_doc = yaml.safe_load(sim_yaml.read_text())
+    base_rig = (sim_yaml.parent / sim_doc["rig"]).resolve()
+    base = yaml.safe_load(base_rig.read_text())
+    rig_doc: dict[str, Any] = {
+        "extends": str(base_rig),
+        "can": {"channel": str(work / "can")},
+        "daemon": {"socket_path": str(work / "control.sock")},
+        "logging": {"directory": str(runs)},
+    }
+    sensors = base.get("sensors") or {}
+    if "load_cells" in sensors or "load_cells" in _parent_sensors(base_rig):
+        rig_doc.setdefault("sensors", {})["load_cells"] = {
+            "serial": {"port": str(work / "loadcells")}
+        }
+    rig_doc.setdefault("sensors", {})["tracker"] = {
+        "host": "127.0.0.1",
+        "port": free_port(),
+        "command_port": free_port(),
+    }
+    rig_path = work / "rig.yaml"
+    rig_path.write_text(yaml.safe_dump(rig_doc, sort_keys=False))
+    sim_doc["rig"] = str(rig_path)
+    sim_path = work / "sim.yaml"
+    sim_path.write_text(yaml.safe_dump(sim_doc, sort_keys=False))
+    return rig_path, sim_path
+
+
+def _parent_sensors(rig: Path) -> dict[str, Any]:
+    doc = yaml.safe_load(rig.read_text()) or {}
+    if "extends" in doc:
+        parent = yaml.safe_load((rig.parent / doc["extends"]).read_text()) or {}
+        return {**(parent.get("sensors") or {}), **(doc.get("sensors") or {})}
+    return doc.get("sensors") or {}
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "cdcr_ctl", *args]
+
+
+@contextlib.contextmanager
+def running(
+    cmd: Sequence[str], log_path: Path, ready: str | None = None
+) -> Iterator[subprocess.Popen]:
+    """Start ``cmd`` with output to ``log_path``; on exit SIGTERM it (then SIGKILL after 10 s).
+
+    With ``ready``, wait until a line containing it appears on stdout (the sim's JSON line).
+    """
+    log = log_path.open("w")
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE if ready else log,
+        stderr=log,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        if ready:
+            assert proc.stdout is not None
+            deadline = time.monotonic() + START_TIMEOUT_S
+            while True:
+                line = proc.stdout.readline()
+                if line:
+                    log.write(line)
+                    log.flush()
+                    if ready in line:
+                        break
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    raise RigError(f"{cmd[3]} did not start; see {log_path}")
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        log.close()
+
+
+def wait_for_socket(path: Path, proc: subprocess.Popen, log_path: Path) -> None:
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RigError(f"daemon exited with {proc.returncode}; see {log_path}")
+        with contextlib.suppress(CommError), ControlClient(path, timeout_s=5) as c:
+            c.call("status")
+            return
+        time.sleep(0.2)
+    raise RigError(f"daemon did not open {path}; see {log_path}")
+
+
+def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str) -> dict[str, Any]:
+    """Run one trajectory through the daemon and wait for it; return the run's log dir and state."""
+    with ControlClient(sock) as c:
+        res = c.call("trajectory", name=name, samples=samples, compensation=comp, log=True)
+        end = time.monotonic() + res["duration_s"] + 60.0
+        while time.monotonic() < end:
+            st = c.call("status")
+            done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
+            if done is not None:
+                return {**res, "state": done["state"], "end_reason": done["end_reason"]}
+            time.sleep(0.2)
+    raise RigError(f"run {name} did not finish")
+
+
+@click.command("demo")
+@click.option(
+    "--sim-config",
+    type=click.Path(exists=True, dir_okay=False, path_type=Path),
+    default=ROOT_CONFIG / "sim" / "qi2023-truth.yaml",
+    show_default=True,
+)
+@click.option(
+    "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-output")
+)
+@click.option("--quick", is_flag=True, help="Shorter experiments (for tests).")
+@click.pass_obj
+def demo(obj: Any, sim_config: Path, out: Path, quick: bool) -> None:
+    """Simulated rig + daemon: planar bend and circle, without and with compensation."""
+    from cdcr_ctl.analysis import tip_errors
+    from cdcr_ctl.control import trajectory as tj
+
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    session = (out / stamp).resolve()
+    work = Path(f"/tmp/cdcr-demo-{os.getpid()}")
+    runs = session / "runs"
+    for d in (session, work, runs):
+        d.mkdir(parents=True, exist_ok=True)
+    rig_path, sim_path = make_session(sim_config.resolve(), work, runs)
+    sock = work / "control.sock"
+    theta_max = 1.2 if quick else 1.5708
+    experiments = {
+        "planar_bend": tj.planar_bend(theta_max_rad=theta_max, back=False, hold_s=1.0),
+        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.6 if quick else 0.314),
+    }
+    rows: list[dict[str, Any]] = []
+    click.echo(f"demo session: {session}", err=True)
+    with (
+        running(_cli("sim", str(sim_path)), session / "sim.log", ready='"ready"'),
+        running(_cli("--config", str(rig_path), "daemon"), session / "daemon.log") as d,
+    ):
+        wait_for_socket(sock, d, session / "daemon.log")
+        with ControlClient(sock) as c:
+            c.call("enable")
+            c.call("home")
+        for exp, traj in experiments.items():
+            for comp in ("off", "model"):
+                for _attempt in range(2):
+                    res = run_experiment(sock, f"{exp}-{comp}", traj.rows(), comp)
+                    if res["state"] != "completed":
+                        # Keep the log of the tripped run, clear the trip, go on.
+                        click.echo(f"  {exp}-{comp}: {res['end_reason']}", err=True)
+                        with ControlClient(sock) as c:
+                            c.call("reset_fault", confirm=True)
+                            c.call("enable")
+                    if res["state"] != "refused":
+                        break
+                summ = tip_errors(res["log_dir"], settle_s=0.0).summary()
+                rows.append({"experiment": exp, **summ, "state": res["state"]})
+                click.echo(
+                    f"  {exp:12s} compensation={comp:6s} mean {summ['mean_mm']:.3f} mm"
+                    f"  max {summ['max_mm']:.3f} mm  ({res['state']})",
+                    err=True,
+                )
+        with ControlClient(sock) as c:
+            c.call("disable")
+    table = format_table(rows)
+    (session / "results.md").write_text(table)
+    (session / "results.json").write_text(json.dumps(rows, indent=2))
+    _plots(runs)
+    shutil.rmtree(work, ignore_errors=True)
+    click.echo(table)
+    click.echo(f"logs, plots and results in {session}")
+
+
+def format_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown table: mean/max tip error per experiment and mode, reduction against 'off'."""
+    lines = [
+        "| experiment | compensation | mean tip error (mm) | max (mm) | mean reduction vs off |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    base = {r["experiment"]: r["mean_mm"] for r in rows if r["compensation"] == "off"}
+    for r in rows:
+        red = ""
+        if r["compensation"] != "off" and base.get(r["experiment"]):
+            red = f"{100.0 * (1.0 - r['mean_mm'] / base[r['experiment']]):.1f} %"
+        lines.append(
+            f"| {r['experiment']} | {r['compensation']} | {r['mean_mm']:.3f}"
+            f" | {r['max_mm']:.3f} | {red} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _plots(runs: Path) -> None:
+    from cdcr_ctl.analysis import tip_from_psi_for_run
+    from cdcr_ctl.runlog import load_run
+    from cdcr_ctl.runlog.plots import plot_run
+
+    for run_dir in sorted(p for p in runs.iterdir() if p.is_dir()):
+        run = load_run(run_dir)
+        plot_run(run, run_dir / "plots", tip_from_psi=tip_from_psi_for_run(run))
