@@ -206,6 +206,9 @@ class DriveGroup:
         self._traffic_lock = threading.Lock()
         self._heartbeat_task: object = None
         self.sync_count = 0
+        #: SYNC counts when the first fault was latched and when quick stop went out (diagnostics).
+        self.fault_at_sync: int | None = None
+        self.quick_stop_at_sync: int | None = None
         self.feedback_timeout_s = bus_cfg.feedback_timeout_s or TPDO_MISSES * bus_cfg.sync_period_s
         for d in drives:
             node = canopen.RemoteNode(d.node_id, canopen.ObjectDictionary())
@@ -250,6 +253,7 @@ class DriveGroup:
         with self._fault_lock:
             if self._fault is None:
                 self._fault = (cause, text)
+                self.fault_at_sync = self.sync_count
                 log.error("drive fault: %s; last frames:\n%s", text, self.frame_dump())
 
     def _record(self, direction: str, can_id: int, data: bytes | bytearray) -> None:
@@ -398,6 +402,7 @@ class DriveGroup:
 
     def quick_stop(self) -> None:
         """Controlword 0x0002 to every drive now; never raises (best effort on a broken bus)."""
+        self.quick_stop_at_sync = self.sync_count
         for d in self._drives:
             d.controlword = CW_QUICK_STOP
             try:
