@@ -1,4 +1,4 @@
-"""Faults reach the loop as a quick stop of every drive within 2 SYNC periods, naming node and code."""
+"""Faults become a quick stop of every drive within 2 SYNC periods, naming node and code."""
 
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ class StillModel:
 
 
 def run_loop(rig):
-    cfg, sim, group, spy = rig
+    cfg, _sim, group, _spy = rig
     sup = Supervisor(LimitsConfig())
     loop = ControlLoop(
         LoopConfig(period_s=cfg.can.sync_period_s, counts_per_mm=np.ones(3)),
@@ -58,7 +58,7 @@ def run_loop(rig):
     ids=["emcy-following-error", "emcy-over-current", "heartbeat-lost", "bus-silent"],
 )
 def test_fault_quick_stops_all_drives_within_two_sync_periods(rig, inject, cause, text):
-    cfg, sim, group, spy = rig
+    _cfg, sim, group, _spy = rig
     loop, sup = run_loop(rig)
     try:
         inject(sim)
@@ -75,8 +75,8 @@ def test_fault_quick_stops_all_drives_within_two_sync_periods(rig, inject, cause
 
 
 def test_master_death_disables_drives_by_their_heartbeat_consumer(rig):
-    cfg, sim, group, spy = rig
-    loop, sup = run_loop(rig)
+    _cfg, sim, group, _spy = rig
+    loop, _sup = run_loop(rig)
     loop.stop()
     group._heartbeat_task.stop()  # the master dies: no more heartbeat, no SYNC
     assert wait_until(lambda: all(n.state is State.FAULT for n in sim.nodes), 2.0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import struct
 
 import pytest
+from drivesim import Cycler, drain, rig_config, wait_until
 
 from cdcr_ctl.drives.busload import check_bus_load, cycle_load, frame_bits, pdo_cycle_frames
 from cdcr_ctl.drives.cia402 import State, next_controlword, state_of
@@ -17,8 +18,6 @@ from cdcr_ctl.drives.group import (
     rpdo_target_payload,
 )
 from cdcr_ctl.errors import ConfigError
-
-from drivesim import Cycler, drain, rig_config, wait_until
 
 
 def test_payload_builders_are_little_endian_cia_types():
@@ -90,7 +89,7 @@ def test_bus_load_135_bits_and_70_percent_limit():
 
 
 def test_enable_sends_06_07_0f_and_pdos_follow_sync(rig):
-    cfg, sim, group, spy = rig
+    _cfg, sim, group, spy = rig
     drain(spy)
     with Cycler(group, 0.002) as cyc:
         group.enable()
