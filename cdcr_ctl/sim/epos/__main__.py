@@ -1,5 +1,6 @@
 """``python -m cdcr_ctl.sim.epos RIG.yaml [--link PATH]``: the rig's simulated drives behind an
-slcan pseudo-terminal, in their own process. Prints the pty path on the first line; runs until SIGTERM."""
+slcan pseudo-terminal, in their own process. Prints the pty path on the first line; runs until
+SIGTERM."""
 
 from __future__ import annotations
 
