@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 #: Cable offsets (jogs, re-enable slack, compensation switches) ramp out at this fraction of the
 #: cable velocity limit.
 OFFSET_RAMP_FRACTION = 0.5
+#: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
+OPERATOR_STOP = "operator_stop"
 
 
 class Hold:
@@ -282,7 +284,7 @@ class ControlLoop:
             p = self._pending
             self._pending = _Pending()
         if p.stop is not None:
-            self._react(Trip("operator_stop", p.stop, "stop requested", now))
+            self._react(Trip(OPERATOR_STOP, p.stop, "stop requested", now))
         if p.source is not None:
             if self.supervisor.trip is not None:
                 reason = f"refused: supervisor tripped ({self.supervisor.trip.cause})"
@@ -444,7 +446,8 @@ class ControlLoop:
             self._source, self._t_source0 = Hold(self._psi_cmd), time.monotonic()
             self._q_offset_target = self._q_offset.copy()
             if self._run is not None:
-                self._end_after_cycle = ("tripped", f"{trip.cause}: {trip.detail}")
+                state = "stopped" if trip.cause == OPERATOR_STOP else "tripped"
+                self._end_after_cycle = (state, f"{trip.cause}: {trip.detail}")
         if self.on_trip is not None:
             self.on_trip(trip)
 

@@ -142,6 +142,7 @@ class Daemon:
             ("settle", lambda: time.sleep(3 * self.loop.cfg.period_s)),
             ("manual log", self._close_manual_sink),
             ("disable drives", self.io.drives.disable),
+            ("traffic log", lambda: getattr(self.io.drives, "log_traffic", lambda p: None)(None)),
             ("stop loop", lambda: self.loop.stop(LOOP_JOIN_TIMEOUT_S)),
             ("close socket", lambda: self.server.close() if self.server else None),
             ("close io", self.io.close),
@@ -268,6 +269,7 @@ class Daemon:
         sink = None
         if args.log:
             sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
+            self._log_traffic(sink)
         run = self.loop.follow(traj, args.name, args.compensation, sink)
         return {
             "run": run.id,
@@ -287,6 +289,7 @@ class Daemon:
         if self._manual_sink is not None:
             raise RigError("a manual log is already running")
         self._manual_sink = self.new_sink(args.name, self.loop.cfg.compensation)
+        self._log_traffic(self._manual_sink)
         self.loop.attach_sink(self._manual_sink)
         return {"log_dir": str(getattr(self._manual_sink, "run_dir", ""))}
 
@@ -319,6 +322,13 @@ class Daemon:
         return {"stopping": True}
 
     # ------------------------------------------------------------------ helpers
+    def _log_traffic(self, sink: Any) -> None:
+        """Raw CAN traffic into the run directory, from now until the next run or shutdown."""
+        start = getattr(self.io.drives, "log_traffic", None)
+        path = getattr(sink, "can_log_path", None)
+        if start is not None and path is not None and self.cfg.can.log_traffic:
+            start(path("asc"))
+
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:
             self.enabled = False

@@ -1,0 +1,56 @@
+"""Start the simulated rig and the daemon as separate processes, as `cdcr-ctl demo` does."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket
+from cdcr_ctl.daemon.client import ControlClient
+
+ROOT = Path(__file__).resolve().parents[2]
+TRUTH = ROOT / "config" / "sim" / "qi2023-truth.yaml"
+
+
+@contextlib.contextmanager
+def session(tmp_path: Path):
+    """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars)."""
+    work = Path(tempfile.mkdtemp(prefix="cdcr-t-", dir="/tmp"))
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    rig, sim = make_session(TRUTH, work, runs)
+    try:
+        yield work, rig, sim, runs
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def start_sim(sim: Path, log: Path):
+    return running(_cli("sim", str(sim)), log, ready='"ready"')
+
+
+def start_daemon(rig: Path, log: Path):
+    return running(_cli("--config", str(rig), "daemon"), log)
+
+
+def client(work: Path) -> ControlClient:
+    return ControlClient(work / "control.sock")
+
+
+def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
+    end = time.monotonic() + timeout_s
+    st: dict = {}
+    while time.monotonic() < end:
+        with contextlib.suppress(Exception), client(work) as c:
+            st = c.call("status")
+            if pred(st):
+                return st
+        time.sleep(0.1)
+    raise AssertionError(f"status never matched; last: {st}")
+
+
+__all__ = ["client", "os", "session", "start_daemon", "start_sim", "wait_for_socket", "wait_status"]

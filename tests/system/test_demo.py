@@ -1,0 +1,41 @@
+"""System: `cdcr-ctl demo` runs the simulated rig and the daemon as separate processes, end to end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from cdcr_ctl.runlog import load_run
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_demo_runs_both_experiments_with_and_without_compensation(tmp_path):
+    out = tmp_path / "out"
+    res = subprocess.run(
+        [sys.executable, "-m", "cdcr_ctl", "demo", "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=380,
+    )
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "| planar_bend | model |" in res.stdout
+    (session,) = out.iterdir()
+    rows = json.loads((session / "results.json").read_text())
+    by = {(r["experiment"], r["compensation"]): r for r in rows}
+    assert set(by) == {(e, c) for e in ("planar_bend", "circle") for c in ("off", "model")}
+    assert all(r["state"] == "completed" and r["samples"] > 100 for r in rows)
+    for exp in ("planar_bend", "circle"):
+        # Compensation with the nominal model already removes a good part of the tip error.
+        assert by[(exp, "model")]["mean_mm"] < 0.8 * by[(exp, "off")]["mean_mm"]
+    runs = sorted((session / "runs").iterdir())
+    assert len(runs) == 4
+    for run_dir in runs:
+        run = load_run(run_dir)
+        assert run.ended["outcome"] == "completed"
+        assert {"q_cmd", "q_act", "tension", "tip"} <= set(run.groups)
+        assert (run_dir / "can.asc").stat().st_size > 0
+        assert list((run_dir / "plots").glob("*.png"))
