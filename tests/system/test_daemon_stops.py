@@ -3,6 +3,7 @@ disabled, the log on disk up to the last cycle, and the next start working witho
 
 from __future__ import annotations
 
+import itertools
 import math
 import signal
 import time
@@ -28,7 +29,7 @@ def rows_so_far(run_dir) -> int:
 
 
 def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
-    with session(tmp_path) as (work, rig, sim, runs), start_sim(sim, tmp_path / "sim.log"):
+    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
         # SIGTERM mid-trajectory: clean stop, drives disabled, log closed with its reason.
         with start_daemon(rig, tmp_path / "d1.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
@@ -54,7 +55,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
         run = load_run(res["log_dir"])
         assert run.ended is None and len(run) >= n_before > 50
         t = run.t_s
-        assert all(b > a for a, b in zip(t, t[1:], strict=False))
+        assert all(b > a for a, b in itertools.pairwise(t))
 
         # The drives' heartbeat consumers noticed the master's death and disabled them.
         with start_daemon(rig, tmp_path / "d3.log") as d:
@@ -68,7 +69,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
 
 
 def test_killed_simulator_mid_trajectory_quick_stops_and_keeps_the_log(tmp_path):
-    with session(tmp_path) as (work, rig, sim, runs):
+    with session(tmp_path) as (work, rig, sim, _runs):
         sim_ctx = start_sim(sim, tmp_path / "sim.log")
         proc = sim_ctx.__enter__()
         with start_daemon(rig, tmp_path / "d.log") as d:

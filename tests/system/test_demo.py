@@ -1,4 +1,4 @@
-"""System: `cdcr-ctl demo` runs the simulated rig and the daemon as separate processes, end to end."""
+"""System: `cdcr-ctl demo` runs the simulated rig and the daemon as processes, end to end."""
 
 from __future__ import annotations
 
