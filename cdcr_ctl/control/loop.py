@@ -17,9 +17,11 @@ cycle; nothing on the loop's path blocks on them.
 
 from __future__ import annotations
 
+import gc
 import itertools
 import logging
 import math
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -44,6 +46,8 @@ log = logging.getLogger(__name__)
 #: Cable offsets (jogs, re-enable slack, compensation switches) ramp out at this fraction of the
 #: cable velocity limit.
 OFFSET_RAMP_FRACTION = 0.5
+#: Python's GIL switch interval while the loop runs (s); see :meth:`ControlLoop.start`.
+GIL_SWITCH_INTERVAL_S = 2e-4
 #: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
 OPERATOR_STOP = "operator_stop"
 
@@ -159,7 +163,7 @@ class ControlLoop:
         self._q_offset = np.zeros(K)
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
-        self._last: dict[str, Any] = {}
+        self._last_row: dict[str, Any] = {}
         self._stopped_drives = False
         self._paused = False
         self._manual_sink: Any = None
@@ -172,6 +176,9 @@ class ControlLoop:
 
     # ---------------------------------------------------------------- commands (any thread)
     def start(self) -> None:
+        # The loop thread must get the GIL back soon after its deadline: with the default 5 ms
+        # switch interval a busy sensor or bus thread could hold it for a whole cycle.
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
         self._thread = threading.Thread(target=self._run_loop, name="control-loop", daemon=True)
         self._thread.start()
 
@@ -252,12 +259,20 @@ class ControlLoop:
             "cycle_time_max_us": round(self.counters.max_cycle_us, 1),
             "cpu_s": round(self.counters.cpu_s, 3),
             "psi_cmd_rad": self._psi_cmd.tolist(),
-            "last": dict(self._last),
+            "last": {
+                k: v
+                for k, v in self._last_row.items()
+                if not isinstance(v, float) or math.isfinite(v)
+            },
             "run": None if run is None else run.__dict__.copy(),
         }
 
     # ---------------------------------------------------------------- the loop thread
     def _run_loop(self) -> None:
+        # Everything allocated during start-up moves to the permanent generation, so the
+        # collector's full passes stay short while the loop runs (they run in whatever thread
+        # allocates, this one included).
+        gc.freeze()
         cpu0 = time.thread_time()
         t_start = time.monotonic()
         self.ticker = Ticker(self.cfg.period_s)
@@ -406,7 +421,7 @@ class ControlLoop:
             np.array([f.position_counts for f in fb]) - self.home_counts
         ) / self.cfg.counts_per_mm
         row = self._row(t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event)
-        self._last = {k: v for k, v in row.items() if not isinstance(v, float) or math.isfinite(v)}
+        self._last_row = row
         for sink in (self._sink, self._manual_sink):
             if sink is None:
                 continue

@@ -152,11 +152,24 @@ class ForceTransfer:
             self._mu[k] > 0.0 or any(not t.frictionless for t in self._pul[k]) for k in range(K)
         ]
         self._chord = eff.geometry == "chord"
+        self._last_xs: list[float] | None = None
+        self._last_pose: Pose | None = None
         self._cc_arm = [(self._ex[k], self._ey[k]) for k in range(K)]
 
     # ------------------------------------------------------------------ geometry and loads
     def pose(self, xs: list[float]) -> Pose:
-        """Geometry, wrap angles and moment demand at bending vectors ``xs`` (flat, rad)."""
+        """Geometry, wrap angles and moment demand at bending vectors ``xs`` (flat, rad).
+
+        The last pose is kept: the loop asks for the same pose for the ideal displacements, the
+        compensation and the tip in one cycle (a Pose is not mutated by its users).
+        """
+        if xs == self._last_xs:
+            return self._last_pose
+        pose = self._pose(xs)
+        self._last_xs, self._last_pose = list(xs), pose
+        return pose
+
+    def _pose(self, xs: list[float]) -> Pose:
         S, K = self.S, self.K
         theta = [0.0] * S
         ux = [1.0] * S

@@ -67,6 +67,8 @@ class SimEpos:
         self.following_error = False
         self.sync_count = 0
         self.last_sync_s: float | None = None
+        #: Arrival times of every SYNC (s, monotonic) when a benchmark asks for them (a list).
+        self.sync_times: list[float] | None = None
         self.emcy_sent: list[int] = []
         self.silent = False
         self.external_disturbance = 0.0
@@ -186,6 +188,8 @@ class SimEpos:
         if self.silent:
             return
         now = self._now()
+        if self.sync_times is not None:
+            self.sync_times.append(now)
         with self._lock:
             dt = 0.001 if self.last_sync_s is None else min(max(now - self.last_sync_s, 0.0), 0.1)
             self.last_sync_s = now

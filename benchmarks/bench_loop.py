@@ -1,0 +1,114 @@
+"""Benchmark: the real-time loop at the rate the bus allows, compensation on, for N seconds.
+
+What runs: the control loop (ControlLoop) with the Qi rig's model (compensation "model", all
+effects on, chord geometry), three simulated EPOS4 on a python-can virtual bus in this process,
+the DriveGroup sending RPDO targets + SYNC each cycle and reading TPDOs, a planar bend and circle
+repeated as the setpoint. Printed: cycles, overruns, lateness p50/p99/max, the loop thread's
+CPU time per cycle, the process CPU use, and the bus load of the PDO set.
+
+    .venv/bin/python benchmarks/bench_loop.py [--seconds 60] [--rate 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import time
+
+import can
+import numpy as np
+
+from cdcr_ctl.config import load_rig_config
+from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.control.io import DriveGroupPort
+from cdcr_ctl.control.loop import ControlLoop, LoopConfig
+from cdcr_ctl.control.ports import NoTension, NoTip
+from cdcr_ctl.control.supervisor import Supervisor
+from cdcr_ctl.control.timing import try_realtime
+from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
+from cdcr_ctl.drives.group import DriveGroup
+from cdcr_ctl.sim.epos.rig import SimDriveBus
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--rt-priority", type=int, default=0)
+    args = ap.parse_args()
+    period = 1.0 / args.rate
+    cfg = load_rig_config("config/qi2023.yaml")
+    can_cfg = cfg.can.model_copy(
+        update={"interface": "virtual", "channel": "bench", "sync_period_s": period}
+    )
+    cfg = cfg.model_copy(update={"can": can_cfg})
+    sim = SimDriveBus(cfg, "virtual", "bench").start()
+    by = {d.cable: d for d in cfg.drives}
+    drives = [by[c.name] for c in cfg.robot.cables]
+    group = DriveGroup(can.Bus(interface="virtual", channel="bench"), cfg.can, drives)
+    group.boot()
+    group.configure()
+    model = build_model(cfg)
+    port = DriveGroupPort(group)
+    loop = ControlLoop(
+        LoopConfig(period, np.array([d.counts_per_mm for d in drives]), "model", 40.0),
+        model,
+        port,
+        NoTension(3),
+        NoTip(),
+        Supervisor(cfg.limits),
+    )
+    notes = try_realtime(args.rt_priority, lock_memory=args.rt_priority > 0)
+    loop.start()
+    group.enable()
+    bend = tj.planar_bend(theta_max_rad=1.2, back=True)
+    circle = tj.spatial_circle(theta_rad=0.6)
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    t0 = time.monotonic()
+    c0 = loop.counters.cycles
+    stats0 = loop.ticker.stats.cycles
+    while time.monotonic() - t0 < args.seconds:
+        for traj in (bend, circle):
+            run = loop.follow(tj.with_lead_in(loop.psi_cmd, traj), "bench", "model")
+            while run.state == "running" and time.monotonic() - t0 < args.seconds:
+                time.sleep(0.05)
+            if time.monotonic() - t0 >= args.seconds:
+                break
+    wall = time.monotonic() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    cycles = loop.counters.cycles - c0
+    loop.stop()
+    s = loop.ticker.stats.summary()
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    fault = group.first_fault()
+    group.close()
+    sim.stop()
+    load = cycle_load(pdo_cycle_frames(3), period, cfg.can.bitrate)
+    print(
+        f"loop benchmark: {args.seconds:.0f} s at {args.rate:.0f} Hz, compensation 'model' "
+        f"(Qi rig, all effects, chord geometry), 3 simulated EPOS4 on a virtual bus, "
+        f"python {os.sys.version.split()[0]}, {os.cpu_count()} CPUs"
+    )
+    print(f"realtime: {'; '.join(notes) or 'not requested (SCHED_OTHER)'}")
+    print(f"cycles run: {cycles} in {wall:.1f} s = {cycles / wall:.1f} Hz achieved")
+    print(f"overruns: {s['overruns']}, skipped deadlines: {s['skipped_deadlines']}")
+    print(
+        f"lateness (cycle start after its absolute deadline, time.monotonic): "
+        f"p50 {s['lateness_p50_us']} us, p99 {s['lateness_p99_us']} us, "
+        f"p99.9 {s['lateness_p99.9_us']} us, max {s['lateness_max_us']} us "
+        f"(over the last {min(s['cycles'] - stats0, 65536)} cycles)"
+    )
+    print(f"lateness histogram: {s['lateness_histogram']}")
+    print(
+        f"loop cycle work: max {loop.counters.max_cycle_us:.0f} us; "
+        f"loop thread CPU {1e6 * loop.counters.cpu_s / max(cycles, 1):.0f} us per cycle"
+    )
+    print(f"process CPU use: {100 * cpu / wall:.0f} % of one core (loop, simulated drives, bus)")
+    print(f"bus load of the PDO set: {load}")
+    print(f"drive faults: {fault}")
+
+
+if __name__ == "__main__":
+    main()
