@@ -112,7 +112,8 @@ def main() -> None:
     )
     print(
         f"tracking |actual - target| of node 1 (sampled every 100 cycles): median "
-        f"{np.median(errs):.0f} counts, max {max(errs)} counts (the TPDO reports the position one cycle late)"
+        f"{np.median(errs):.0f} counts, max {max(errs)} counts"
+        " (the TPDO reports the position one cycle late)"
     )
     print(f"bus load: {load}")
     print(f"faults: {fault}")
