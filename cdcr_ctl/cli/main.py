@@ -237,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         click.echo("aborted", err=True)
         return 130
     except DaemonError as exc:
-        click.echo(f"error: {exc}" + (f" [{exc.field}]" if exc.field else ""), err=True)
+        click.echo(f"error: {exc}", err=True)
         return 1
     except RigError as exc:
         click.echo(f"error: {exc}", err=True)
