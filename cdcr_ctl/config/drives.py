@@ -3,6 +3,10 @@
 A drive is counts and modes: the only robot knowledge here is which cable a drive pulls
 (``cable``) and the transmission ratio ``counts_per_mm`` (encoder counts per mm of cable pulled in,
 sign included: a negative ratio means the motor turns the other way to pull).
+
+Modes (``mode``): ``csp`` cyclic synchronous position (EPOS4; a target per SYNC), ``pp`` profile
+position (both; the drive plans each move), ``ip`` interpolated position with the PVT buffer 0x20C1
+(EPOS2 only), ``pm`` maxon "position mode" with the set-point 0x2062 (EPOS2 only).
 """
 
 from __future__ import annotations
@@ -17,6 +21,9 @@ from cdcr_ctl.config.robot import Name, PositiveFloat
 #: Bit rates a CAN controller can run (CiA 301 table of standard bit rates).
 STANDARD_BITRATES = (10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
 
+#: Operation modes each drive family offers (see the module docstring).
+MODES_BY_TYPE: dict[str, tuple[str, ...]] = {"epos4": ("csp", "pp"), "epos2": ("pp", "ip", "pm")}
+
 
 class CanBusConfig(Section):
     """The CAN bus: python-can ``interface`` and ``channel``, bit rate and SYNC period.
@@ -24,6 +31,11 @@ class CanBusConfig(Section):
     ``interface`` is any python-can interface name: ``virtual`` (tests, one process), ``slcan``
     (USB-CAN adapters and the simulated rig over a pty), ``socketcan`` (``can0`` on real rigs),
     ``udp_multicast`` (only inside a loopback-only network namespace), ``pcan``, ``kvaser``, ...
+    ``bitrate`` is sent to adapters that set it themselves (slcan ``S8``, pcan, kvaser); a
+    socketcan interface gets it from ``ip link`` before the daemon starts. The SYNC period is also
+    the drives' interpolation period (0x60C2), so it must be a whole number of milliseconds for
+    ``csp``/``ip``/``pm`` drives. ``max_bus_load`` bounds the cyclic PDO set (SYNC, RPDOs, TPDOs)
+    as a fraction of the bus time at worst-case bit stuffing.
     """
 
     interface: Annotated[str, Field(min_length=1)] = "virtual"
@@ -47,39 +59,57 @@ class CanBusConfig(Section):
 
 
 class HomingConfig(Section):
-    """CiA 402 homing (0x6098 method). 37 = actual position, -3/-4 = current threshold (EPOS4)."""
+    """CiA 402 homing (0x6098 method). 37 = actual position, -3/-4 = current threshold.
+
+    ``current_threshold_mA`` goes to 0x30B2 (EPOS4) / 0x2080 (EPOS2) for methods -1..-4;
+    ``offset_counts`` is the home offset move distance (0x30B0 EPOS4 / 0x607C EPOS2): how far the
+    drive backs off the hard stop before it sets ``home_position_counts`` (0x30B1 / 0x2081).
+    Speeds go to 0x6099 (switch search, zero search), the acceleration to 0x609A.
+    """
 
     method: int = 37
-    current_threshold_mA: Annotated[int, Field(gt=0, le=100_000)] = 500
+    current_threshold_mA: Annotated[int, Field(gt=0, le=65_535)] = 500
     speed_rpm: Annotated[int, Field(gt=0, le=100_000)] = 100
     acceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 1000
     offset_counts: int = 0
+    home_position_counts: int = 0
     timeout_s: PositiveFloat = 20.0
 
     @model_validator(mode="after")
     def _known_method(self) -> HomingConfig:
         allowed = {-4, -3, -2, -1, 1, 2, 7, 11, 17, 18, 23, 27, 33, 34, 35, 37}
         if self.method not in allowed:
-            raise ValueError(f"method {self.method} is not an EPOS4 method {sorted(allowed)}")
+            raise ValueError(f"method {self.method} is not an EPOS method {sorted(allowed)}")
         return self
 
 
 class DriveConfig(Section):
-    """One maxon EPOS drive on the bus, pulling one cable."""
+    """One maxon EPOS drive on the bus, pulling one cable.
+
+    Velocities are motor rpm and accelerations motor rpm/s (the EPOS default units);
+    ``encoder_counts_per_rev`` (quadrature counts per motor turn) converts counts/s to rpm where
+    the protocol needs it (EPOS2 PVT velocities). The following error window is counts, its
+    timeout (0x6066) ms. ``quick_stop_option_code`` (0x605A): 2 = stop on the quick-stop ramp, then
+    power off (SWITCH ON DISABLED); 6 = stop on the ramp and hold position powered (QUICK STOP
+    ACTIVE).
+    """
 
     name: Name
     cable: Name
     node_id: Annotated[int, Field(ge=1, le=127)]
     type: Literal["epos4", "epos2"] = "epos4"
-    mode: Literal["csp", "pp", "ip"] = "csp"
+    mode: Literal["csp", "pp", "ip", "pm"] = "csp"
     counts_per_mm: float
+    encoder_counts_per_rev: Annotated[int, Field(gt=0, le=2**24)] = 2048
     following_error_window_counts: Annotated[int, Field(ge=0, le=2**31 - 1)] = 20_000
+    following_error_timeout_ms: Annotated[int, Field(ge=0, le=65535)] = 10
     software_limits_counts: Annotated[list[int], Field(min_length=2, max_length=2)] = Field(
         default_factory=lambda: [-2_000_000, 2_000_000]
     )
     max_profile_velocity_rpm: Annotated[int, Field(gt=0, le=100_000)] = 5000
     profile_acceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 10_000
     quick_stop_deceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 50_000
+    quick_stop_option_code: Literal[1, 2, 5, 6] = 2
     heartbeat_producer_ms: Annotated[int, Field(ge=0, le=65535)] = 50
     heartbeat_consumer_ms: Annotated[int, Field(ge=0, le=65535)] = 300
     homing: HomingConfig = Field(default_factory=HomingConfig)
@@ -91,6 +121,10 @@ class DriveConfig(Section):
         lo, hi = self.software_limits_counts
         if lo >= hi:
             raise ValueError("software_limits_counts must be [min, max] with min < max")
-        if self.type == "epos2" and self.mode == "csp":
-            raise ValueError("EPOS2 has no cyclic synchronous position mode: use pp or ip")
+        if self.mode not in MODES_BY_TYPE[self.type]:
+            hint = {
+                "epos2": "EPOS2 has no cyclic synchronous position mode: use pp, ip or pm",
+                "epos4": "EPOS4 has neither interpolated position nor position mode: use csp or pp",
+            }[self.type]
+            raise ValueError(f"mode {self.mode!r}: {hint}")
         return self

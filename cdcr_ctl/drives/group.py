@@ -78,6 +78,24 @@ def rpdo_controlword_payload(controlword: int) -> bytes:
     return struct.pack("<H", controlword & 0xFFFF)
 
 
+def pvt_payload(position_counts: int, velocity_rpm: int, time_ms: int) -> bytes:
+    """EPOS2 interpolation data record (0x20C1): position int32, velocity int24 (rpm), time uint8
+    (ms), little endian, 8 bytes."""
+    v = max(-(2**23), min(2**23 - 1, int(velocity_rpm)))
+    return (
+        struct.pack("<i", position_counts)
+        + (v & 0xFFFFFF).to_bytes(3, "little")
+        + bytes([max(0, min(255, int(time_ms)))])
+    )
+
+
+def parse_pvt_payload(data: bytes) -> tuple[int, int, int]:
+    """Inverse of :func:`pvt_payload`."""
+    pos = struct.unpack_from("<i", data)[0]
+    v = int.from_bytes(data[4:7], "little", signed=True)
+    return pos, v, data[7]
+
+
 def parse_tpdo_feedback(data: bytes) -> tuple[int, int] | None:
     """TPDO1 data -> (statusword, actual position counts); None if the length is wrong."""
     if len(data) != 6:
@@ -106,13 +124,17 @@ def _i32(v: int) -> bytes:
     return struct.pack("<i", v)
 
 
-def pdo_mapping_writes(node_id: int) -> list[tuple[int, int, bytes]]:
+def pdo_mapping_writes(
+    node_id: int, ip: bool = False, pp: bool = False
+) -> list[tuple[int, int, bytes]]:
     """The SDO writes (index, subindex, data) that set up the PDO layout of the module docstring.
 
     Each PDO is disabled (COB-ID bit 31), remapped, given its transmission type, then enabled
     (CiA 301 7.5.2.35-36 procedure).
     """
     w: list[tuple[int, int, bytes]] = []
+    # Interpolated position (EPOS2): RPDO1 carries the 64-bit PVT record 0x20C1:01 instead.
+    ip_entry = 0x20C1_0140
 
     def pdo(comm: int, mapping: int, cob: int, ttype: int, entries: list[int]) -> None:
         w.append((comm, 1, _u32(0x8000_0000 | cob)))
@@ -123,7 +145,9 @@ def pdo_mapping_writes(node_id: int) -> list[tuple[int, int, bytes]]:
         w.append((comm, 2, _u8(ttype)))
         w.append((comm, 1, _u32(cob)))
 
-    pdo(0x1400, 0x1600, 0x200 + node_id, 1, [0x607A_0020])
+    # Profile position takes the target on a controlword edge: its RPDO1 is asynchronous (255)
+    # so the target is in place before the edge arrives.
+    pdo(0x1400, 0x1600, 0x200 + node_id, 255 if pp else 1, [ip_entry if ip else 0x607A_0020])
     pdo(0x1401, 0x1601, 0x300 + node_id, 255, [0x6040_0010])
     pdo(0x1800, 0x1A00, 0x180 + node_id, 1, [0x6041_0010, 0x6064_0020])
     return w
@@ -146,10 +170,14 @@ def configuration_writes(d: DriveConfig, bus: CanBusConfig) -> list[tuple[int, i
         (0x1017, 0, _u16(d.heartbeat_producer_ms)),
         (0x1016, 1, _u32((bus.master_node_id << 16) | d.heartbeat_consumer_ms)),
     ]
-    if mode in (Mode.CYCLIC_SYNC_POSITION, Mode.INTERPOLATED_POSITION):
+    if mode is Mode.CYCLIC_SYNC_POSITION:
         # Interpolation time period = SYNC period: value * 10^index s (index -3: ms).
         w += [(0x60C2, 1, _u8(max(1, period_ms))), (0x60C2, 2, _i8(-3))]
-    return w + pdo_mapping_writes(d.node_id)
+    if mode is Mode.INTERPOLATED_POSITION:
+        w += [(0x20C0, 0, struct.pack("<h", -1))]  # EPOS2 IPM sub mode -1: PVT
+    return w + pdo_mapping_writes(
+        d.node_id, ip=mode is Mode.INTERPOLATED_POSITION, pp=mode is Mode.PROFILE_POSITION
+    )
 
 
 @dataclass(frozen=True)
@@ -175,6 +203,7 @@ class _Drive:
         self.last_heartbeat_s = float("-inf")
         self.nmt_state = -1
         self.new_feedback = threading.Event()
+        self.last_target: int | None = None
 
 
 class DriveGroup:
@@ -309,10 +338,8 @@ class DriveGroup:
     def configure(self) -> None:
         """SDO-configure every drive from the config, then NMT start (OPERATIONAL)."""
         for d in self._drives:
-            if d.mode is Mode.INTERPOLATED_POSITION:
-                raise DriveFault(
-                    d.cfg.node_id, 0, "interpolated position (0x20C1 PVT buffer) is not supported"
-                )
+            if d.mode is Mode.INTERPOLATED_POSITION and d.cfg.type != "epos2":
+                raise DriveFault(d.cfg.node_id, 0, "interpolated position is the EPOS2's mode")
             for index, sub, data in configuration_writes(d.cfg, self.bus_cfg):
                 try:
                     d.node.sdo.download(index, sub, data)
@@ -337,11 +364,20 @@ class DriveGroup:
 
     # ------------------------------------------------------------------ the cycle
     def build_cycle(self, targets_counts: Sequence[int]) -> list[tuple[int, bytes]]:
-        """(COB-ID, data) of one cycle: every drive's RPDO1, then SYNC. Pure."""
-        frames = [
-            (0x200 + d.cfg.node_id, rpdo_target_payload(int(t)))
-            for d, t in zip(self._drives, targets_counts, strict=True)
-        ]
+        """(COB-ID, data) of one cycle: every drive's RPDO1, then SYNC. Pure but for the last
+        target kept per IP drive (its PVT velocity is the slope to the new point)."""
+        period = self.bus_cfg.sync_period_s
+        frames = []
+        for d, t in zip(self._drives, targets_counts, strict=True):
+            t = int(t)
+            if d.mode is Mode.INTERPOLATED_POSITION:
+                prev = d.last_target if d.last_target is not None else t
+                rpm = (t - prev) / period * 60.0 / d.cfg.encoder_counts_per_rev
+                d.last_target = t
+                data = pvt_payload(t, round(rpm), round(period * 1000))
+            else:
+                data = rpdo_target_payload(t)
+            frames.append((0x200 + d.cfg.node_id, data))
         frames.append((SYNC_COB_ID, b""))
         return frames
 
@@ -435,6 +471,10 @@ class DriveGroup:
         The caller keeps SYNC running (the loop does); feedback confirms each step.
         """
         self._walk(State.OPERATION_ENABLED, timeout_s)
+        ip = [d for d in self._drives if d.mode is Mode.INTERPOLATED_POSITION]
+        if ip:
+            # Interpolated position: controlword bit 4 enables the interpolation.
+            self.set_controlword(CW_ENABLE_OPERATION | CW_NEW_SETPOINT_BIT, ip)
 
     def disable(self, timeout_s: float = STATE_STEP_TIMEOUT_S) -> None:
         """Controlword 0x06 (shutdown: READY TO SWITCH ON, power stage off)."""
@@ -530,5 +570,3 @@ __all__ = [
     "rpdo_controlword_payload",
     "rpdo_target_payload",
 ]
-
-_ = CW_NEW_SETPOINT_BIT

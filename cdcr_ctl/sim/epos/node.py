@@ -10,6 +10,7 @@ fault-injection hooks for tests and the simulated rig.
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import struct
@@ -44,6 +45,8 @@ _STATE_BITS = {
 }
 #: Encoder increments per motor revolution (rpm -> counts/s for profile moves).
 COUNTS_PER_REV = 4096
+#: Points the EPOS2 interpolation buffer holds.
+IP_BUFFER_POINTS = 64
 #: Time constant of the simulated position loop (s): the motor follows the target this fast.
 POSITION_LOOP_TAU_S = 0.0015
 
@@ -51,7 +54,13 @@ POSITION_LOOP_TAU_S = 0.0015
 class SimEpos:
     """One simulated drive on ``network`` (a canopen Network over any python-can bus)."""
 
-    def __init__(self, network: canopen.Network, node_id: int, kind: str = "epos4") -> None:
+    def __init__(
+        self,
+        network: canopen.Network,
+        node_id: int,
+        kind: str = "epos4",
+        encoder_counts_per_rev: int = 2048,
+    ) -> None:
         self.node_id = node_id
         self.kind = kind
         self.node = canopen.LocalNode(node_id, build_od(node_id, kind))
@@ -72,6 +81,14 @@ class SimEpos:
         self.emcy_sent: list[int] = []
         self.silent = False
         self.external_disturbance = 0.0
+        self.encoder_counts_per_rev = encoder_counts_per_rev
+        # Interpolated position (EPOS2 PVT): buffered points (position, velocity counts/s, time s)
+        # and the segment being run (p0, v0, p1, v1, T, elapsed).
+        self.ip_buffer: collections.deque[tuple[float, float, float]] = collections.deque(
+            maxlen=IP_BUFFER_POINTS
+        )
+        self._ip_seg: list[float] | None = None
+        self._ip_vel = 0.0
         self._master_hb_s: float | None = None
         self._lock = threading.RLock()
         self._now: Callable[[], float] = time.monotonic
@@ -161,6 +178,12 @@ class SimEpos:
                 offset += size
                 if index == 0x6040:
                     self._controlword(struct.unpack("<H", chunk)[0])
+                elif index == 0x20C1:
+                    pos = struct.unpack_from("<i", chunk)[0]
+                    rpm = int.from_bytes(chunk[4:7], "little", signed=True)
+                    v = rpm * self.encoder_counts_per_rev / 60.0
+                    with self._lock:
+                        self.ip_buffer.append((float(pos), v, chunk[7] / 1000.0))
                 elif index == 0x607A:
                     (t,) = struct.unpack("<i", chunk)
                     if self._value(0x1400 + i, 2) <= 240:
@@ -263,6 +286,8 @@ class SimEpos:
             self._fault(0x8A82)  # software position limit
             return
         with self._lock:
+            # 0x607A holds the latest target (profile position takes it on the bit-4 edge).
+            self.node.data_store.setdefault(0x607A, {})[0] = struct.pack("<i", t)
             if self.mode == Mode.CYCLIC_SYNC_POSITION and self.state is State.OPERATION_ENABLED:
                 self.target = t
 
@@ -288,6 +313,8 @@ class SimEpos:
             vmax = self._value(0x6081) * COUNTS_PER_REV / 60.0
             err = self.target - self.position
             self.position += math.copysign(min(abs(err), vmax * dt), err)
+        elif self.mode == Mode.INTERPOLATED_POSITION and self.controlword & 0x10:
+            self._ip_step(dt)
         elif self.mode == Mode.CYCLIC_SYNC_POSITION:
             a = math.exp(-dt / POSITION_LOOP_TAU_S)
             self.position = self.target - (self.target - self.position) * a
@@ -296,6 +323,28 @@ class SimEpos:
         if window and abs(self.target - self.position) > window:
             self.following_error = True
             self._fault(0x8611)
+
+    def _ip_step(self, dt: float) -> None:
+        """PVT: cubic Hermite from the present point to the next buffered one over its time."""
+        left = dt
+        while left > 0:
+            if self._ip_seg is None:
+                if not self.ip_buffer:
+                    self._ip_vel = 0.0
+                    return  # buffer underflow: hold
+                p1, v1, T = self.ip_buffer.popleft()
+                self._ip_seg = [self.target, self._ip_vel, p1, v1, max(T, 1e-4), 0.0]
+            p0, v0, p1, v1, T, t = self._ip_seg
+            t = min(t + left, T)
+            left -= t - self._ip_seg[5]
+            u = t / T
+            h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+            h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+            self.target = round(h00 * p0 + h10 * T * v0 + h01 * p1 + h11 * T * v1)
+            self._ip_seg[5] = t
+            if t >= T:
+                self.target, self._ip_vel, self._ip_seg = round(p1), v1, None
+        self.position = float(self.target)
 
     def _fault(self, code: int) -> None:
         with self._lock:

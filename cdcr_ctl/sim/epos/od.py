@@ -5,10 +5,12 @@ from __future__ import annotations
 from canopen import ObjectDictionary
 from canopen.objectdictionary import (
     INTEGER8,
+    INTEGER16,
     INTEGER32,
     UNSIGNED8,
     UNSIGNED16,
     UNSIGNED32,
+    UNSIGNED64,
     ODArray,
     ODRecord,
     ODVariable,
@@ -157,4 +159,17 @@ def build_od(node_id: int, kind: str) -> ObjectDictionary:
         _simple(od, 0x2062, "Position mode setting value", INTEGER32, 0)
         _simple(od, 0x2080, "Current threshold for homing mode", UNSIGNED16, 500)
         _simple(od, 0x2081, "Home position", INTEGER32, 0)
+        # Interpolated position mode: sub mode (-1 = PVT), the data record a PDO carries
+        # (position int32, velocity int24 rpm, time uint8 ms), and the buffer status.
+        _simple(od, 0x20C0, "Interpolation sub mode select", INTEGER16, 0)
+        _record(
+            od,
+            0x20C1,
+            "Interpolation data record",
+            [
+                (0, "Highest sub-index supported", UNSIGNED8, 1, "ro"),
+                (1, "PVT reference point", UNSIGNED64, 0, "wo"),
+            ],
+        )
+        _simple(od, 0x20C4, "Interpolation buffer status", UNSIGNED16, 0, "ro")
     return od

@@ -51,7 +51,9 @@ class SimDriveBus:
         self.network.connect()
         by_cable = {d.cable: d for d in rig.drives}
         self.drives = [by_cable[c.name] for c in rig.robot.cables]
-        self.nodes = [SimEpos(self.network, d.node_id, d.type) for d in self.drives]
+        self.nodes = [
+            SimEpos(self.network, d.node_id, d.type, d.encoder_counts_per_rev) for d in self.drives
+        ]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._consumers, name="sim-epos-hb", daemon=True)
 
