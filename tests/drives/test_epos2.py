@@ -36,7 +36,7 @@ def test_pvt_record_layout():
 
 @pytest.mark.parametrize("mode", ["pp", "ip"])
 def test_epos2_follows_targets(mode):
-    cfg, sim, group = epos2_rig(mode)
+    _cfg, sim, group = epos2_rig(mode)
     try:
         assert all(n.kind == "epos2" for n in sim.nodes)
         with Cycler(group, 0.005) as cyc:
@@ -59,7 +59,7 @@ def test_epos2_follows_targets(mode):
 def test_epos2_refuses_csp():
     from canopen.sdo.exceptions import SdoAbortedError
 
-    cfg, sim, group = epos2_rig("pp")
+    _cfg, sim, group = epos2_rig("pp")
     try:
         with pytest.raises(SdoAbortedError):
             group._drives[0].node.sdo.download(0x6060, 0, b"\x08")
