@@ -40,7 +40,6 @@ from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import DriveGroup
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
-
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
 MCAST = "239.74.163.2"
 
