@@ -112,7 +112,10 @@ def _connect_as_nobody(server):
         "s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)\n"
         "s.settimeout(5)\n"
         f"s.connect({str(server.path)!r})\n"
-        's.sendall(b\'{"cmd": "status"}\\n\')\n'
+        "try:\n"
+        '    s.sendall(b\'{"cmd": "status"}\\n\')\n'
+        "except BrokenPipeError:\n"
+        "    pass  # refused: the server may have answered and closed already\n"
         "sys.stdout.buffer.write(s.recv(4096))\n"
     )
     # nobody cannot run this venv's python (it lives under root's home): use the system one.
