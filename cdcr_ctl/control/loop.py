@@ -168,6 +168,7 @@ class ControlLoop:
         self._paused = False
         self._manual_sink: Any = None
         self._end_after_cycle: tuple[str, str] | None = None
+        self._t_last_cmd = -math.inf
         # The compensation mode of the last run stays in force while holding, so a run's end does
         # not step the command; the ``compensation`` command changes it.
         self._mode = cfg.compensation
@@ -379,7 +380,9 @@ class ControlLoop:
         trip = self.supervisor.check(
             CycleCheck(
                 t_s=t_s,
-                dt_s=self.cfg.period_s,
+                # Real time since the last command: after a late cycle the step is larger but so
+                # is the time it covers (the velocity limit is on mm/s, not mm per cycle).
+                dt_s=max(now - self._t_last_cmd, self.cfg.period_s),
                 q_cmd_mm=q_cmd.tolist(),
                 q_prev_mm=self._q_cmd.tolist(),
                 tension_N=force_N.tolist(),
@@ -415,6 +418,7 @@ class ControlLoop:
         if targets is not None:
             self.drives.send_cycle(targets)
         self._q_prev, self._q_cmd, self._psi_cmd = self._q_cmd, q_cmd, psi
+        self._t_last_cmd = now
 
         # Log
         q_act = (

@@ -203,6 +203,7 @@ class _Drive:
         self.last_heartbeat_s = float("-inf")
         self.nmt_state = -1
         self.new_feedback = threading.Event()
+        self.booted = threading.Event()
         self.last_target: int | None = None
 
 
@@ -277,6 +278,8 @@ class DriveGroup:
             return
         drive.last_heartbeat_s = self.clock()
         drive.nmt_state = data[0] & 0x7F
+        if data[0] == 0x00:
+            drive.booted.set()  # boot-up message
 
     def _latch(self, cause: str, text: str) -> None:
         with self._fault_lock:
@@ -325,15 +328,16 @@ class DriveGroup:
 
     # ------------------------------------------------------------------ start-up
     def boot(self, timeout_s: float = BOOT_TIMEOUT_S) -> None:
-        """NMT reset communication of every drive and wait for each boot-up message."""
+        """NMT reset communication of every drive and wait for each boot-up message.
+
+        The wait is armed before the command goes out (a fast node answers before a wait that
+        starts after the send would begin listening).
+        """
         for d in self._drives:
-            d.node.nmt.state = "RESET COMMUNICATION"
-            try:
-                d.node.nmt.wait_for_bootup(timeout_s)
-            except canopen.nmt.NmtError as exc:
-                raise RigTimeoutError(
-                    f"node {d.cfg.node_id}: no boot-up within {timeout_s} s ({exc})"
-                ) from exc
+            d.booted.clear()
+            d.node.nmt.send_command(0x82)
+            if not d.booted.wait(timeout_s):
+                raise RigTimeoutError(f"node {d.cfg.node_id}: no boot-up within {timeout_s} s")
 
     def configure(self) -> None:
         """SDO-configure every drive from the config, then NMT start (OPERATIONAL)."""
