@@ -205,7 +205,7 @@ def test_reader_on_pty_then_disconnect(pty_pair, open_serial) -> None:
         assert wait_until(lambda: sensor.failure is not None)
         assert isinstance(sensor.failure, SensorError)
         assert sensor.failure.port == pty_pair.path
-        assert not sensor.running
+        assert wait_until(lambda: not sensor.running)  # the thread ends just after reporting
         assert sensor.latest().stale and sensor.latest().seq == 2
 
 
