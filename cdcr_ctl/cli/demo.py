@@ -140,6 +140,20 @@ def wait_for_socket(path: Path, proc: subprocess.Popen, log_path: Path) -> None:
     raise RigError(f"daemon did not open {path}; see {log_path}")
 
 
+def recover(sock: Path, attempts: int = 3) -> None:
+    """After a trip: acknowledge it, re-enable, and check the drives stay enabled for a moment."""
+    st: dict[str, Any] = {}
+    for _ in range(attempts):
+        with ControlClient(sock) as c:
+            c.call("reset_fault", confirm=True)
+            c.call("enable")
+            time.sleep(0.5)
+            st = c.call("status")
+            if st["enabled"] and st["fault"] is None:
+                return
+    raise RigError(f"could not recover from {st.get('fault')}")
+
+
 def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str) -> dict[str, Any]:
     """Run one trajectory through the daemon and wait for it; return the run's log dir and state."""
     with ControlClient(sock) as c:
@@ -201,10 +215,8 @@ def demo(obj: Any, sim_config: Path, out: Path, quick: bool) -> None:
                     if res["state"] != "completed":
                         # Keep the log of the tripped run, clear the trip, go on.
                         click.echo(f"  {exp}-{comp}: {res['end_reason']}", err=True)
-                        with ControlClient(sock) as c:
-                            c.call("reset_fault", confirm=True)
-                            c.call("enable")
-                    if res["state"] != "refused":
+                        recover(sock)
+                    if res["state"] == "completed":
                         break
                 summ = tip_errors(res["log_dir"], settle_s=0.0).summary()
                 rows.append({"experiment": exp, **summ, "state": res["state"]})

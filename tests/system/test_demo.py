@@ -31,8 +31,9 @@ def test_demo_runs_both_experiments_with_and_without_compensation(tmp_path):
     for exp in ("planar_bend", "circle"):
         # Compensation with the nominal model already removes a good part of the tip error.
         assert by[(exp, "model")]["mean_mm"] < 0.8 * by[(exp, "off")]["mean_mm"]
-    runs = sorted((session / "runs").iterdir())
-    assert len(runs) == 4
+    # A run that tripped (a busy machine can starve the simulator) is kept and run again: the
+    # table reports the completed ones.
+    runs = [session / "runs" / r["run"] for r in rows]
     for run_dir in runs:
         run = load_run(run_dir)
         assert run.ended["outcome"] == "completed"
