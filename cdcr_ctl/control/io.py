@@ -17,9 +17,8 @@ from cdcr_ctl.config.loadcells import LoadCellsConfig
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.config.tracking import TrackerConfig
 from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
-from cdcr_ctl.drives.busload import check_bus_load
-from cdcr_ctl.drives.canbus import open_bus
-from cdcr_ctl.drives.group import DriveGroup
+from cdcr_ctl.drives.busload import check_drives_bus_load
+from cdcr_ctl.drives.group import DriveGroup, open_drive_group
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
@@ -139,18 +138,12 @@ def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
 
     Nothing is enabled here. On any failure the bus is closed again before the error propagates.
     """
-    check_bus_load(
-        len(cfg.drives), cfg.can.sync_period_s, cfg.can.bitrate, cfg.can.max_bus_load, file
-    )
     by_cable = {d.cable: d for d in cfg.drives}
     drives = [by_cable[c.name] for c in cfg.robot.cables]
-    group = DriveGroup(open_bus(cfg.can), cfg.can, drives)
-    try:
-        group.boot()
-        group.configure()
-    except BaseException:
-        group.close()
-        raise
+    check_drives_bus_load(
+        drives, cfg.can.sync_period_s, cfg.can.bitrate, cfg.can.max_bus_load, file
+    )
+    group = open_drive_group(cfg.can, drives, file=file)
     return DriveGroupPort(group)
 
 

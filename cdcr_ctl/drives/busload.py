@@ -89,7 +89,7 @@ def _refuse(load: BusLoad, max_load: float, file: str, period_s: float) -> BusLo
 def check_bus_load(
     n_drives: int, period_s: float, bitrate: int, max_load: float, file: str = ""
 ) -> BusLoad:
-    """:class:`ConfigError` when ``n_drives`` CSP drives do not fit ``max_load`` of the bus."""
+    """Raise :class:`ConfigError` when ``n_drives`` CSP drives do not fit ``max_load``."""
     return _refuse(
         cycle_load(pdo_cycle_frames(n_drives), period_s, bitrate), max_load, file, period_s
     )

@@ -1,24 +1,36 @@
-"""All EPOS drives of a rig on one CAN bus: configuration by SDO, cyclic targets by RPDO + SYNC,
-feedback by TPDO, EMCY and heartbeat supervision, CiA 402 state changes, homing, quick stop.
+"""All EPOS drives of a rig on one CAN bus: boot and SDO configuration, cyclic set-points by RPDO +
+SYNC, feedback by TPDO, EMCY and heartbeat supervision, CiA 402 state changes with explicit
+timeouts, homing, profile moves, halt, quick stop.
 
-Protocol only: a drive is a node id, counts and a mode. The PDO layout (written to every drive by
-SDO at start-up, so no EDS is needed):
+Protocol only: a drive is a node id, counts and a mode (PDO layout in :mod:`cdcr_ctl.drives.epos`).
 
-- RPDO1 (COB-ID 0x200 + id, synchronous): target position 0x607A (int32) -- sent every cycle;
-- RPDO2 (COB-ID 0x300 + id, asynchronous): controlword 0x6040 (uint16) -- sent when it changes;
-- TPDO1 (COB-ID 0x180 + id, on every SYNC): statusword 0x6041 (uint16), actual position 0x6064
-  (int32).
+The loop's path (never blocks on the bus, never waits for an answer):
 
-A cycle is :meth:`DriveGroup.send_cycle`: the RPDO1 payloads of every drive are built first
-(:func:`rpdo_target_payload`, pure), then sent as one burst followed by SYNC (COB-ID 0x080).
-Faults seen by the listeners (EMCY, heartbeat timeout, missing TPDOs, bus errors) are latched;
-:meth:`first_fault` names node and code; the loop answers with :meth:`quick_stop`, which sends
-controlword 0x0002 to every drive at once.
+- :meth:`DriveGroup.build_cycle` -- every frame of one cycle, built first: each drive's set-point
+  RPDO, then SYNC (COB-ID 0x080). Pure: it neither sends nor changes the group.
+- :meth:`DriveGroup.send_cycle` -- sends them as one burst, then checks feedback and heartbeat
+  ages; :meth:`DriveGroup.feedback` -- the latest TPDO of each drive as :class:`Feedback`.
+- :meth:`DriveGroup.quick_stop_all` -- controlword 0x0002 to every drive at once; never raises.
+
+Faults (an EMCY, a drive reporting FAULT, a heartbeat overdue or a drive restarting, TPDOs missing
+for :data:`TPDO_MISSES` SYNCs from one drive or from all of them, a send or receive failure on the
+bus) are latched as one :class:`GroupFault` naming node and code, answered at once with
+:meth:`DriveGroup.quick_stop_all` from whichever thread saw them (and, should that thread lose the
+race, by the next :meth:`~DriveGroup.send_cycle` before its SYNC), so every drive gets its quick
+stop within the SYNC period the fault was seen in; then logged with the last :data:`FRAME_RING`
+frames. The loop reads :meth:`DriveGroup.first_fault`.
+
+Off the loop's path (blocking, with named timeouts): :meth:`~DriveGroup.boot`,
+:meth:`~DriveGroup.configure`, :meth:`~DriveGroup.enable`, :meth:`~DriveGroup.reset_faults`,
+:meth:`~DriveGroup.home`, :meth:`~DriveGroup.move_to`. They confirm every step from the TPDO
+feedback; when no cycle is running the group sends the SYNCs itself, at the configured period.
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
+import dataclasses
 import logging
 import struct
 import threading
@@ -29,190 +41,216 @@ from pathlib import Path
 
 import can
 import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
+from cdcr_ctl.drives import epos
+from cdcr_ctl.drives.busload import BusLoad, check_drives_bus_load
+from cdcr_ctl.drives.canbus import open_bus
 from cdcr_ctl.drives.cia402 import (
+    CW_CHANGE_IMMEDIATELY_BIT,
     CW_DISABLE_VOLTAGE,
     CW_ENABLE_OPERATION,
     CW_FAULT_RESET,
+    CW_HALT_BIT,
     CW_HOMING_START_BIT,
+    CW_IP_ENABLE_BIT,
     CW_NEW_SETPOINT_BIT,
     CW_QUICK_STOP,
-    CW_SHUTDOWN,
     MODE_BY_NAME,
     SW_HOMING_ATTAINED,
     SW_HOMING_ERROR,
+    SW_SETPOINT_ACK,
     SW_TARGET_REACHED,
     Mode,
     State,
     next_controlword,
     state_of,
 )
-from cdcr_ctl.drives.emcy import decode_emcy, emcy_text
-from cdcr_ctl.errors import CommError, DriveFault, RigTimeoutError
+from cdcr_ctl.drives.emcy import Emcy, decode_emcy
+from cdcr_ctl.drives.epos import (
+    controlword_payload,
+    counts_per_s_to_rpm,
+    parse_tpdo_feedback,
+    pp_setpoint_payload,
+    pvt_payload,
+    target_payload,
+)
+from cdcr_ctl.drives.heartbeat import NMT_OPERATIONAL, HeartbeatConsumer
+from cdcr_ctl.errors import CommError, DriveFault, RigError, RigTimeoutError
 
 log = logging.getLogger(__name__)
 
 SYNC_COB_ID = 0x080
-#: Wait for each node's boot-up message after an NMT reset (s).
+NMT_COB_ID = 0x000
+NMT_START, NMT_PRE_OPERATIONAL, NMT_RESET_COMMUNICATION = 0x01, 0x80, 0x82
+#: Wait for each node's boot-up message after an NMT reset communication (s).
 BOOT_TIMEOUT_S = 5.0
-#: SDO request timeout (s).
+#: SDO request timeout (s); one retry follows (canopen's SdoClient).
 SDO_TIMEOUT_S = 0.5
-#: Each CiA 402 state step must be confirmed by the statusword within this time (s).
+#: Each CiA 402 state step must show in the statusword within this time (s).
 STATE_STEP_TIMEOUT_S = 0.5
-#: A drive's heartbeat is lost after this many of its producer periods without one.
-HEARTBEAT_MISSES = 3
-#: Feedback is missing when no TPDO came for this many SYNC periods.
+#: A fault reset must show (the drive leaves FAULT) within this time (s).
+FAULT_RESET_TIMEOUT_S = 0.5
+#: A profile-position move must be acknowledged within this time (s).
+SETPOINT_ACK_TIMEOUT_S = 0.5
+#: Time allowed for a profile-position move to reach its target (s).
+MOVE_TIMEOUT_S = 30.0
+#: Feedback is missing when no TPDO came for this many SYNCs (and for feedback_timeout_s).
 TPDO_MISSES = 3
+#: Consecutive TPDOs reporting FAULT without an EMCY before the group latches the fault itself.
+FAULT_TPDOS = 2
 #: Frames kept for the dump that goes with a fault.
-FRAME_RING = 64
-
-
-def rpdo_target_payload(target_counts: int) -> bytes:
-    """RPDO1 data: target position 0x607A, int32 little endian."""
-    return struct.pack("<i", target_counts)
-
-
-def rpdo_controlword_payload(controlword: int) -> bytes:
-    """RPDO2 data: controlword 0x6040, uint16 little endian."""
-    return struct.pack("<H", controlword & 0xFFFF)
-
-
-def pvt_payload(position_counts: int, velocity_rpm: int, time_ms: int) -> bytes:
-    """EPOS2 interpolation data record (0x20C1): position int32, velocity int24 (rpm), time uint8
-    (ms), little endian, 8 bytes."""
-    v = max(-(2**23), min(2**23 - 1, int(velocity_rpm)))
-    return (
-        struct.pack("<i", position_counts)
-        + (v & 0xFFFFFF).to_bytes(3, "little")
-        + bytes([max(0, min(255, int(time_ms)))])
-    )
-
-
-def parse_pvt_payload(data: bytes) -> tuple[int, int, int]:
-    """Inverse of :func:`pvt_payload`."""
-    pos = struct.unpack_from("<i", data)[0]
-    v = int.from_bytes(data[4:7], "little", signed=True)
-    return pos, v, data[7]
-
-
-def parse_tpdo_feedback(data: bytes) -> tuple[int, int] | None:
-    """TPDO1 data -> (statusword, actual position counts); None if the length is wrong."""
-    if len(data) != 6:
-        return None
-    sw, pos = struct.unpack("<Hi", data)
-    return sw, pos
-
-
-def _u8(v: int) -> bytes:
-    return struct.pack("<B", v)
-
-
-def _i8(v: int) -> bytes:
-    return struct.pack("<b", v)
-
-
-def _u16(v: int) -> bytes:
-    return struct.pack("<H", v)
-
-
-def _u32(v: int) -> bytes:
-    return struct.pack("<I", v)
-
-
-def _i32(v: int) -> bytes:
-    return struct.pack("<i", v)
-
-
-def pdo_mapping_writes(
-    node_id: int, ip: bool = False, pp: bool = False
-) -> list[tuple[int, int, bytes]]:
-    """The SDO writes (index, subindex, data) that set up the PDO layout of the module docstring.
-
-    Each PDO is disabled (COB-ID bit 31), remapped, given its transmission type, then enabled
-    (CiA 301 7.5.2.35-36 procedure).
-    """
-    w: list[tuple[int, int, bytes]] = []
-    # Interpolated position (EPOS2): RPDO1 carries the 64-bit PVT record 0x20C1:01 instead.
-    ip_entry = 0x20C1_0140
-
-    def pdo(comm: int, mapping: int, cob: int, ttype: int, entries: list[int]) -> None:
-        w.append((comm, 1, _u32(0x8000_0000 | cob)))
-        w.append((mapping, 0, _u8(0)))
-        for i, e in enumerate(entries, start=1):
-            w.append((mapping, i, _u32(e)))
-        w.append((mapping, 0, _u8(len(entries))))
-        w.append((comm, 2, _u8(ttype)))
-        w.append((comm, 1, _u32(cob)))
-
-    # Profile position takes the target on a controlword edge: its RPDO1 is asynchronous (255)
-    # so the target is in place before the edge arrives.
-    pdo(0x1400, 0x1600, 0x200 + node_id, 255 if pp else 1, [ip_entry if ip else 0x607A_0020])
-    pdo(0x1401, 0x1601, 0x300 + node_id, 255, [0x6040_0010])
-    pdo(0x1800, 0x1A00, 0x180 + node_id, 1, [0x6041_0010, 0x6064_0020])
-    return w
-
-
-def configuration_writes(d: DriveConfig, bus: CanBusConfig) -> list[tuple[int, int, bytes]]:
-    """Every SDO write that configures drive ``d`` from the rig config (order matters)."""
-    mode = MODE_BY_NAME[d.mode]
-    period_ms = round(bus.sync_period_s * 1000)
-    lo, hi = d.software_limits_counts
-    w: list[tuple[int, int, bytes]] = [
-        (0x6060, 0, _i8(int(mode))),
-        (0x6065, 0, _u32(d.following_error_window_counts)),
-        (0x607D, 1, _i32(lo)),
-        (0x607D, 2, _i32(hi)),
-        (0x6081, 0, _u32(d.max_profile_velocity_rpm)),
-        (0x6083, 0, _u32(d.profile_acceleration_rpm_s)),
-        (0x6084, 0, _u32(d.profile_acceleration_rpm_s)),
-        (0x6085, 0, _u32(d.quick_stop_deceleration_rpm_s)),
-        (0x1017, 0, _u16(d.heartbeat_producer_ms)),
-        (0x1016, 1, _u32((bus.master_node_id << 16) | d.heartbeat_consumer_ms)),
-    ]
-    if mode is Mode.CYCLIC_SYNC_POSITION:
-        # Interpolation time period = SYNC period: value * 10^index s (index -3: ms).
-        w += [(0x60C2, 1, _u8(max(1, period_ms))), (0x60C2, 2, _i8(-3))]
-    if mode is Mode.INTERPOLATED_POSITION:
-        w += [(0x20C0, 0, struct.pack("<h", -1))]  # EPOS2 IPM sub mode -1: PVT
-    return w + pdo_mapping_writes(
-        d.node_id, ip=mode is Mode.INTERPOLATED_POSITION, pp=mode is Mode.PROFILE_POSITION
-    )
+FRAME_RING = 256
+#: A frame that cannot be queued for sending within this time is a bus fault (s). slcan writes
+#: block on the serial port instead (python-can reconfigures the port when the timeout changes).
+SEND_TIMEOUT_S = 0.005
+#: Period of the watchdog thread: master heartbeat, heartbeat checks while no cycle runs (s).
+WATCHDOG_PERIOD_S = 0.01
+#: No cycle for this many SYNC periods: the group is idle and clocks SYNC itself while waiting.
+IDLE_PERIODS = 3
+#: Points the EPOS2 PVT buffer gets before interpolation is enabled (controlword bit 4).
+IP_PREFILL_POINTS = 3
+#: On close: time allowed for quick-stopped drives to stop before power goes off (s).
+CLOSE_SETTLE_S = 0.3
+#: On close: SDO timeout for the best-effort writes (s).
+CLOSE_SDO_TIMEOUT_S = 0.1
 
 
 @dataclass(frozen=True)
 class Feedback:
-    """Latest TPDO of one drive: statusword, position (counts), its CiA 402 state, when (s)."""
+    """Latest TPDO of one drive: statusword, actual position (counts), its CiA 402 state, when it
+    came (s, on the group's clock, ``time.monotonic`` by default) and this drive's fault text
+    ('' when none)."""
 
     node: int
     statusword: int
     position_counts: int
     state: State
     t_s: float
+    fault: str = ""
+
+
+@dataclass(frozen=True)
+class GroupFault:
+    """The first fault the group latched.
+
+    ``cause`` is machine-readable (``emcy:node2:0x8611``, ``heartbeat:node1``,
+    ``no_feedback:node3``, ``no_feedback:all``, ``fault:node2``, ``nmt:node1``,
+    ``pdo_length:node1``, ``bus:send``, ``bus:rx``), ``node`` the
+    node at fault (0: the bus), ``code`` the EMCY code (0 when none), ``description`` what
+    happened, ``at_sync`` the SYNC count when it was seen, ``frames`` the last frames on the bus.
+    """
+
+    cause: str
+    node: int
+    code: int
+    description: str
+    t_s: float
+    at_sync: int
+    frame_records: tuple[tuple[float, str, int, bytes], ...]
+
+    @property
+    def frames(self) -> str:
+        """The last frames on the bus when the fault was seen: ``t_s dir id [dlc] data``."""
+        return format_frames(self.frame_records)
+
+    @property
+    def text(self) -> str:
+        return f"node {self.node}: {self.description}" if self.node else self.description
+
+    def error(self) -> RigError:
+        """The exception to raise for this fault (DriveFault for a node, CommError for the bus),
+        with the frame dump as a note."""
+        err: RigError = (
+            DriveFault(self.node, self.code, self.description)
+            if self.node
+            else CommError(self.description)
+        )
+        err.add_note(f"last CAN frames (t_s dir id [dlc] data):\n{self.frames}")
+        return err
+
+
+def format_frames(frames: Sequence[tuple[float, str, int, bytes]]) -> str:
+    """Frame records as text, one per line: ``t_s dir id [dlc] data``."""
+    return "\n".join(f"{t:12.6f} {d} {cid:03X} [{len(b)}] {b.hex(' ')}" for t, d, cid, b in frames)
 
 
 class _Drive:
-    """Per-drive bookkeeping (touched by the notifier thread and the loop thread)."""
+    """Per-drive bookkeeping (written by the bus listener thread and the caller's thread)."""
 
     def __init__(self, cfg: DriveConfig, node: canopen.RemoteNode) -> None:
         self.cfg = cfg
+        self.id = cfg.node_id
         self.node = node
         self.mode = MODE_BY_NAME[cfg.mode]
+        self.layout = epos.pdo_layout(cfg.node_id, self.mode)
         self.controlword = CW_DISABLE_VOLTAGE
         self.feedback = Feedback(cfg.node_id, 0, 0, State.UNKNOWN, float("-inf"))
-        self.last_heartbeat_s = float("-inf")
-        self.nmt_state = -1
-        self.new_feedback = threading.Event()
+        self.tpdo_sync = 0
+        self.tpdo_count = 0
+        self.last_tpdo_s = float("-inf")
+        self.fault_tpdos = 0
         self.booted = threading.Event()
+        self.present = False
+        self.last_emcy: Emcy | None = None
+        self.fault_text = ""
+        # set-point streams (pp: set/clear of bit 4; ip: PVT points)
         self.last_target: int | None = None
+        self.pp_pending = False
+        self.ip_points = 0
+        self.ip_active = False
+
+    def reset_stream(self) -> None:
+        self.last_target, self.pp_pending, self.ip_points, self.ip_active = None, False, 0, False
+
+
+def sdo_controlword_request(controlword: int) -> bytes:
+    """An expedited SDO download of 0x6040:00 (2 bytes): the controlword without PDOs."""
+    return bytes((0x2B,)) + struct.pack("<HBH", epos.CONTROLWORD, 0, controlword) + bytes(2)
+
+
+class _Network(canopen.Network):
+    """canopen's Network with every transmission routed through the group (ring, log, lock)."""
+
+    #: The bus listener wakes this often when idle; closing waits at most this long (s).
+    NOTIFIER_CYCLE = 0.05
+
+    def __init__(self, bus: can.BusABC, transmit: Callable[[int, bytes, bool], None]) -> None:
+        super().__init__(bus)
+        self._transmit = transmit
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        self._transmit(can_id, bytes(data), remote)
+
+
+class _RxTap(can.Listener):
+    """Every received frame to the group; a receive error (adapter gone) too."""
+
+    def __init__(
+        self, on_rx: Callable[[can.Message], None], on_error: Callable[[Exception], None]
+    ) -> None:
+        self._on_rx = on_rx
+        self._on_error = on_error
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self._on_rx(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self._on_error(exc)
+
+    def stop(self) -> None:
+        pass
 
 
 class DriveGroup:
     """The drives of one rig, in the order given (the caller's order, e.g. cable order).
 
     ``bus`` is injected (any python-can bus); the group owns it from here and shuts it down on
-    :meth:`close`. Use as a context manager: exit disables the drives and closes the bus even if
-    start-up failed half way.
+    :meth:`close`. Use as a context manager: exit quick-stops and disables the drives, stops the
+    master heartbeat and closes the bus, even if start-up failed half way. ``clock`` (default
+    ``time.monotonic``) stamps feedback and measures every timeout. ``file`` names the config file
+    in errors. The cyclic PDO set must fit ``bus_cfg.max_bus_load`` (ConfigError otherwise).
     """
 
     def __init__(
@@ -221,25 +259,54 @@ class DriveGroup:
         bus_cfg: CanBusConfig,
         drives: Sequence[DriveConfig],
         clock: Callable[[], float] = time.monotonic,
+        *,
+        file: str = "",
+        react_to_faults: bool = True,
     ) -> None:
         self.bus_cfg = bus_cfg
         self.clock = clock
-        self.network = canopen.Network(bus)
-        self._drives: list[_Drive] = []
-        self._by_node: dict[int, _Drive] = {}
-        self._fault: tuple[str, str] | None = None
-        self._fault_lock = threading.Lock()
+        self.file = file
+        self.react_to_faults = react_to_faults
+        try:
+            self.bus_load: BusLoad = check_drives_bus_load(
+                drives, bus_cfg.sync_period_s, bus_cfg.bitrate, bus_cfg.max_bus_load, file
+            )
+            for d in drives:
+                if d.mode in ("csp", "ip", "pm"):
+                    epos.interpolation_period_ms(bus_cfg, file)
+        except RigError:
+            bus.shutdown()
+            raise
+        self.period_s = bus_cfg.sync_period_s
+        self.feedback_timeout_s = bus_cfg.feedback_timeout_s or TPDO_MISSES * self.period_s
+        self._send_timeout = None if bus_cfg.interface == "slcan" else SEND_TIMEOUT_S
         self._frames: collections.deque[tuple[float, str, int, bytes]] = collections.deque(
             maxlen=FRAME_RING
         )
         self._traffic: can.Listener | None = None
         self._traffic_lock = threading.Lock()
-        self._heartbeat_task: object = None
+        self._cycle_lock = threading.RLock()
+        self._fault_lock = threading.Lock()
+        self._fb_cond = threading.Condition()
+        self._fault: GroupFault | None = None
+        self._closed = False
+        self._started = False
         self.sync_count = 0
-        #: SYNC counts when the first fault was latched and when quick stop went out (diagnostics).
+        self.error_frames = 0
+        #: SYNC counts when the first fault was latched and when the quick stop went out.
         self.fault_at_sync: int | None = None
         self.quick_stop_at_sync: int | None = None
-        self.feedback_timeout_s = bus_cfg.feedback_timeout_s or TPDO_MISSES * bus_cfg.sync_period_s
+        self._last_cycle_s = float("-inf")
+        self._next_self_sync_s = float("-inf")
+        self._sync_source: Callable[[], None] | None = None
+        self._hb_period_s = bus_cfg.master_heartbeat_ms / 1e3
+        self._hb_on = False
+        self._hb_next_s = 0.0
+
+        self.network = _Network(bus, self._transmit)
+        self._drives: list[_Drive] = []
+        self._by_node: dict[int, _Drive] = {}
+        self._by_tpdo: dict[int, _Drive] = {}
         for d in drives:
             node = canopen.RemoteNode(d.node_id, canopen.ObjectDictionary())
             node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
@@ -247,315 +314,858 @@ class DriveGroup:
             drive = _Drive(d, node)
             self._drives.append(drive)
             self._by_node[d.node_id] = drive
-            self.network.subscribe(0x180 + d.node_id, self._on_tpdo)
+            self._by_tpdo[drive.layout.feedback.cob_id] = drive
+            self.network.subscribe(drive.layout.feedback.cob_id, self._on_tpdo)
             self.network.subscribe(0x080 + d.node_id, self._on_emcy)
             self.network.subscribe(0x700 + d.node_id, self._on_heartbeat)
-        self.network.connect()
-
-    # ------------------------------------------------------------------ listeners
-    def _on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        drive = self._by_node.get(can_id - 0x180)
-        parsed = parse_tpdo_feedback(bytes(data))
-        if drive is None or parsed is None:
-            return
-        sw, pos = parsed
-        drive.feedback = Feedback(drive.cfg.node_id, sw, pos, state_of(sw), self.clock())
-        drive.new_feedback.set()
-        self._record("rx", can_id, data)
-
-    def _on_emcy(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        node = can_id - 0x080
-        e = decode_emcy(node, bytes(data))
-        self._record("rx", can_id, data)
-        if e is None or e.code == 0x0000:
-            return  # error reset / no error
-        log.error("EMCY node %d: 0x%04X %s (register 0x%02X)", node, e.code, e.text, e.register)
-        self._latch(f"emcy:node{node}:0x{e.code:04X}", f"node {node}: 0x{e.code:04X} {e.text}")
-
-    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        drive = self._by_node.get(can_id - 0x700)
-        if drive is None or not data:
-            return
-        drive.last_heartbeat_s = self.clock()
-        drive.nmt_state = data[0] & 0x7F
-        if data[0] == 0x00:
-            drive.booted.set()  # boot-up message
-
-    def _latch(self, cause: str, text: str) -> None:
-        with self._fault_lock:
-            if self._fault is None:
-                self._fault = (cause, text)
-                self.fault_at_sync = self.sync_count
-                log.error("drive fault: %s; last frames:\n%s", text, self.frame_dump())
-
-    def _record(self, direction: str, can_id: int, data: bytes | bytearray) -> None:
-        self._frames.append((self.clock(), direction, can_id, bytes(data)))
-
-    def frame_dump(self) -> str:
-        """The last frames seen and sent, oldest first, for error reports."""
-        return "\n".join(
-            f"{t:12.6f} {d} {cid:03X} [{len(b)}] {b.hex(' ')}"
-            for t, d, cid, b in list(self._frames)
+        self._heartbeats = HeartbeatConsumer(
+            {d.node_id: d.heartbeat_producer_ms / 1e3 for d in drives}
         )
+        self.network.connect()
+        assert self.network.notifier is not None
+        self.network.notifier.add_listener(_RxTap(self._on_rx, self._on_rx_error))
+        self._watchdog_stop = threading.Event()
+        self._watchdog = threading.Thread(target=self._watch, name="drives-watchdog", daemon=True)
+        self._watchdog.start()
 
-    # ------------------------------------------------------------------ traffic log
-    def log_traffic(self, path: str | Path | None) -> None:
-        """Log every frame seen and sent to ``path`` (ASC/BLF by suffix); ``None`` stops."""
-        with self._traffic_lock:
-            old, self._traffic = self._traffic, None
-        if old is not None:
-            self.network.notifier.remove_listener(old)
-            old.stop()
-        if path is not None:
-            writer = can.Logger(str(path))
-            with self._traffic_lock:
-                self._traffic = writer
-            self.network.notifier.add_listener(writer)
-
-    def _send(self, cob_id: int, data: bytes) -> None:
-        msg = can.Message(arbitration_id=cob_id, data=data, is_extended_id=False)
-        try:
-            self.network.bus.send(msg)
-        except (can.CanError, OSError) as exc:
-            self._latch("bus:send", f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}: {exc}")
-            raise CommError(f"CAN send 0x{cob_id:03X} failed: {exc}") from exc
-        self._record("tx", cob_id, data)
+    # ================================================================== transmit / receive
+    def _transmit(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        """Send one frame (every frame the group and canopen send comes here)."""
+        msg = can.Message(
+            arbitration_id=can_id,
+            data=data,
+            is_extended_id=can_id > 0x7FF,
+            is_remote_frame=remote,
+            is_rx=False,
+        )
+        with self.network.send_lock:
+            self.network.bus.send(msg, self._send_timeout)
+            self._frames.append((self.clock(), "tx", can_id, data))
         traffic = self._traffic
         if traffic is not None:
             msg.timestamp = time.time()
             with self._traffic_lock:
                 traffic.on_message_received(msg)
 
-    # ------------------------------------------------------------------ start-up
-    def boot(self, timeout_s: float = BOOT_TIMEOUT_S) -> None:
-        """NMT reset communication of every drive and wait for each boot-up message.
+    def _send(self, cob_id: int, data: bytes) -> None:
+        """Send one frame; a failure latches a bus fault and raises CommError."""
+        try:
+            self._transmit(cob_id, data)
+        except (can.CanError, OSError, RuntimeError) as exc:
+            where = f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}"
+            self._latch("bus:send", 0, 0, f"{where}: sending 0x{cob_id:03X} failed ({exc})")
+            raise CommError(f"{where}: sending 0x{cob_id:03X} failed ({exc})") from exc
 
-        The wait is armed before the command goes out (a fast node answers before a wait that
-        starts after the send would begin listening).
-        """
-        for d in self._drives:
-            d.booted.clear()
-            d.node.nmt.send_command(0x82)
-            if not d.booted.wait(timeout_s):
-                raise RigTimeoutError(f"node {d.cfg.node_id}: no boot-up within {timeout_s} s")
+    def _on_rx(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self.error_frames += 1
+        self._frames.append((self.clock(), "rx", msg.arbitration_id, bytes(msg.data)))
+        traffic = self._traffic
+        if traffic is not None:
+            with self._traffic_lock:
+                traffic.on_message_received(msg)
 
-    def configure(self) -> None:
-        """SDO-configure every drive from the config, then NMT start (OPERATIONAL)."""
-        for d in self._drives:
-            if d.mode is Mode.INTERPOLATED_POSITION and d.cfg.type != "epos2":
-                raise DriveFault(d.cfg.node_id, 0, "interpolated position is the EPOS2's mode")
-            for index, sub, data in configuration_writes(d.cfg, self.bus_cfg):
-                try:
-                    d.node.sdo.download(index, sub, data)
-                except canopen.SdoAbortedError as exc:
-                    raise DriveFault(
-                        d.cfg.node_id,
-                        exc.code,
-                        f"SDO write 0x{index:04X}:{sub} refused: {exc}",
-                    ) from exc
-                except canopen.SdoCommunicationError as exc:
-                    raise CommError(
-                        f"node {d.cfg.node_id}: no SDO answer writing 0x{index:04X}:{sub} ({exc})"
-                    ) from exc
-        self.network.nmt.state = "OPERATIONAL"
-        if self.bus_cfg.master_heartbeat_ms > 0:
-            self._heartbeat_task = self.network.send_periodic(
-                0x700 + self.bus_cfg.master_node_id, [0x05], self.bus_cfg.master_heartbeat_ms / 1e3
+    def _on_rx_error(self, exc: Exception) -> None:
+        """The bus listener failed to receive (adapter unplugged, interface down): latch a bus
+        fault at once; the listener keeps trying, no faster than its cycle, until close."""
+        where = f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}"
+        self._latch("bus:rx", 0, 0, f"{where}: receiving failed ({exc})")
+        if not self._closed:
+            time.sleep(_Network.NOTIFIER_CYCLE)
+
+    def _on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        d = self._by_tpdo.get(can_id)
+        parsed = parse_tpdo_feedback(bytes(data))
+        if d is None:
+            return
+        if parsed is None:
+            self._latch(
+                f"pdo_length:node{d.id}",
+                d.id,
+                0,
+                f"TPDO1 0x{can_id:03X} has {len(data)} bytes, expected 6 (mapping changed?)",
             )
-        now = self.clock()
-        for d in self._drives:
-            d.last_heartbeat_s = max(d.last_heartbeat_s, now)
-
-    # ------------------------------------------------------------------ the cycle
-    def build_cycle(self, targets_counts: Sequence[int]) -> list[tuple[int, bytes]]:
-        """(COB-ID, data) of one cycle: every drive's RPDO1, then SYNC. Pure but for the last
-        target kept per IP drive (its PVT velocity is the slope to the new point)."""
-        period = self.bus_cfg.sync_period_s
-        frames = []
-        for d, t in zip(self._drives, targets_counts, strict=True):
-            t = int(t)
-            if d.mode is Mode.INTERPOLATED_POSITION:
-                prev = d.last_target if d.last_target is not None else t
-                rpm = (t - prev) / period * 60.0 / d.cfg.encoder_counts_per_rev
-                d.last_target = t
-                data = pvt_payload(t, round(rpm), round(period * 1000))
-            else:
-                data = rpdo_target_payload(t)
-            frames.append((0x200 + d.cfg.node_id, data))
-        frames.append((SYNC_COB_ID, b""))
-        return frames
-
-    def send_cycle(self, targets_counts: Sequence[int]) -> None:
-        """Send one cycle's targets and the SYNC; check feedback and heartbeat ages."""
-        frames = self.build_cycle(targets_counts)
-        try:
-            for cob, data in frames[:-1]:
-                self._send(cob, data)
-                d = self._by_node[cob - 0x200]
-                if d.mode is Mode.PROFILE_POSITION and d.feedback.state is State.OPERATION_ENABLED:
-                    # Profile position: a rising edge of bit 4 takes the new target at once.
-                    self._send(0x300 + d.cfg.node_id, rpdo_controlword_payload(0x3F))
-                    self._send(0x300 + d.cfg.node_id, rpdo_controlword_payload(d.controlword))
-            self._send(SYNC_COB_ID, b"")
-        except CommError:
             return
-        self.sync_count += 1
-        self._check_ages()
-
-    def send_sync(self) -> None:
-        """One SYNC alone (homing and other non-cyclic phases still need TPDO feedback)."""
-        try:
-            self._send(SYNC_COB_ID, b"")
-        except CommError:
-            return
-
-    def _check_ages(self) -> None:
+        sw, pos = parsed
+        state = state_of(sw)
         now = self.clock()
-        period = self.bus_cfg.sync_period_s
-        for d in self._drives:
-            hb = d.cfg.heartbeat_producer_ms / 1e3
-            if hb > 0 and now - d.last_heartbeat_s > HEARTBEAT_MISSES * hb + period:
+        d.feedback = Feedback(d.id, sw, pos, state, now, d.fault_text)
+        d.tpdo_sync = self.sync_count
+        d.tpdo_count += 1
+        d.last_tpdo_s = now
+        if state is State.FAULT and self._started:
+            d.fault_tpdos += 1
+            if d.fault_tpdos >= FAULT_TPDOS and d.last_emcy is None:
                 self._latch(
-                    f"heartbeat:node{d.cfg.node_id}",
-                    f"node {d.cfg.node_id}: heartbeat lost ({now - d.last_heartbeat_s:.3f} s)",
+                    f"fault:node{d.id}",
+                    d.id,
+                    0,
+                    f"statusword 0x{sw:04X} reports FAULT (no EMCY seen)",
                 )
-            if self.sync_count > TPDO_MISSES and now - d.feedback.t_s > self.feedback_timeout_s:
-                self._latch(
-                    f"no_feedback:node{d.cfg.node_id}",
-                    f"node {d.cfg.node_id}: no TPDO for {now - d.feedback.t_s:.3f} s "
-                    "(bus not answering)",
-                )
+        else:
+            d.fault_tpdos = 0
+        with self._fb_cond:
+            self._fb_cond.notify_all()
 
-    def feedback(self) -> list[Feedback]:
-        """Latest feedback per drive (never blocks)."""
-        return [d.feedback for d in self._drives]
+    def _on_emcy(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        node = can_id - 0x080
+        d = self._by_node.get(node)
+        if d is None:
+            return
+        e = decode_emcy(node, bytes(data), d.cfg.type)
+        if e is None:
+            return
+        if e.code == 0x0000:
+            log.info("node %d: EMCY error reset", node)
+            return
+        d.last_emcy = e
+        d.fault_text = f"EMCY 0x{e.code:04X} {e.text}"
+        log.error("%s (error register 0x%02X)", e, e.register)
+        self._latch(f"emcy:node{node}:0x{e.code:04X}", node, e.code, d.fault_text)
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        d = self._by_node.get(can_id - 0x700)
+        if d is None or not data:
+            return
+        if data[0] == 0:
+            d.booted.set()
+        anomaly = self._heartbeats.beat(d.id, data[0], self.clock())
+        if anomaly is not None and self._started:
+            d.fault_text = anomaly
+            self._latch(f"nmt:node{d.id}", d.id, 0, anomaly)
+
+    # ================================================================== faults
+    def _latch(self, cause: str, node: int, code: int, description: str) -> None:
+        """Record the first fault and quick-stop every drive (from whichever thread saw it)."""
+        with self._fault_lock:
+            if self._fault is not None or self._closed:
+                return
+            fault = GroupFault(
+                cause,
+                node,
+                code,
+                description,
+                self.clock(),
+                self.sync_count,
+                tuple(self._frames),
+            )
+            self._fault = fault
+            self.fault_at_sync = self.sync_count
+        if self.react_to_faults and self._started:
+            self.quick_stop_all()  # first; the log (formatting 256 frames) can wait
+        log.error("drive fault: %s; last frames:\n%s", fault.text, fault.frames)
 
     def first_fault(self) -> tuple[str, str] | None:
+        """(cause, text) of the first fault since the last reset, or None. Never blocks."""
+        f = self._fault
+        return None if f is None else (f.cause, f.text)
+
+    def fault(self) -> GroupFault | None:
+        """The first fault since the last reset (with its frame dump), or None."""
         return self._fault
 
-    # ------------------------------------------------------------------ state changes
-    def set_controlword(self, cw: int, drives: Sequence[_Drive] | None = None) -> None:
-        """Send controlword ``cw`` (RPDO2) to the given drives (all by default) at once."""
-        for d in drives or self._drives:
-            d.controlword = cw
-            self._send(0x300 + d.cfg.node_id, rpdo_controlword_payload(cw))
+    def raise_if_faulted(self) -> None:
+        """Raise the latched fault as DriveFault (a node) or CommError (the bus)."""
+        f = self._fault
+        if f is not None:
+            raise f.error()
 
-    def quick_stop(self) -> None:
-        """Controlword 0x0002 to every drive now; never raises (best effort on a broken bus)."""
-        self.quick_stop_at_sync = self.sync_count
+    def frame_dump(self) -> str:
+        """The last frames seen and sent, oldest first: ``t_s dir id [dlc] data``."""
+        return format_frames(tuple(self._frames))
+
+    # ================================================================== traffic log
+    def log_traffic(self, path: str | Path | None) -> None:
+        """Log every frame seen and sent to ``path`` (python-can writer chosen by suffix: .asc,
+        .blf, .csv, .log, ...); ``None`` stops and closes the file."""
+        with self._traffic_lock:
+            old, self._traffic = self._traffic, None
+            if old is not None:
+                old.stop()
+            if path is not None:
+                Path(path).parent.mkdir(parents=True, exist_ok=True)
+                self._traffic = can.Logger(str(path))
+
+    # ================================================================== start-up
+    def boot(self, timeout_s: float = BOOT_TIMEOUT_S) -> None:
+        """NMT reset communication to every drive, then wait for each boot-up message."""
         for d in self._drives:
-            d.controlword = CW_QUICK_STOP
-            try:
-                self._send(0x300 + d.cfg.node_id, rpdo_controlword_payload(CW_QUICK_STOP))
-            except CommError:
-                log.error("quick stop to node %d could not be sent", d.cfg.node_id)
-
-    def _walk(self, target: State, timeout_s: float) -> None:
-        """Step every drive through the 402 diagram to ``target`` (needs SYNCs for feedback)."""
+            d.booted.clear()
         for d in self._drives:
-            deadline = self.clock() + timeout_s
-            while d.feedback.state is not target:
-                cw = next_controlword(d.feedback.state, target)
-                if cw is None:
-                    if d.feedback.state is State.FAULT:
-                        raise DriveFault(d.cfg.node_id, 0, "in FAULT: reset the fault first")
-                elif cw != d.controlword or cw == CW_FAULT_RESET:
-                    self.set_controlword(cw, [d])
-                d.new_feedback.clear()
-                if self.clock() > deadline:
-                    raise RigTimeoutError(
-                        f"node {d.cfg.node_id}: still {d.feedback.state.value} after {timeout_s} s"
-                        f" on the way to {target.value} (controlword 0x{d.controlword:04X})"
-                    )
-                d.new_feedback.wait(min(0.05, timeout_s))
-
-    def enable(self, timeout_s: float = STATE_STEP_TIMEOUT_S * 3) -> None:
-        """Drive every drive to OPERATION ENABLED: controlwords 0x06, 0x07, 0x0F as needed.
-
-        The caller keeps SYNC running (the loop does); feedback confirms each step.
-        """
-        self._walk(State.OPERATION_ENABLED, timeout_s)
-        ip = [d for d in self._drives if d.mode is Mode.INTERPOLATED_POSITION]
-        if ip:
-            # Interpolated position: controlword bit 4 enables the interpolation.
-            self.set_controlword(CW_ENABLE_OPERATION | CW_NEW_SETPOINT_BIT, ip)
-
-    def disable(self, timeout_s: float = STATE_STEP_TIMEOUT_S) -> None:
-        """Controlword 0x06 (shutdown: READY TO SWITCH ON, power stage off)."""
-        try:
-            self.set_controlword(CW_SHUTDOWN)
-        except CommError:
-            log.error("disable could not be sent")
-
-    def reset_faults(self, timeout_s: float = STATE_STEP_TIMEOUT_S) -> None:
-        """Fault reset (controlword 0x80 rising edge) on drives in FAULT; clear latched faults."""
+            self._send(NMT_COB_ID, bytes((NMT_RESET_COMMUNICATION, d.id)))
+        deadline = self.clock() + timeout_s
+        missing = []
         for d in self._drives:
-            if d.feedback.state is State.FAULT:
-                self.set_controlword(CW_SHUTDOWN & 0x7F, [d])
-                self.set_controlword(CW_FAULT_RESET, [d])
-        with self._fault_lock:
-            self._fault = None
-        now = self.clock()
-        for d in self._drives:
-            d.last_heartbeat_s = max(d.last_heartbeat_s, now)
-
-    def home(self, sync: Callable[[], None], timeout_s: float | None = None) -> list[int]:
-        """Home every drive with its 0x6098 method; return the actual positions after homing.
-
-        ``sync`` sends one SYNC (and whatever else a cycle needs) so TPDO feedback keeps coming;
-        the caller's loop must not send targets meanwhile. Drives must be OPERATION ENABLED.
-        """
-        for d in self._drives:
-            h = d.cfg.homing
-            sdo = d.node.sdo
-            sdo.download(0x6060, 0, _i8(Mode.HOMING))
-            sdo.download(0x6098, 0, _i8(h.method))
-            sdo.download(0x607C, 0, _i32(h.offset_counts))
-            sdo.download(0x6099, 1, _u32(h.speed_rpm))
-            sdo.download(0x6099, 2, _u32(h.speed_rpm))
-            sdo.download(0x609A, 0, _u32(h.acceleration_rpm_s))
-            if h.method in (-3, -4):
-                sdo.download(0x30B2, 0, _u16(h.current_threshold_mA))
-            self.set_controlword(CW_ENABLE_OPERATION, [d])
-            self.set_controlword(CW_ENABLE_OPERATION | CW_HOMING_START_BIT, [d])
-            deadline = self.clock() + (timeout_s or h.timeout_s)
-            while True:
-                sync()
-                sw = d.feedback.statusword
-                if sw & SW_HOMING_ERROR:
-                    raise DriveFault(d.cfg.node_id, 0, "homing error (statusword bit 13)")
-                if sw & SW_HOMING_ATTAINED and sw & SW_TARGET_REACHED:
-                    break
-                if self.clock() > deadline:
-                    raise RigTimeoutError(f"node {d.cfg.node_id}: homing not attained in time")
-                time.sleep(self.bus_cfg.sync_period_s)
-            self.set_controlword(CW_ENABLE_OPERATION, [d])
-            sdo.download(0x6060, 0, _i8(int(d.mode)))
-        for _ in range(3):
-            sync()
-            time.sleep(self.bus_cfg.sync_period_s)
-        return [d.feedback.position_counts for d in self._drives]
+            if d.booted.wait(max(0.0, deadline - self.clock())):
+                d.present = True
+            else:
+                missing.append(d.id)
+        if missing:
+            raise RigTimeoutError(
+                f"node(s) {', '.join(map(str, missing))}: no boot-up message (0x700 + node, [00]) "
+                f"within {timeout_s} s of NMT reset communication; check power, wiring, node ids "
+                f"and the bit rate ({self.bus_cfg.bitrate} bit/s)"
+            )
 
     def read_identity(self, node_id: int) -> dict[str, int]:
         """0x1000 device type and 0x1018 identity of one drive, by SDO."""
-        node = self._by_node[node_id].node
-        out = {"device_type": struct.unpack("<I", node.sdo.upload(0x1000, 0))[0]}
+        d = self._by_node[node_id]
+        out = {"device_type": self._sdo_read_u32(d, epos.DEVICE_TYPE, 0)}
         for sub, key in ((1, "vendor_id"), (2, "product_code"), (3, "revision"), (4, "serial")):
-            out[key] = struct.unpack("<I", node.sdo.upload(0x1018, sub))[0]
+            out[key] = self._sdo_read_u32(d, epos.IDENTITY, sub)
         return out
 
-    # ------------------------------------------------------------------ shutdown
-    def close(self) -> None:
-        """Disable the drives, stop the master heartbeat and the traffic log, close the bus."""
-        self.disable()
-        stop = getattr(self._heartbeat_task, "stop", None)
-        if stop is not None:
-            stop()
-        self.log_traffic(None)
+    def configure(self) -> None:
+        """Check each drive is a maxon drive, SDO-configure it from the config (mode, limits,
+        following error, interpolation period, heartbeats, PDO mapping), start the master
+        heartbeat, NMT-start every drive and confirm OPERATIONAL from its heartbeat."""
+        for d in self._drives:
+            vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
+            if vendor != epos.MAXON_VENDOR_ID:
+                raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
+            writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file)
+            for w in writes:
+                self._sdo_write(d, w)
+            if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
+                raw = self._sdo_read(d, epos.INTERPOLATION_PERIOD, 2)
+                index = struct.unpack("<b", raw[:1])[0]
+                if index != -3:
+                    raise DriveFault(
+                        d.id, 0, f"0x60C2:2 interpolation time index is {index}, expected -3 (ms)"
+                    )
+            d.present = True
+        self._hb_next_s = self.clock()
+        self._hb_on = self._hb_period_s > 0
+        now = self.clock()
+        for d in self._drives:
+            d.last_tpdo_s = now
+            d.tpdo_sync = self.sync_count
+            d.reset_stream()
+            self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
+        self._heartbeats.arm(now)
+        self._started = True
+        self._confirm_operational()
+
+    def _confirm_operational(self) -> None:
+        watched = [d for d in self._drives if d.cfg.heartbeat_producer_ms > 0]
+        if not watched:
+            return
+        timeout_s = max(3 * max(d.cfg.heartbeat_producer_ms for d in watched) / 1e3, 0.5)
+        deadline = self.clock() + timeout_s
+        while True:
+            late = [d for d in watched if self._heartbeats.state(d.id) != NMT_OPERATIONAL]
+            if not late:
+                return
+            if self.clock() > deadline:
+                raise RigTimeoutError(
+                    f"node(s) {', '.join(str(d.id) for d in late)}: no OPERATIONAL heartbeat "
+                    f"within {timeout_s:.2f} s of NMT start"
+                )
+            time.sleep(0.005)
+
+    def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:
         try:
-            self.network.disconnect()
-        except (can.CanError, OSError) as exc:
-            log.warning("closing the CAN bus: %s", exc)
+            return d.node.sdo.upload(index, sub)
+        except SdoAbortedError as exc:
+            raise DriveFault(
+                d.id, exc.code, f"SDO read 0x{index:04X}:{sub:02X} refused: {exc}"
+            ) from exc
+        except SdoCommunicationError as exc:
+            raise CommError(
+                f"node {d.id}: no SDO answer reading 0x{index:04X}:{sub:02X} ({exc})"
+            ) from exc
+
+    def _sdo_read_u32(self, d: _Drive, index: int, sub: int) -> int:
+        raw = self._sdo_read(d, index, sub)
+        return int.from_bytes(raw[:4].ljust(4, b"\0"), "little")
+
+    def _sdo_write(self, d: _Drive, w: epos.SdoWrite) -> None:
+        try:
+            d.node.sdo.download(w.index, w.sub, w.data)
+        except SdoAbortedError as exc:
+            raise DriveFault(
+                d.id, exc.code, f"SDO write 0x{w.index:04X}:{w.sub:02X} ({w.what}) refused: {exc}"
+            ) from exc
+        except SdoCommunicationError as exc:
+            raise CommError(
+                f"node {d.id}: no SDO answer writing 0x{w.index:04X}:{w.sub:02X} ({w.what}): {exc}"
+            ) from exc
+
+    # ================================================================== the cycle
+    def _plan(self, targets_counts: Sequence[int]) -> tuple[list[tuple[int, bytes]], list[tuple]]:
+        """Frames of one cycle (without SYNC) and each drive's stream state after it. Pure."""
+        frames: list[tuple[int, bytes]] = []
+        states: list[tuple] = []
+        faulted = self._fault is not None
+        period_ms = round(self.period_s * 1e3)
+        for d, t in zip(self._drives, targets_counts, strict=True):
+            t = int(t)
+            last, pending, points, active = d.last_target, d.pp_pending, d.ip_points, d.ip_active
+            enabled = (
+                not faulted
+                and d.feedback.state is State.OPERATION_ENABLED
+                and d.controlword & 0x8F == CW_ENABLE_OPERATION
+            )
+            cob = d.layout.setpoint.cob_id
+            if d.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE):
+                frames.append((cob, target_payload(t)))
+                last = t
+            elif d.mode is Mode.PROFILE_POSITION:
+                cw = d.controlword & ~(CW_NEW_SETPOINT_BIT | CW_CHANGE_IMMEDIATELY_BIT)
+                if not enabled:
+                    last, pending = None, False
+                elif pending:
+                    frames.append((cob, pp_setpoint_payload(last or 0, cw)))
+                    pending = False
+                elif t != last:
+                    bits = CW_NEW_SETPOINT_BIT | CW_CHANGE_IMMEDIATELY_BIT
+                    frames.append((cob, pp_setpoint_payload(t, cw | bits)))
+                    last, pending = t, True
+            elif d.mode is Mode.INTERPOLATED_POSITION:
+                if not enabled:
+                    last, points, active = None, 0, False
+                else:
+                    v = 0 if last is None else (t - last) / self.period_s
+                    rpm = counts_per_s_to_rpm(v, d.cfg.encoder_counts_per_rev)
+                    frames.append((cob, pvt_payload(t, rpm, period_ms)))
+                    last, points = t, points + 1
+                    if not active and points >= IP_PREFILL_POINTS:
+                        cw = d.controlword | CW_IP_ENABLE_BIT
+                        frames.append((d.layout.controlword.cob_id, controlword_payload(cw)))
+                        active = True
+            states.append((last, pending, points, active))
+        return frames, states
+
+    def build_cycle(self, targets_counts: Sequence[int]) -> list[tuple[int, bytes]]:
+        """(COB-ID, data) of every frame of one cycle: the set-point RPDOs, then SYNC. Pure: it
+        neither sends nor changes the group. ``targets_counts`` in the group's drive order."""
+        frames, _ = self._plan(targets_counts)
+        return [*frames, (SYNC_COB_ID, b"")]
+
+    def send_cycle(self, targets_counts: Sequence[int]) -> None:
+        """Send one cycle's set-points as one burst, then SYNC; then check feedback and heartbeat
+        ages. Never blocks on an answer; a send failure is latched as a fault, not raised."""
+        if self._closed:
+            return
+        now = self.clock()
+        with self._cycle_lock:
+            self._send_pending_quick_stop()
+            frames, states = self._plan(targets_counts)
+            try:
+                for cob, data in frames:
+                    self._send(cob, data)
+                self._send(SYNC_COB_ID, b"")
+            except CommError:
+                return
+            for d, (last, pending, points, active) in zip(self._drives, states, strict=True):
+                d.last_target, d.pp_pending, d.ip_points = last, pending, points
+                if active and not d.ip_active:
+                    d.controlword |= CW_IP_ENABLE_BIT
+                d.ip_active = active
+            self.sync_count += 1
+            self._last_cycle_s = now
+        self._supervise(now)
+
+    def send_sync(self) -> None:
+        """One SYNC alone (non-cyclic phases still need TPDO feedback); then the same checks."""
+        if self._closed:
+            return
+        with self._cycle_lock:
+            self._send_pending_quick_stop()
+            try:
+                self._send(SYNC_COB_ID, b"")
+            except CommError:
+                return
+            self.sync_count += 1
+        self._supervise(self.clock())
+
+    def _send_pending_quick_stop(self) -> None:
+        """A fault seen by another thread whose quick stop has not gone out yet (that thread
+        waits for the cycle lock): send it now, before this SYNC (cycle lock held)."""
+        pending = self._fault is not None and self.quick_stop_at_sync is None
+        if pending and self._started and self.react_to_faults:
+            self.quick_stop_all()
+
+    def _supervise(self, now: float) -> None:
+        if not self._started or self._fault is not None:
+            return
+        silent = [
+            d
+            for d in self._drives
+            if self.sync_count - d.tpdo_sync > TPDO_MISSES
+            and now - d.last_tpdo_s > self.feedback_timeout_s
+        ]
+        if silent and len(silent) == len(self._drives) > 1:
+            # Nothing answers: the bus (adapter, cable, termination) rather than one drive.
+            oldest = min(d.last_tpdo_s for d in silent)
+            for d in silent:
+                d.fault_text = "not answering"
+            self._latch(
+                "no_feedback:all",
+                0,
+                0,
+                f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}: no TPDO from any drive "
+                f"for {now - oldest:.3f} s: bus not answering",
+            )
+            return
+        for d in silent:
+            d.fault_text = "not answering"
+            self._latch(
+                f"no_feedback:node{d.id}",
+                d.id,
+                0,
+                f"no TPDO for {self.sync_count - d.tpdo_sync} SYNCs "
+                f"({now - d.last_tpdo_s:.3f} s): drive not answering",
+            )
+            return
+        self._check_heartbeats(now)
+
+    def _check_heartbeats(self, now: float) -> None:
+        for node, age in self._heartbeats.expired(now):
+            d = self._by_node[node]
+            d.fault_text = "heartbeat lost"
+            self._latch(
+                f"heartbeat:node{node}",
+                node,
+                0,
+                f"heartbeat lost (none for {age:.3f} s; producer time "
+                f"{d.cfg.heartbeat_producer_ms} ms)",
+            )
+            return
+
+    def feedback(self) -> list[Feedback]:
+        """Latest feedback per drive, in the group's order (never blocks)."""
+        return [d.feedback for d in self._drives]
+
+    @property
+    def node_ids(self) -> list[int]:
+        return [d.id for d in self._drives]
+
+    def tpdo_counts(self) -> list[int]:
+        """TPDOs received per drive since the group was made (statistics)."""
+        return [d.tpdo_count for d in self._drives]
+
+    # ================================================================== watchdog
+    def _watch(self) -> None:
+        """Master heartbeat producer, and heartbeat checks while no cycle runs."""
+        while not self._watchdog_stop.wait(WATCHDOG_PERIOD_S):
+            now = self.clock()
+            if self._hb_on and now >= self._hb_next_s:
+                self._hb_next_s = max(self._hb_next_s + self._hb_period_s, now)
+                with contextlib.suppress(CommError):
+                    self._send(0x700 + self.bus_cfg.master_node_id, bytes((NMT_OPERATIONAL,)))
+            idle = now - self._last_cycle_s > IDLE_PERIODS * self.period_s
+            if idle and self._started and self._fault is None:
+                self._check_heartbeats(now)
+
+    def stop_heartbeat(self) -> None:
+        """Stop producing the master heartbeat (what a dead master does; tests use it)."""
+        self._hb_on = False
+
+    # ================================================================== state changes
+    def _send_controlword(self, d: _Drive, cw: int) -> None:
+        with self._cycle_lock:
+            d.controlword = cw
+            self._send(d.layout.controlword.cob_id, controlword_payload(cw))
+
+    def quick_stop_all(self) -> None:
+        """Controlword 0x0002 (quick stop) to every drive now, by RPDO; a drive whose heartbeat
+        says it is not OPERATIONAL (PDOs do not reach it) gets it by an SDO write too (sent
+        without waiting for the answer). Never raises (best effort on a broken bus)."""
+        if self._closed:
+            return
+        with self._cycle_lock:
+            if self.quick_stop_at_sync is None:
+                self.quick_stop_at_sync = self.sync_count
+            for d in self._drives:
+                d.reset_stream()
+                try:
+                    self._send_controlword(d, CW_QUICK_STOP)
+                    nmt = self._heartbeats.state(d.id)
+                    if nmt is not None and nmt != NMT_OPERATIONAL:
+                        self._send(0x600 + d.id, sdo_controlword_request(CW_QUICK_STOP))
+                except (CommError, RigError):
+                    log.error("quick stop to node %d could not be sent", d.id)
+
+    quick_stop = quick_stop_all
+
+    def disable_all(self) -> None:
+        """Controlword 0x0000 (disable voltage: power stage off, SWITCH ON DISABLED) to every
+        drive; valid from every state but FAULT. Never raises."""
+        if self._closed:
+            return
+        with self._cycle_lock:
+            for d in self._drives:
+                d.reset_stream()
+                try:
+                    self._send_controlword(d, CW_DISABLE_VOLTAGE)
+                except (CommError, RigError):
+                    log.error("disable to node %d could not be sent", d.id)
+
+    disable = disable_all
+
+    def halt_all(self) -> None:
+        """Set the halt bit (8): every drive decelerates on its profile deceleration and holds."""
+        with self._cycle_lock:
+            for d in self._drives:
+                self._send_controlword(d, d.controlword | CW_HALT_BIT)
+
+    def resume_all(self) -> None:
+        """Clear the halt bit."""
+        with self._cycle_lock:
+            for d in self._drives:
+                self._send_controlword(d, d.controlword & ~CW_HALT_BIT)
+
+    def _require_started(self) -> None:
+        if not self._started:
+            raise RigError("drives are not configured: call boot() and configure() first")
+        if self._closed:
+            raise RigError("the drive group is closed")
+
+    def _require_no_fault(self) -> None:
+        f = self._fault
+        if f is not None:
+            err = f.error()
+            err.add_note("reset_faults() first")
+            raise err
+
+    def _await_feedback(self, max_wait_s: float) -> None:
+        """Wait for the next TPDO (at most ``max_wait_s``); clock SYNC if no cycle runs."""
+        now = self.clock()
+        if (
+            now - self._last_cycle_s > IDLE_PERIODS * self.period_s
+            and now >= self._next_self_sync_s
+        ):
+            self._next_self_sync_s = now + self.period_s
+            if self._sync_source is not None:
+                self._sync_source()
+            else:
+                self.send_sync()
+        with self._fb_cond:
+            self._fb_cond.wait(min(max_wait_s, self.period_s))
+
+    def _wait_for(
+        self,
+        drives: Sequence[_Drive],
+        done: Callable[[_Drive], bool],
+        timeout_s: float,
+        what: str,
+        after_sync: int | None = None,
+    ) -> None:
+        """Wait until ``done(d)`` for every drive, on feedback newer than SYNC ``after_sync``."""
+        deadline = self.clock() + timeout_s
+        while True:
+            self._require_no_fault()
+            late = [
+                d
+                for d in drives
+                if not (after_sync is None or d.tpdo_sync > after_sync) or not done(d)
+            ]
+            if not late:
+                return
+            if self.clock() > deadline:
+                d = late[0]
+                raise RigTimeoutError(
+                    f"node {d.id}: {what} not confirmed within {timeout_s} s (state "
+                    f"{d.feedback.state.value}, statusword 0x{d.feedback.statusword:04X})"
+                )
+            self._await_feedback(deadline - self.clock())
+
+    def _walk(self, target: State, step_timeout_s: float) -> None:
+        """Step every drive through the 402 diagram to ``target``, all drives at once; each
+        step must show in the statusword within ``step_timeout_s``."""
+        self._require_started()
+        sent: dict[int, tuple[State, int]] = {}
+        last_states = [d.feedback.state for d in self._drives]
+        deadline = self.clock() + step_timeout_s
+        while True:
+            self._require_no_fault()
+            states = [d.feedback.state for d in self._drives]
+            if all(s is target for s in states):
+                return
+            if states != last_states:
+                deadline = self.clock() + step_timeout_s
+                last_states = states
+            with self._cycle_lock:
+                self._require_no_fault()
+                for d, s in zip(self._drives, states, strict=True):
+                    if s is State.FAULT:
+                        code = d.last_emcy.code if d.last_emcy else 0
+                        raise DriveFault(
+                            d.id,
+                            code,
+                            f"in FAULT ({d.fault_text or 'no EMCY'}): reset_faults() first",
+                        )
+                    cw = next_controlword(s, target)
+                    if cw is not None and sent.get(d.id) != (s, cw):
+                        self._send_controlword(d, cw)
+                        sent[d.id] = (s, cw)
+            if self.clock() > deadline:
+                late = [d for d in self._drives if d.feedback.state is not target]
+                d = late[0]
+                raise RigTimeoutError(
+                    f"node {d.id}: still {d.feedback.state.value} {step_timeout_s} s after "
+                    f"controlword 0x{d.controlword:04X} on the way to {target.value}"
+                )
+            self._await_feedback(max(0.0, deadline - self.clock()))
+
+    def enable(self, timeout_s: float = STATE_STEP_TIMEOUT_S) -> None:
+        """Every drive to OPERATION ENABLED: controlwords 0x06, 0x07, 0x0F as each needs, all
+        drives at once, each step confirmed by the statusword within ``timeout_s``."""
+        self._walk(State.OPERATION_ENABLED, timeout_s)
+        for d in self._drives:
+            d.reset_stream()
+
+    def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> None:
+        """Fault reset (controlword 0x80 rising edge) of every drive in FAULT, confirmed by its
+        statusword leaving FAULT within ``timeout_s``; then check every drive answers (TPDO and
+        heartbeat) and clear the latched fault. Raises DriveFault naming the node when a reset
+        does not take or a drive does not answer."""
+        self._require_started()
+        faulted = [
+            d
+            for d in self._drives
+            if d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+        ]
+        with self._cycle_lock:
+            for d in faulted:
+                self._send_controlword(d, CW_DISABLE_VOLTAGE)
+                self._send_controlword(d, CW_FAULT_RESET)
+        deadline = self.clock() + timeout_s
+        while any(d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE) for d in faulted):
+            if self.clock() > deadline:
+                d = next(d for d in faulted if d.feedback.state is State.FAULT)
+                code = d.last_emcy.code if d.last_emcy else 0
+                raise DriveFault(
+                    d.id,
+                    code,
+                    f"fault reset not confirmed: still FAULT {timeout_s} s after controlword "
+                    f"0x0080 ({d.fault_text or 'no EMCY'})",
+                )
+            self._await_feedback(max(0.0, deadline - self.clock()))
+        with self._cycle_lock:
+            for d in faulted:
+                self._send_controlword(d, CW_DISABLE_VOLTAGE)
+        now = self.clock()
+        for d in self._drives:
+            if (
+                self.sync_count - d.tpdo_sync > TPDO_MISSES
+                and now - d.last_tpdo_s > self.feedback_timeout_s
+            ):
+                raise DriveFault(
+                    d.id,
+                    0,
+                    f"not answering (no TPDO for {now - d.last_tpdo_s:.3f}"
+                    " s); cannot clear the fault",
+                )
+        for node, age in self._heartbeats.expired(now):
+            raise DriveFault(node, 0, f"no heartbeat for {age:.3f} s; cannot clear the fault")
+        with self._fault_lock:
+            self._fault = None
+            self.fault_at_sync = None
+            self.quick_stop_at_sync = None
+            for d in self._drives:
+                d.fault_text, d.last_emcy, d.fault_tpdos = "", None, 0
+                d.feedback = dataclasses.replace(d.feedback, fault="")
+                d.reset_stream()
+
+    def home(
+        self, sync: Callable[[], None] | None = None, timeout_s: float | None = None
+    ) -> list[int]:
+        """Home every drive with its 0x6098 method; return the actual positions after homing, in
+        the group's order. Drives that are not enabled are enabled for homing and disabled again
+        afterwards (the power state is left as found).
+
+        ``sync`` sends one SYNC (and whatever else the caller's cycle needs) so TPDO feedback
+        keeps coming; by default the group sends SYNCs itself at the configured period. The
+        caller's loop must not send set-points meanwhile. The drives return to their configured
+        mode afterwards (confirmed by 0x6061).
+        """
+        self._require_started()
+        self._require_no_fault()
+        self._sync_source = sync
+        was_enabled = all(d.feedback.state is State.OPERATION_ENABLED for d in self._drives)
+        try:
+            for d in self._drives:
+                for w in epos.homing_writes(d.cfg):
+                    self._sdo_write(d, w)
+                self._set_mode(d, Mode.HOMING)
+            self._walk(State.OPERATION_ENABLED, STATE_STEP_TIMEOUT_S)
+            with self._cycle_lock:
+                for d in self._drives:
+                    self._send_controlword(d, CW_ENABLE_OPERATION)
+                    self._send_controlword(d, CW_ENABLE_OPERATION | CW_HOMING_START_BIT)
+                start = self.sync_count
+            limit = timeout_s or max(d.cfg.homing.timeout_s for d in self._drives)
+
+            def homed(d: _Drive) -> bool:
+                sw = d.feedback.statusword
+                if sw & SW_HOMING_ERROR:
+                    raise DriveFault(
+                        d.id,
+                        0,
+                        f"homing error (statusword 0x{sw:04X}, bit 13), "
+                        f"method {d.cfg.homing.method}",
+                    )
+                return bool(sw & SW_HOMING_ATTAINED and sw & SW_TARGET_REACHED)
+
+            self._wait_for(self._drives, homed, limit, "homing", after_sync=start)
+            with self._cycle_lock:
+                for d in self._drives:
+                    self._send_controlword(d, CW_ENABLE_OPERATION)
+            for d in self._drives:
+                self._set_mode(d, d.mode)
+                d.reset_stream()
+            after = self.sync_count
+            self._wait_for(self._drives, lambda d: True, STATE_STEP_TIMEOUT_S, "feedback", after)
+            if not was_enabled:
+                self.disable_all()
+            return [d.feedback.position_counts for d in self._drives]
+        finally:
+            self._sync_source = None
+
+    def _set_mode(self, d: _Drive, mode: Mode) -> None:
+        self._sdo_write(
+            d,
+            epos.SdoWrite(
+                epos.MODES_OF_OPERATION, 0, struct.pack("<b", mode), "modes of operation"
+            ),
+        )
+        deadline = self.clock() + STATE_STEP_TIMEOUT_S
+        while True:
+            shown = struct.unpack("<b", self._sdo_read(d, epos.MODES_DISPLAY, 0)[:1])[0]
+            if shown == int(mode):
+                return
+            if self.clock() > deadline:
+                raise RigTimeoutError(
+                    f"node {d.id}: 0x6061 shows mode {shown}, not {int(mode)} ({mode.name}), "
+                    f"{STATE_STEP_TIMEOUT_S} s after writing 0x6060"
+                )
+            time.sleep(self.period_s)
+
+    def move_to(
+        self, targets_counts: Sequence[int], timeout_s: float = MOVE_TIMEOUT_S
+    ) -> list[int]:
+        """Profile-position move of every drive to ``targets_counts`` (blocking, not for the
+        loop's path): new set-point with bit 4, acknowledged by statusword bit 12, then wait for
+        target reached (bit 10). Drives must be OPERATION ENABLED in mode ``pp``. Returns the
+        actual positions."""
+        self._require_started()
+        self._require_no_fault()
+        for d in self._drives:
+            if d.mode is not Mode.PROFILE_POSITION:
+                raise DriveFault(d.id, 0, f"move_to needs profile position mode, not {d.cfg.mode}")
+            if d.feedback.state is not State.OPERATION_ENABLED:
+                raise DriveFault(
+                    d.id,
+                    0,
+                    f"move_to needs OPERATION ENABLED, not "
+                    f"{d.feedback.state.value}: enable() first",
+                )
+        bits = CW_NEW_SETPOINT_BIT | CW_CHANGE_IMMEDIATELY_BIT
+        with self._cycle_lock:
+            for d, t in zip(self._drives, targets_counts, strict=True):
+                d.controlword = CW_ENABLE_OPERATION
+                self._send(
+                    d.layout.setpoint.cob_id, pp_setpoint_payload(int(t), d.controlword | bits)
+                )
+                d.last_target, d.pp_pending = int(t), True
+            start = self.sync_count
+        self._wait_for(
+            self._drives,
+            lambda d: bool(d.feedback.statusword & SW_SETPOINT_ACK),
+            SETPOINT_ACK_TIMEOUT_S,
+            "set-point acknowledge",
+            after_sync=start,
+        )
+        with self._cycle_lock:
+            for d in self._drives:
+                self._send(
+                    d.layout.setpoint.cob_id, pp_setpoint_payload(d.last_target or 0, d.controlword)
+                )
+                d.pp_pending = False
+            start = self.sync_count
+        self._wait_for(
+            self._drives,
+            lambda d: (
+                bool(d.feedback.statusword & SW_TARGET_REACHED)
+                and not d.feedback.statusword & SW_SETPOINT_ACK
+            ),
+            timeout_s,
+            "target reached",
+            after_sync=start,
+        )
+        return [d.feedback.position_counts for d in self._drives]
+
+    # ================================================================== shutdown
+    def close(self) -> None:
+        """Make the drives safe and close the bus: quick stop (if any drive may be moving), wait
+        briefly for them to stop, disable voltage, disarm their heartbeat consumers, NMT
+        pre-operational, stop the master heartbeat and the traffic log, shut the bus down.
+        Works after a start-up that failed half way (SDO disable to every node that booted).
+        Never raises for bus errors."""
+        if self._closed:
+            return
+        try:
+            self._make_safe()
+        except Exception:  # closing must finish: log and carry on
+            log.exception("making the drives safe failed")
+        finally:
+            self._closed = True
+            self._hb_on = False
+            self._watchdog_stop.set()
+            if threading.current_thread() is not self._watchdog:
+                self._watchdog.join(1.0)
+            self.log_traffic(None)
+            try:
+                self.network.disconnect()
+            except (can.CanError, OSError, RuntimeError) as exc:
+                log.warning("closing the CAN bus: %s", exc)
+
+    def _make_safe(self) -> None:
+        bus_dead = self._fault is not None and self._fault.node == 0
+        if self._started:
+            moving = any(
+                d.feedback.state in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
+                for d in self._drives
+            )
+            if moving:
+                self.quick_stop_all()
+                deadline = self.clock() + CLOSE_SETTLE_S
+                while (
+                    not bus_dead
+                    and self.clock() < deadline
+                    and any(
+                        d.feedback.state is State.OPERATION_ENABLED
+                        or (
+                            d.feedback.state is State.QUICK_STOP_ACTIVE
+                            and d.cfg.quick_stop_option_code < 5
+                        )
+                        for d in self._drives
+                    )
+                ):
+                    self._await_feedback(deadline - self.clock())
+            self.disable_all()
+        if bus_dead:
+            return
+        for d in self._drives:
+            if not (d.present or d.booted.is_set()):
+                continue
+            d.node.sdo.RESPONSE_TIMEOUT = CLOSE_SDO_TIMEOUT_S
+            if not self._started:
+                # Start-up failed half way: PDOs may not run, so disable by SDO.
+                self._best_effort(d, epos.CONTROLWORD, 0, controlword_payload(CW_DISABLE_VOLTAGE))
+            self._best_effort(d, epos.HEARTBEAT_CONSUMER, 1, struct.pack("<I", 0))
+        self._hb_on = False
+        for d in self._drives:
+            with contextlib.suppress(CommError):
+                self._send(NMT_COB_ID, bytes((NMT_PRE_OPERATIONAL, d.id)))
+
+    def _best_effort(self, d: _Drive, index: int, sub: int, data: bytes) -> None:
+        try:
+            d.node.sdo.download(index, sub, data)
+        except (SdoAbortedError, SdoCommunicationError, can.CanError, OSError, RuntimeError) as exc:
+            log.warning("node %d: closing write 0x%04X:%02X failed (%s)", d.id, index, sub, exc)
 
     def __enter__(self) -> DriveGroup:
         return self
@@ -564,13 +1174,38 @@ class DriveGroup:
         self.close()
 
 
+def open_drive_group(
+    bus_cfg: CanBusConfig,
+    drives: Sequence[DriveConfig],
+    file: str = "",
+    boot_timeout_s: float = BOOT_TIMEOUT_S,
+) -> DriveGroup:
+    """Open the bus ``bus_cfg`` names, boot and configure ``drives`` (nothing is enabled); the
+    group is closed again (drives made safe) before any start-up error propagates."""
+    group = DriveGroup(open_bus(bus_cfg), bus_cfg, drives, file=file)
+    try:
+        group.boot(boot_timeout_s)
+        group.configure()
+    except BaseException:
+        group.close()
+        raise
+    return group
+
+
+#: Kept for callers of earlier versions of this module.
+rpdo_target_payload = target_payload
+rpdo_controlword_payload = controlword_payload
+parse_pvt_payload = epos.parse_pvt
+configuration_writes = epos.configuration_writes
+pdo_mapping_writes = epos.pdo_mapping_writes
+
 __all__ = [
+    "BOOT_TIMEOUT_S",
+    "FAULT_RESET_TIMEOUT_S",
+    "STATE_STEP_TIMEOUT_S",
     "DriveGroup",
     "Feedback",
-    "configuration_writes",
-    "emcy_text",
+    "GroupFault",
+    "open_drive_group",
     "parse_tpdo_feedback",
-    "pdo_mapping_writes",
-    "rpdo_controlword_payload",
-    "rpdo_target_payload",
 ]

@@ -1,14 +1,31 @@
 """A simulated USB-CAN adapter: the Lawicel/slcan ASCII protocol on a pseudo-terminal.
 
-The simulated rig owns the pty's master side and a python-can bus (usually ``virtual``) holding the
-simulated nodes; a controller in another process opens the pty's slave side with python-can's
+The simulated rig owns the pty's master side and a python-can bus (usually ``virtual``) holding
+the simulated nodes; a controller in another process opens the pty's slave side with python-can's
 ``slcan`` interface, exactly as it would open a real adapter (``/dev/ttyACM0``).
 
-Host -> adapter commands: ``O`` open, ``C`` close, ``L`` listen-only, ``S0``-``S8`` bit rate,
-``V``/``v``/``N`` version and serial, ``F`` status flags, ``Z0``/``Z1`` timestamps, and frames
-``tIIILDD..``, ``TIIIIIIIILDD..``, ``rIIIL``, ``RIIIIIIIIL``. Answers: ``\\r`` (OK) or ``\\a``
-(error); transmitted frames are acknowledged ``z\\r``/``Z\\r``. Adapter -> host: every frame seen on
-the bus as ``t``/``T``/``r``/``R`` lines. Frames are only relayed while the channel is open.
+Host -> adapter, one command per ``\\r`` (``\\n`` ignored). Answers are ``\\r`` (OK) or ``\\a``
+(BEL, error), as Lawicel's CANUSB does:
+
+=============  ==========================================================================
+``Sn``         bit rate n = 0-8 (10k, 20k, 50k, 100k, 125k, 250k, 500k, 800k, 1M); closed only
+``sxxyy``      BTR0/BTR1 bit timing; closed only (taken to match the bus)
+``O`` / ``L``  open the channel (``L`` listen-only: no transmission); BEL when already open
+``C``          close the channel; BEL when not open
+``tiiildd..``  transmit a standard frame (``T`` extended, ``r``/``R`` remote); answer ``z\\r`` /
+               ``Z\\r``; BEL when closed, listen-only or malformed
+``V`` ``v``    hardware/firmware version ``V1013\\r``; ``N`` serial number ``NCDCR\\r``
+``F``          status flags ``Fxx\\r`` (bit 0 RX FIFO full, 3 data overrun, 5 error passive, 7 bus
+               error), cleared by reading; open only
+``Z0`` ``Z1``  frame timestamps off/on (4 hex digits, ms modulo 60000); closed only
+``Mxxxxxxxx``  acceptance code / ``m`` mask: accepted (all frames pass); closed only
+=============  ==========================================================================
+
+An empty command (python-can sends one after ``Sn``) is OK. Adapter -> host: every frame on the
+bus as a ``t``/``T``/``r``/``R`` line, while the channel is open. If the host's bit rate differs
+from the bus's, nothing passes either way and ``F`` reports bus error + error passive, as a
+real adapter on a wrong-rate bus would. Writes to the pty never block the bus: when the host does
+not read, frames are dropped and ``F`` reports a data overrun.
 """
 
 from __future__ import annotations
@@ -18,6 +35,7 @@ import logging
 import os
 import select
 import threading
+import time
 import tty
 from pathlib import Path
 
@@ -26,46 +44,99 @@ import can
 log = logging.getLogger(__name__)
 
 OK, ERROR = b"\r", b"\a"
+#: Lawicel S-codes and their bit rates.
+BITRATE_CODES = {
+    "S0": 10_000,
+    "S1": 20_000,
+    "S2": 50_000,
+    "S3": 100_000,
+    "S4": 125_000,
+    "S5": 250_000,
+    "S6": 500_000,
+    "S7": 800_000,
+    "S8": 1_000_000,
+}
+VERSION, FIRMWARE, SERIAL = b"V1013\r", b"v1013\r", b"NCDCR\r"
+# F status flag bits
+F_RX_FIFO_FULL, F_TX_FIFO_FULL, F_ERROR_WARNING, F_DATA_OVERRUN = 0x01, 0x02, 0x04, 0x08
+F_ERROR_PASSIVE, F_ARBITRATION_LOST, F_BUS_ERROR = 0x20, 0x40, 0x80
+#: A command line longer than this without ``\\r`` is junk: dropped with a BEL.
+MAX_LINE = 64
+#: How long a write to the pty may wait for the host to read before frames are dropped (s).
+WRITE_STALL_S = 0.02
 
 
-def encode_frame(msg: can.Message) -> bytes:
-    """One slcan line for ``msg`` (without timestamp)."""
+def encode_frame(msg: can.Message, timestamp_ms: int | None = None) -> bytes:
+    """One slcan line for ``msg`` (with a 4-hex-digit timestamp when given)."""
     if msg.is_extended_id:
         head = f"{'R' if msg.is_remote_frame else 'T'}{msg.arbitration_id:08X}{msg.dlc}"
     else:
         head = f"{'r' if msg.is_remote_frame else 't'}{msg.arbitration_id:03X}{msg.dlc}"
     body = "" if msg.is_remote_frame else bytes(msg.data).hex().upper()
-    return (head + body).encode() + b"\r"
+    stamp = "" if timestamp_ms is None else f"{timestamp_ms % 60000:04X}"
+    return (head + body + stamp).encode() + b"\r"
 
 
 def decode_frame(line: str) -> can.Message | None:
-    """An slcan frame command -> Message; None when malformed."""
-    try:
-        kind = line[0]
-        ext = kind in "TR"
-        id_len = 8 if ext else 3
-        can_id = int(line[1 : 1 + id_len], 16)
-        dlc = int(line[1 + id_len])
-        if not 0 <= dlc <= 8 or (not ext and can_id > 0x7FF):
-            return None
-        remote = kind in "rR"
-        data = b"" if remote else bytes.fromhex(line[2 + id_len : 2 + id_len + 2 * dlc])
-        if not remote and len(data) != dlc:
-            return None
-        return can.Message(
-            arbitration_id=can_id, is_extended_id=ext, is_remote_frame=remote, dlc=dlc, data=data
-        )
-    except (ValueError, IndexError):
+    """One slcan frame command (``t``, ``T``, ``r``, ``R``; no ``\\r``) -> Message; None if bad."""
+    if not line or line[0] not in "tTrR":
         return None
+    ext = line[0] in "TR"
+    remote = line[0] in "rR"
+    id_len = 8 if ext else 3
+    head = line[1 : 1 + id_len]
+    if len(head) != id_len or len(line) < 2 + id_len:
+        return None
+    try:
+        can_id = int(head, 16)
+        dlc = int(line[1 + id_len], 16)
+    except ValueError:
+        return None
+    if dlc > 8 or can_id > (0x1FFFFFFF if ext else 0x7FF):
+        return None
+    body = line[2 + id_len :]
+    if remote:
+        if body:
+            return None
+        data = b""
+    else:
+        if len(body) != 2 * dlc:
+            return None
+        try:
+            data = bytes.fromhex(body)
+        except ValueError:
+            return None
+    return can.Message(
+        arbitration_id=can_id, is_extended_id=ext, is_remote_frame=remote, dlc=dlc, data=data
+    )
 
 
-class SlcanDevice(can.Listener):
-    """The adapter: pty master <-> ``bus``. ``path`` is the slave side (or ``link`` to it)."""
+class _BusTap(can.Listener):
+    def __init__(self, device: SlcanDevice) -> None:
+        self._device = device
 
-    def __init__(self, bus: can.BusABC, link: str | Path | None = None) -> None:
+    def on_message_received(self, msg: can.Message) -> None:
+        self._device.on_message_received(msg)
+
+    def stop(self) -> None:
+        pass
+
+
+class SlcanDevice:
+    """The adapter: pty master <-> ``bus``. ``path`` is the slave side (or ``link`` to it).
+
+    ``bitrate`` is the bus's bit rate (the host must choose the same with ``Sn``); the adapter
+    starts configured for it, as if the host had set it before.
+    """
+
+    def __init__(
+        self, bus: can.BusABC, link: str | Path | None = None, bitrate: int = 1_000_000
+    ) -> None:
         self.bus = bus
+        self.bus_bitrate = bitrate
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd)
+        os.set_blocking(self.master_fd, False)
         self.pty_path = os.ttyname(self.slave_fd)
         self.link = Path(link) if link else None
         if self.link is not None:
@@ -75,27 +146,58 @@ class SlcanDevice(can.Listener):
             self.link.symlink_to(self.pty_path)
         self.path = str(self.link or self.pty_path)
         self.is_open = False
-        self.bitrate_code = "S8"
-        self.rx_frames = 0
-        self.tx_frames = 0
+        self.listen_only = False
+        self.timestamps = False
+        self.bitrate: int | None = bitrate
+        self.flags = 0
+        self.rx_frames = 0  # host -> bus
+        self.tx_frames = 0  # bus -> host
+        self.dropped_frames = 0
         self.bad_commands = 0
+        self._t0 = time.monotonic()
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._notifier = can.Notifier(bus, [self], timeout=0.1)
+        self._notifier = can.Notifier(bus, [_BusTap(self)], timeout=0.1)
         self._thread = threading.Thread(target=self._reader, name="slcan-device", daemon=True)
         self._thread.start()
 
-    # bus -> host
+    @property
+    def rate_matches(self) -> bool:
+        return self.bitrate is None or self.bitrate == self.bus_bitrate
+
+    # ------------------------------------------------------------------ bus -> host
     def on_message_received(self, msg: can.Message) -> None:
-        if self.is_open:
-            self._write(encode_frame(msg))
+        if not self.is_open or msg.is_error_frame:
+            return
+        if not self.rate_matches:
+            self.flags |= F_BUS_ERROR | F_ERROR_PASSIVE
+            return
+        stamp = int((time.monotonic() - self._t0) * 1000) if self.timestamps else None
+        if self._write(encode_frame(msg, stamp)):
             self.tx_frames += 1
+        else:
+            self.dropped_frames += 1
+            self.flags |= F_DATA_OVERRUN | F_RX_FIFO_FULL
 
-    def _write(self, data: bytes) -> None:
-        with self._lock, contextlib.suppress(OSError):
-            os.write(self.master_fd, data)
+    def _write(self, data: bytes) -> bool:
+        """Write all of ``data`` to the pty, waiting at most WRITE_STALL_S for the host."""
+        deadline = time.monotonic() + WRITE_STALL_S
+        with self._lock:
+            while data:
+                try:
+                    n = os.write(self.master_fd, data)
+                    data = data[n:]
+                except BlockingIOError:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        return False
+                    with contextlib.suppress(OSError, ValueError):
+                        select.select([], [self.master_fd], [], left)
+                except OSError:
+                    return False
+        return True
 
-    # host -> bus
+    # ------------------------------------------------------------------ host -> bus
     def _reader(self) -> None:
         buf = b""
         while not self._stop.is_set():
@@ -104,59 +206,87 @@ class SlcanDevice(can.Listener):
                 if not ready:
                     continue
                 chunk = os.read(self.master_fd, 4096)
-            except OSError:
+            except BlockingIOError:
+                continue
+            except (OSError, ValueError):
                 return
-            buf += chunk
+            buf += chunk.replace(b"\n", b"")
             while b"\r" in buf:
                 line, buf = buf.split(b"\r", 1)
-                self._command(line.decode("ascii", "replace").strip("\n"))
-
-    def _command(self, line: str) -> None:
-        if not line:
-            self._write(OK)
-            return
-        c = line[0]
-        if c in "tTrR":
-            msg = decode_frame(line)
-            if msg is None or not self.is_open:
+                self._write(self.command(line.decode("ascii", "replace")))
+            if len(buf) > MAX_LINE:
+                buf = b""
                 self.bad_commands += 1
                 self._write(ERROR)
-                return
-            try:
-                self.bus.send(msg)
-            except can.CanError:
-                self._write(ERROR)
-                return
-            self.rx_frames += 1
-            self._write(b"z\r" if c in "tr" else b"Z\r")
-        elif c in "OL":
-            self.is_open = True
-            self._write(OK)
-        elif c == "C":
-            self.is_open = False
-            self._write(OK)
-        elif c == "S" and len(line) == 2 and line[1] in "012345678":
-            self.bitrate_code = line
-            self._write(OK)
-        elif c == "V":
-            self._write(b"V1013\r")
-        elif c == "v":
-            self._write(b"v1013\r")
-        elif c == "N":
-            self._write(b"NCDCR\r")
-        elif c == "F":
-            self._write(b"F00\r")
-        elif c in "Zs":
-            self._write(OK)
-        else:
-            self.bad_commands += 1
-            self._write(ERROR)
 
+    def command(self, line: str) -> bytes:
+        """Execute one command line (without ``\\r``); the bytes to answer."""
+        if not line:
+            return OK
+        c = line[0]
+        if c in "tTrR":
+            return self._transmit(line)
+        if c in "OL" and len(line) == 1:
+            if self.is_open:
+                return self._bad()
+            self.is_open, self.listen_only = True, c == "L"
+            return OK
+        if c == "C" and len(line) == 1:
+            if not self.is_open:
+                return self._bad()
+            self.is_open = False
+            return OK
+        if c == "S" and line in BITRATE_CODES and not self.is_open:
+            self.bitrate = BITRATE_CODES[line]
+            return OK
+        if c == "s" and len(line) == 5 and not self.is_open and _is_hex(line[1:]):
+            self.bitrate = None
+            return OK
+        if line == "V":
+            return VERSION
+        if line == "v":
+            return FIRMWARE
+        if line == "N":
+            return SERIAL
+        if line == "F" and self.is_open:
+            flags, self.flags = self.flags, 0
+            return f"F{flags:02X}\r".encode()
+        if line in ("Z0", "Z1") and not self.is_open:
+            self.timestamps = line == "Z1"
+            return OK
+        if c in "Mm" and len(line) == 9 and _is_hex(line[1:]) and not self.is_open:
+            return OK
+        return self._bad()
+
+    def _bad(self) -> bytes:
+        self.bad_commands += 1
+        return ERROR
+
+    def _transmit(self, line: str) -> bytes:
+        msg = decode_frame(line)
+        if msg is None or not self.is_open or self.listen_only:
+            return self._bad()
+        ack = b"z\r" if line[0] in "tr" else b"Z\r"
+        if not self.rate_matches:
+            self.flags |= F_BUS_ERROR | F_ERROR_PASSIVE
+            return ack  # accepted into the FIFO; it never gets onto a bus at another rate
+        try:
+            self.bus.send(msg)
+        except can.CanError:
+            self.flags |= F_BUS_ERROR
+            return self._bad()
+        self.rx_frames += 1
+        return ack
+
+    # ------------------------------------------------------------------ lifecycle
     def unplug(self) -> None:
         """Fault hook: the adapter disappears (pty closed; the host's reads and writes fail)."""
         self.stop()
 
     def stop(self) -> None:
+        """Close the adapter: stop relaying, close the pty (idempotent)."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self._notifier.stop(0.5)
         self._thread.join(1.0)
@@ -166,3 +296,11 @@ class SlcanDevice(can.Listener):
         if self.link is not None:
             with contextlib.suppress(FileNotFoundError):
                 self.link.unlink()
+
+
+def _is_hex(text: str) -> bool:
+    try:
+        int(text, 16)
+    except ValueError:
+        return False
+    return True

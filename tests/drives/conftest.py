@@ -1,14 +1,14 @@
-"""Fixtures: a rig's drives against simulated EPOS nodes on a python-can virtual bus."""
+"""Fixtures: simulated EPOS nodes and a DriveGroup on a python-can virtual bus (one process)."""
 
 from __future__ import annotations
 
 import pytest
-from drivesim import close_rig, make_rig
+from drivesim import Rig, make_rig
 
 
 @pytest.fixture
 def rig():
-    """(config, simulated drives, drive group booted and configured, frame spy bus)."""
-    parts = make_rig()
-    yield parts
-    close_rig(*parts)
+    """Three simulated EPOS4 in CSP and a group booted and configured (nothing enabled)."""
+    r: Rig = make_rig()
+    yield r
+    r.close()

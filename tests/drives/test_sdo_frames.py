@@ -1,27 +1,23 @@
-"""SDO configuration frames on the wire, byte by byte (CiA 301 expedited download)."""
+"""SDO configuration frames on the wire, byte by byte (CiA 301 expedited download), for the rig
+config the project ships (config/qi2023.yaml, on the virtual bus)."""
 
 from __future__ import annotations
 
-import can
-from drivesim import close_rig, drain, rig_config
+from drivesim import ROOT, drain, make_rig
 
-from cdcr_ctl.drives.group import DriveGroup
-from cdcr_ctl.sim.epos.rig import SimDriveBus
+from cdcr_ctl.config import load_rig_config
 
 
 def test_configure_sends_expedited_sdo_downloads_and_nmt_start():
-    cfg = rig_config(sync_period_s=0.002)
-    sim = SimDriveBus(cfg, "virtual", cfg.can.channel).start()
-    spy = can.Bus(interface="virtual", channel=cfg.can.channel)
-    bus = can.Bus(interface="virtual", channel=cfg.can.channel, receive_own_messages=False)
-    by = {d.cable: d for d in cfg.drives}
-    group = DriveGroup(bus, cfg.can, [by[c.name] for c in cfg.robot.cables])
+    rig = load_rig_config(ROOT / "config" / "qi2023.yaml")
+    by = {d.cable: d for d in rig.drives}
+    r = make_rig([by[c.name] for c in rig.robot.cables], start=False, sync_period_s=0.002)
     try:
-        group.boot()
-        group.configure()
-        frames = [(m.arbitration_id, bytes(m.data)) for m in drain(spy, 0.02, max_s=0.5)]
+        r.group.boot()
+        r.group.configure()
+        frames = [(m.arbitration_id, bytes(m.data)) for m in drain(r.spy, 0.02, max_s=0.5)]
     finally:
-        close_rig(cfg, sim, group, spy)
+        r.close()
     # NMT reset communication of node 1 (COB-ID 0x000: command 0x82, node 1) and its boot-up.
     assert (0x000, bytes([0x82, 0x01])) in frames
     assert (0x701, b"\x00") in frames
@@ -34,5 +30,9 @@ def test_configure_sends_expedited_sdo_downloads_and_nmt_start():
     assert (0x603, bytes.fromhex("231610012c017f00")) in frames
     # RPDO1 mapping 0x1600:01 = 0x607A0020 (target position, 32 bit).
     assert (0x601, bytes.fromhex("2300160120007a60")) in frames
-    # NMT start all nodes (0x01, 0) after configuration.
-    assert (0x000, bytes([0x01, 0x00])) in frames
+    # NMT start, node by node (a broadcast would also start nodes that are not ours), after
+    # each node's configuration.
+    starts = [i for i, f in enumerate(frames) if f[0] == 0x000 and f[1][0] == 0x01]
+    assert [frames[i][1] for i in starts] == [bytes([0x01, n]) for n in (1, 2, 3)]
+    last_sdo = max(i for i, f in enumerate(frames) if 0x601 <= f[0] <= 0x603)
+    assert starts[0] > last_sdo

@@ -1,11 +1,35 @@
 """A simulated maxon EPOS4/EPOS2 on canopen's LocalNode.
 
-The SDO server, NMT slave, heartbeat producer and EMCY producer are canopen's; this module adds
-what LocalNode lacks: received RPDOs applied through their mapping, TPDOs sent on SYNC through
-theirs, the CiA 402 state machine, a motor position loop stepped on every SYNC (deterministic:
-no wall-clock thread moves the motor), following-error and software-limit supervision, the
-heartbeat consumer of the master (0x1016) that faults the drive when the master goes silent, and
-fault-injection hooks for tests and the simulated rig.
+canopen gives the SDO server, the NMT slave, the heartbeat producer and the EMCY producer. This
+module adds what LocalNode lacks, as a real drive does it:
+
+- RPDOs applied through their mapping (synchronous ones at the next SYNC, event-driven ones on
+  receipt), TPDOs sent through theirs (on every n-th SYNC, or on change), mapping changes refused
+  with the CiA 301 abort codes while a PDO is valid;
+- the CiA 402 state machine (controlword -> statusword), quick stop with option code 0x605A,
+  halt, fault reset on the rising edge of bit 7;
+- modes: cyclic synchronous position (EPOS4; targets interpolated over the SYNC period), profile
+  position (trapezoidal moves, set-point handshake on bits 4/12, change immediately), homing
+  (37/35 actual position; -1..-4 current threshold against a hard stop), interpolated position
+  with the PVT buffer 0x20C1 (EPOS2), position mode 0x2062 (EPOS2);
+- supervision: following error (0x6065 window for 0x6066 ms), software position limits,
+  limit switches, the heartbeat consumer of the master (0x1016; the drive faults with EMCY 0x8130
+  when the master goes silent), EMCY on every fault and an error reset EMCY on fault reset;
+- a motor with encoder and gearbox under a position loop (:mod:`.plant`).
+
+Time: on every SYNC the axis advances by the interpolation period 0x60C2 (``advance_on_sync``,
+default), so a run is reproducible frame for frame; :meth:`SimEpos.step` advances explicitly.
+
+Coupling a plant (the simulated rig): read :attr:`SimEpos.position_counts` (the actual position
+the drive reports), set :attr:`SimEpos.load_torque_Nm` (torque at the gearbox output, + in the
++ count direction) or install :attr:`SimEpos.load_fn` ``(position_counts, velocity_counts_s) ->
+torque N·m`` evaluated every integration sub-step; :meth:`SimEpos.displace` shifts the motor.
+
+Fault injection: :meth:`inject_fault` (any EMCY code; :meth:`inject_following_error` 0x8611,
+:meth:`inject_over_current` 0x2310), :attr:`emcy_enabled` (False: EMCY frames get lost),
+:meth:`stop_heartbeat` / :meth:`start_heartbeat`,
+:meth:`go_silent` (stops answering anything: bus off, unplugged) / :meth:`recover` (comes back
+with EMCY 0x81FD), :meth:`force_state` (a drive left enabled by a previous session).
 """
 
 from __future__ import annotations
@@ -17,38 +41,80 @@ import struct
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
+import can
 import canopen
+from canopen.objectdictionary import NUMBER_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
+from cdcr_ctl.drives import epos
 from cdcr_ctl.drives.cia402 import (
     CW_HALT_BIT,
+    STATE_BITS,
+    SW_FOLLOWING_COMMAND,
     SW_FOLLOWING_ERROR,
     SW_HOMING_ATTAINED,
+    SW_HOMING_ERROR,
+    SW_INTERNAL_LIMIT,
+    SW_IP_ACTIVE,
+    SW_POSITION_REFERENCED,
+    SW_REMOTE,
+    SW_SETPOINT_ACK,
     SW_TARGET_REACHED,
+    SW_VOLTAGE_ENABLED,
     Mode,
     State,
 )
-from cdcr_ctl.sim.epos.od import build_od
+from cdcr_ctl.drives.emcy import (
+    BUS_OFF,
+    FOLLOWING_ERROR,
+    HEARTBEAT_ERROR,
+    IP_MODE_ERROR,
+    NEGATIVE_LIMIT_SWITCH,
+    OVER_CURRENT,
+    PDO_LENGTH_ERROR,
+    POSITIVE_LIMIT_SWITCH,
+    SOFTWARE_LIMIT,
+    encode_emcy,
+    error_register_for,
+)
+from cdcr_ctl.sim.epos.od import ACCEPTED_MODES, IP_BUFFER_SIZE, build_od
+from cdcr_ctl.sim.epos.plant import Motor, MotorParams, Profile, PvtBuffer
 
 log = logging.getLogger(__name__)
 
-_STATE_BITS = {
-    State.NOT_READY_TO_SWITCH_ON: 0x00,
-    State.SWITCH_ON_DISABLED: 0x40,
-    State.READY_TO_SWITCH_ON: 0x21,
-    State.SWITCHED_ON: 0x23,
-    State.OPERATION_ENABLED: 0x27,
-    State.QUICK_STOP_ACTIVE: 0x07,
-    State.FAULT_REACTION_ACTIVE: 0x0F,
-    State.FAULT: 0x08,
-}
-#: Encoder increments per motor revolution (rpm -> counts/s for profile moves).
-COUNTS_PER_REV = 4096
-#: Points the EPOS2 interpolation buffer holds.
-IP_BUFFER_POINTS = 64
-#: Time constant of the simulated position loop (s): the motor follows the target this fast.
-POSITION_LOOP_TAU_S = 0.0015
+# SDO abort codes (CiA 301)
+ABORT_MAPPING_OBJECT = 0x06040041  # object cannot be mapped to the PDO
+ABORT_MAPPING_LENGTH = 0x06040042  # mapped objects exceed the PDO length
+ABORT_PARAMETER_INCOMPATIBLE = 0x06040043  # general parameter incompatibility
+ABORT_VALUE_RANGE = 0x06090030  # value range of parameter exceeded
+
+#: Homing with a current threshold: the current must stay above it this long (s).
+HOMING_CURRENT_DWELL_S = 0.002
+#: Velocity (counts/s) under which a profile move counts as at rest for "target reached".
+AT_REST_COUNTS_S = 50.0
+#: Objects whose value is the drive's live state (read through, never cached).
+_LIVE = (
+    epos.STATUSWORD,
+    epos.POSITION_ACTUAL,
+    epos.MODES_DISPLAY,
+    epos.VELOCITY_ACTUAL,
+    0x6062,
+    0x603F,
+    epos.ERROR_REGISTER,
+)
+
+
+@dataclass
+class _Pdo:
+    number: int
+    cob_id: int
+    transmission: int
+    entries: list[tuple[int, int, int]]  # (index, subindex, bytes)
+    counter: int = 0
+    last: bytes | None = None
+    pending: bytes | None = None  # synchronous RPDO data waiting for SYNC
 
 
 class SimEpos:
@@ -59,52 +125,369 @@ class SimEpos:
         network: canopen.Network,
         node_id: int,
         kind: str = "epos4",
-        encoder_counts_per_rev: int = 2048,
+        motor: MotorParams | None = None,
     ) -> None:
         self.node_id = node_id
         self.kind = kind
+        self.network = network
         self.node = canopen.LocalNode(node_id, build_od(node_id, kind))
         network.add_node(self.node)
-        self.network = network
+        # Gate canopen's SDO server and NMT slave so a silent drive answers nothing.
+        network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        network.unsubscribe(0, self.node.nmt.on_command)
+        network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
+        network.subscribe(0, self._on_nmt)
+        network.subscribe(0x080, self._on_sync)
+        self.motor = Motor(motor or MotorParams())
+        self.cpr = self.motor.p.counts_per_rev
+        self._lock = threading.RLock()
         self.state = State.SWITCH_ON_DISABLED
         self.mode = 0
         self.controlword = 0
-        self.position = 0.0  # counts, float inside, reported rounded
-        self.target = 0
-        self._pending_target: int | None = None
-        self.homing_attained = False
+        self.offset = 0.0  # reported position = raw encoder counts + offset
+        self.profile = Profile()
+        self.pvt = PvtBuffer(IP_BUFFER_SIZE)
+        self._csp_from = 0.0  # CSP segment: from this demand to the target over one period
+        self._csp_to = 0.0
+        self._csp_t = 0.0
+        self._pp_target: float | None = None
+        self._setpoint_ack = False
+        self._homing_phase = ""  # "", "search", "backoff", "done", "error"
+        self._homing_dwell = 0.0
+        self._backoff_to = 0.0
+        self._homed = False
+        self._ferr_s = 0.0
         self.following_error = False
-        self.sync_count = 0
-        self.last_sync_s: float | None = None
-        #: Arrival times of every SYNC (s, monotonic) when a benchmark asks for them (a list).
-        self.sync_times: list[float] | None = None
-        self.emcy_sent: list[int] = []
+        self.internal_limit = False
+        self.error_code = 0
+        self.error_register = 0
+        #: External torque at the gearbox output (N·m, + in the + count direction).
+        self.load_torque_Nm = 0.0
+        #: Optional load: (position counts, velocity counts/s) -> output torque N·m, per sub-step.
+        self.load_fn: Callable[[float, float], float] | None = None
+        #: Advance the axis by the interpolation period on every SYNC.
+        self.advance_on_sync = True
         self.silent = False
-        self.external_disturbance = 0.0
-        self.encoder_counts_per_rev = encoder_counts_per_rev
-        # Interpolated position (EPOS2 PVT): buffered points (position, velocity counts/s, time s)
-        # and the segment being run (p0, v0, p1, v1, T, elapsed).
-        self.ip_buffer: collections.deque[tuple[float, float, float]] = collections.deque(
-            maxlen=IP_BUFFER_POINTS
-        )
-        self._ip_seg: list[float] | None = None
-        self._ip_vel = 0.0
+        #: Fault hook: False drops EMCY frames (the master must notice the FAULT statusword).
+        self.emcy_enabled = True
+        # statistics (tests and benchmarks read these)
+        self.sync_count = 0
+        self.sync_times_s: collections.deque[float] = collections.deque(maxlen=200_000)
+        self.rpdo_count = 0
+        self.missed_setpoints = 0
+        self.max_following_error_counts = 0.0
+        self.emcy_sent: list[int] = []
+        self._setpoint_since_sync = False
+        self._master_hb_cob: int | None = None
         self._master_hb_s: float | None = None
-        self._lock = threading.RLock()
+        self._consumer_ms = 0
         self._now: Callable[[], float] = time.monotonic
+        self._params: dict[tuple[int, int], int] = {}
+        self._rpdos: dict[int, _Pdo] = {}
+        self._tpdos: list[_Pdo] = []
+        self._pdo_dirty = True
         self.node.add_write_callback(self._on_write)
         self.node.add_read_callback(self._on_read)
-        network.subscribe(0x080, self._on_sync)
-        network.subscribe(0x000, self._on_nmt)
-        for i in range(4):
-            network.subscribe(self._rpdo_cob(i), self._rpdo_handler(i))
-        self._hb_consumer_cob: int | None = None
+        self._rebuild_pdos()
 
-    # ------------------------------------------------------------------ boot / NMT
-    def boot(self) -> None:
-        """Power on: boot-up message, PRE-OPERATIONAL, heartbeat if 0x1017 says so."""
-        self.node.nmt.send_command(0x82)  # reset communication -> boot-up message
-        self.node.nmt.send_command(0x80)  # -> PRE-OPERATIONAL, heartbeat producer starts
+    # ================================================================== values
+    def _value(self, index: int, sub: int = 0) -> int:
+        """Present value of a numeric object (parameters cached until written: the axis reads
+        them every sub-step)."""
+        key = (index, sub)
+        value = self._params.get(key)
+        if value is None:
+            obj = self.node._find_object(index, sub)
+            value = int(obj.decode_raw(self.node.get_data(index, sub)))
+            if index not in _LIVE:
+                self._params[key] = value
+        return value
+
+    @property
+    def position_counts(self) -> int:
+        """Actual position the drive reports (0x6064), counts."""
+        return round(self.motor.x + self.offset)
+
+    @property
+    def velocity_counts_s(self) -> float:
+        return self.motor.v
+
+    @property
+    def current_A(self) -> float:
+        return self.motor.i
+
+    @property
+    def demand_counts(self) -> float:
+        """Position demand value (0x6062): the reference the position loop follows, counts."""
+        return self.profile.x + self.offset
+
+    @property
+    def statusword(self) -> int:
+        with self._lock:
+            s = self.state
+            sw = STATE_BITS.get(s, 0) | SW_REMOTE
+            if s in (
+                State.READY_TO_SWITCH_ON,
+                State.SWITCHED_ON,
+                State.OPERATION_ENABLED,
+                State.QUICK_STOP_ACTIVE,
+            ):
+                sw |= SW_VOLTAGE_ENABLED
+            mode = self.mode
+            if mode == Mode.HOMING:
+                if self._homing_phase == "done":
+                    sw |= SW_HOMING_ATTAINED | SW_TARGET_REACHED
+                elif self._homing_phase == "error":
+                    sw |= SW_HOMING_ERROR
+            elif self._at_target():
+                sw |= SW_TARGET_REACHED
+            if mode == Mode.PROFILE_POSITION and self._setpoint_ack:
+                sw |= SW_SETPOINT_ACK
+            if mode == Mode.INTERPOLATED_POSITION and self.pvt.active:
+                sw |= SW_IP_ACTIVE
+            if mode == Mode.CYCLIC_SYNC_POSITION and s is State.OPERATION_ENABLED:
+                sw |= SW_FOLLOWING_COMMAND
+            if (
+                mode
+                in (
+                    Mode.CYCLIC_SYNC_POSITION,
+                    Mode.PROFILE_POSITION,
+                    Mode.POSITION_MODE,
+                    Mode.INTERPOLATED_POSITION,
+                )
+                and self.following_error
+            ):
+                sw |= SW_FOLLOWING_ERROR
+            if self.internal_limit:
+                sw |= SW_INTERNAL_LIMIT
+            if self._homed and self.kind == "epos4":
+                sw |= SW_POSITION_REFERENCED
+            return sw
+
+    def _at_target(self) -> bool:
+        if self.state is not State.OPERATION_ENABLED and self.state is not State.QUICK_STOP_ACTIVE:
+            return False
+        goal = self._pp_target if self.mode == Mode.PROFILE_POSITION else None
+        if goal is None:
+            goal = self.profile.x
+        window = self._value(0x6067)
+        return (
+            abs(goal - self.motor.x) <= window
+            and abs(self.motor.v) < AT_REST_COUNTS_S
+            and (self.profile.v == 0.0)
+        )
+
+    def _on_read(self, index: int, subindex: int, od: object) -> int | None:
+        if index not in _LIVE:
+            return None
+        if index == epos.STATUSWORD:
+            return self.statusword
+        if index == epos.POSITION_ACTUAL:
+            return self.position_counts
+        if index == epos.MODES_DISPLAY:
+            return self.mode
+        if index == epos.VELOCITY_ACTUAL:
+            return round(self.motor.v * 60.0 / self.cpr)
+        if index == 0x6062:
+            return round(self.demand_counts)
+        if index == 0x603F:
+            return self.error_code
+        if index == epos.ERROR_REGISTER:
+            return self.error_register
+        return None
+
+    # ================================================================== object writes
+    def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        self._apply_write(index, subindex, data)
+        if getattr(od, "data_type", None) in NUMBER_TYPES:
+            self._params[(index, subindex)] = int(od.decode_raw(data))  # type: ignore[attr-defined]
+
+    def _apply_write(self, index: int, subindex: int, data: bytes) -> None:
+        if 0x1400 <= index <= 0x1BFF:
+            self._check_pdo_write(index, subindex, data)
+            self._pdo_dirty = True
+            return
+        if index == epos.CONTROLWORD:
+            self._controlword(struct.unpack("<H", data)[0])
+        elif index == epos.MODES_OF_OPERATION:
+            self._set_mode(struct.unpack("<b", data)[0])
+        elif index == epos.TARGET_POSITION:
+            self._target(struct.unpack("<i", data)[0])
+        elif index == epos.EPOS2_POSITION_MODE_SETPOINT and self.kind == "epos2":
+            self._position_mode_setpoint(struct.unpack("<i", data)[0])
+        elif index == epos.EPOS2_IP_DATA_RECORD and self.kind == "epos2":
+            self._pvt_point(bytes(data))
+        elif index == epos.IP_DATA_CONFIGURATION and subindex == 6 and self.kind == "epos2":
+            if data[0] == 0:
+                with self._lock:
+                    self.pvt.clear()
+        elif index == epos.HEARTBEAT_CONSUMER and subindex == 1:
+            self._watch_master(struct.unpack("<I", data)[0])
+        elif (index, subindex) == (epos.INTERPOLATION_PERIOD, 1) and data[0] == 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # a zero interpolation period
+        elif (index, subindex) == (0x1003, 0) and data[0] != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)  # only 0 (clear the history) may be written
+
+    def _check_pdo_write(self, index: int, sub: int, data: bytes) -> None:
+        """Refuse what a real drive refuses: remapping a valid PDO, unmappable objects, too long."""
+        comm = index if index < 0x1600 or 0x1800 <= index < 0x1A00 else index - 0x200
+        if index in range(0x1600, 0x1604) or index in range(0x1A00, 0x1A04):
+            if not self._value(comm, 1) & epos.PDO_DISABLED:
+                raise SdoAbortedError(ABORT_PARAMETER_INCOMPATIBLE)
+            if sub == 0:
+                n = data[0]
+                if n > 8:
+                    raise SdoAbortedError(ABORT_VALUE_RANGE)
+                bits = sum(self._value(index, s) & 0xFF for s in range(1, n + 1))
+                if bits > 64:
+                    raise SdoAbortedError(ABORT_MAPPING_LENGTH)
+            else:
+                (entry,) = struct.unpack("<I", data)
+                obj_index, obj_sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+                try:
+                    obj = self.node._find_object(obj_index, obj_sub)
+                except SdoAbortedError:
+                    raise SdoAbortedError(ABORT_MAPPING_OBJECT) from None
+                if not obj.pdo_mappable or len(obj) != bits:
+                    raise SdoAbortedError(ABORT_MAPPING_OBJECT)
+                rx = index < 0x1A00
+                if (rx and not obj.writable) or (not rx and not obj.readable):
+                    raise SdoAbortedError(ABORT_MAPPING_OBJECT)
+
+    # ================================================================== PDOs
+    def _rebuild_pdos(self) -> None:
+        """Read PDO communication and mapping parameters into fast tables; (re)subscribe RPDOs."""
+        for cob in list(self._rpdos):
+            self.network.unsubscribe(cob, self._on_rpdo)
+        self._rpdos, self._tpdos = {}, []
+        for i in range(4):
+            for comm, mapping, rx in (
+                (0x1400 + i, 0x1600 + i, True),
+                (0x1800 + i, 0x1A00 + i, False),
+            ):
+                cob = self._value(comm, 1)
+                if cob & epos.PDO_DISABLED:
+                    continue
+                entries = []
+                for s in range(1, self._value(mapping, 0) + 1):
+                    e = self._value(mapping, s)
+                    entries.append((e >> 16, (e >> 8) & 0xFF, (e & 0xFF) // 8))
+                pdo = _Pdo(i + 1, cob & 0x7FF, self._value(comm, 2), entries)
+                if rx:
+                    self._rpdos[pdo.cob_id] = pdo
+                else:
+                    self._tpdos.append(pdo)
+        for cob in self._rpdos:
+            self.network.subscribe(cob, self._on_rpdo)
+        self._pdo_dirty = False
+
+    def _operational(self) -> bool:
+        return not self.silent and self.node.nmt.state == "OPERATIONAL"
+
+    def _on_rpdo(self, can_id: int, data: bytearray, ts: float) -> None:
+        if not self._operational():
+            return
+        if self._pdo_dirty:
+            self._rebuild_pdos()
+        pdo = self._rpdos.get(can_id)
+        if pdo is None:
+            return
+        if len(data) < sum(n for _, _, n in pdo.entries):
+            self._fault(PDO_LENGTH_ERROR)
+            return
+        self.rpdo_count += 1
+        if pdo.transmission <= 240:
+            pdo.pending = bytes(data)  # synchronous: applied at the next SYNC
+        else:
+            self._apply_rpdo(pdo, bytes(data))
+            self._send_changed_tpdos()
+
+    def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
+        offset = 0
+        for index, sub, n in pdo.entries:
+            chunk = data[offset : offset + n]
+            offset += n
+            if index in (
+                epos.TARGET_POSITION,
+                epos.EPOS2_POSITION_MODE_SETPOINT,
+                epos.EPOS2_IP_DATA_RECORD,
+            ):
+                self._setpoint_since_sync = True
+            try:
+                self.node.set_data(index, sub, chunk)
+            except SdoAbortedError as exc:
+                log.warning(
+                    "node %d: RPDO write 0x%04X refused (0x%08X)", self.node_id, index, exc.code
+                )
+
+    def _tpdo_payload(self, pdo: _Pdo) -> bytes:
+        return b"".join(self.node.get_data(i, s)[:n] for i, s, n in pdo.entries)
+
+    def _send_changed_tpdos(self) -> None:
+        """Event-driven TPDOs (type 254/255): sent when their data changed."""
+        if not self._operational():
+            return
+        for pdo in self._tpdos:
+            if pdo.transmission >= 254:
+                payload = self._tpdo_payload(pdo)
+                if payload != pdo.last:
+                    pdo.last = payload
+                    self._send(pdo.cob_id, payload)
+
+    def _on_sync(self, can_id: int, data: bytearray, ts: float) -> None:
+        if self.silent:
+            return
+        now = self._now()
+        out: list[tuple[int, bytes]] = []
+        with self._lock:
+            self.sync_count += 1
+            self.sync_times_s.append(now)
+            if self._pdo_dirty:
+                self._rebuild_pdos()
+            operational = self._operational()
+            if operational:
+                for pdo in self._rpdos.values():
+                    if pdo.pending is not None:
+                        pending, pdo.pending = pdo.pending, None
+                        self._apply_rpdo(pdo, pending)
+            if (
+                self.state is State.OPERATION_ENABLED
+                and self.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE)
+                and not self._setpoint_since_sync
+                and self.sync_count > 1
+            ):
+                self.missed_setpoints += 1
+            self._setpoint_since_sync = False
+            if self.advance_on_sync:
+                self.step(self.interpolation_period_s)
+            if operational:
+                for pdo in self._tpdos:
+                    if 1 <= pdo.transmission <= 240:
+                        pdo.counter += 1
+                        if pdo.counter >= pdo.transmission:
+                            pdo.counter = 0
+                            out.append((pdo.cob_id, self._tpdo_payload(pdo)))
+                    elif pdo.transmission == 0:
+                        payload = self._tpdo_payload(pdo)
+                        if payload != pdo.last:
+                            pdo.last = payload
+                            out.append((pdo.cob_id, payload))
+        for cob, payload in out:
+            self._send(cob, payload)
+        self._send_changed_tpdos()
+        self.check_master_heartbeat(now)
+
+    @property
+    def interpolation_period_s(self) -> float:
+        """0x60C2: value * 10^index s."""
+        return self._value(epos.INTERPOLATION_PERIOD, 1) * 10.0 ** self._value(
+            epos.INTERPOLATION_PERIOD, 2
+        )
+
+    # ================================================================== NMT and SDO gates
+    def _on_sdo(self, can_id: int, data: bytearray, ts: float) -> None:
+        if not self.silent and self.node.nmt.state != "STOPPED":
+            self.node.sdo.on_request(can_id, data, ts)
 
     def _on_nmt(self, can_id: int, data: bytearray, ts: float) -> None:
         if self.silent or len(data) < 2:
@@ -112,138 +495,44 @@ class SimEpos:
         cmd, nid = data[0], data[1]
         if nid not in (0, self.node_id):
             return
-        if cmd in (0x81, 0x82):
-            if cmd == 0x81:
-                with self._lock:
-                    self.state = State.SWITCH_ON_DISABLED
-                    self.controlword = 0
+        self.node.nmt.on_command(can_id, data, ts)
+        if cmd == 0x81:
+            self.power_cycle()
+        elif cmd == 0x82:
+            self._reset_communication()
             self.boot()
 
-    # ------------------------------------------------------------------ object access
-    def _on_read(self, index: int, subindex: int, od: object) -> int | None:
+    def power_cycle(self) -> None:
+        """Reset node (NMT 0x81) or power off and on: application and communication objects
+        back to their defaults, SWITCH ON DISABLED, the incremental encoder restarts at 0,
+        boot-up message. Also a fault hook (a drive that restarts behind the master's back)."""
         with self._lock:
-            if index == 0x6041:
-                return self.statusword
-            if index == 0x6064:
-                return round(self.position)
-            if index == 0x6061:
-                return self.mode
-            if index == 0x6040:
-                return self.controlword
-        return None
+            self.state = State.SWITCH_ON_DISABLED
+            self.controlword = 0
+            self.mode = 0
+            self._homed = False
+            self.offset = -self.motor.x
+            self._hold_here()
+            for index in [i for i in self.node.data_store if i >= 0x2000]:
+                del self.node.data_store[index]
+            self._params.clear()
+        self._reset_communication()
+        self.boot()
 
-    def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
-        if index == 0x6040:
-            self._controlword(struct.unpack("<H", data)[0])
-        elif index == 0x6060:
-            mode = struct.unpack("<b", data)[0]
-            if mode not in (1, 3, 6, 7, 8, 9, 10, -1, -2, -3) or (
-                self.kind == "epos2" and mode == 8
-            ):
-                raise SdoAbortedError(0x06090030)  # value range of parameter exceeded
-            with self._lock:
-                self.mode = mode
-                self.homing_attained = False
-        elif index == 0x607A:
-            self._set_target(struct.unpack("<i", data)[0])
-        elif index == 0x1016 and subindex == 1:
-            (value,) = struct.unpack("<I", data)
-            self._watch_master(value)
+    def _reset_communication(self) -> None:
+        for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
+            del self.node.data_store[index]
+        for key in [k for k in self._params if 0x1000 <= k[0] < 0x2000]:
+            del self._params[key]
+        self._watch_master(0)
+        self._pdo_dirty = True
 
-    def _value(self, index: int, sub: int = 0) -> int:
-        """Present value of an object, decoded with its dictionary data type."""
-        obj = self.node._find_object(index, sub)
-        return int(obj.decode_raw(self.node.get_data(index, sub)))
+    def boot(self) -> None:
+        """Power on: boot-up message, PRE-OPERATIONAL, heartbeat if 0x1017 says so."""
+        self.node.nmt.send_command(0x82)  # -> INITIALISING, sends the boot-up message
+        self.node.nmt.send_command(0x80)  # -> PRE-OPERATIONAL, heartbeat producer starts
 
-    # ------------------------------------------------------------------ PDOs
-    def _rpdo_cob(self, i: int) -> int:
-        return (0x200, 0x300, 0x400, 0x500)[i] + self.node_id
-
-    def _rpdo_handler(self, i: int) -> Callable[[int, bytearray, float], None]:
-        def handler(can_id: int, data: bytearray, ts: float) -> None:
-            if self.silent or self.node.nmt.state != "OPERATIONAL":
-                return
-            cob = self._value(0x1400 + i, 1)
-            if cob & 0x8000_0000 or (cob & 0x7FF) != can_id:
-                return
-            offset = 0
-            for sub in range(1, self._value(0x1600 + i, 0) + 1):
-                entry = self._value(0x1600 + i, sub)
-                index, bits = entry >> 16, entry & 0xFF
-                size = bits // 8
-                if offset + size > len(data):
-                    self._emcy(0x8210)  # PDO length error
-                    return
-                chunk = bytes(data[offset : offset + size])
-                offset += size
-                if index == 0x6040:
-                    self._controlword(struct.unpack("<H", chunk)[0])
-                elif index == 0x20C1:
-                    pos = struct.unpack_from("<i", chunk)[0]
-                    rpm = int.from_bytes(chunk[4:7], "little", signed=True)
-                    v = rpm * self.encoder_counts_per_rev / 60.0
-                    with self._lock:
-                        self.ip_buffer.append((float(pos), v, chunk[7] / 1000.0))
-                elif index == 0x607A:
-                    (t,) = struct.unpack("<i", chunk)
-                    if self._value(0x1400 + i, 2) <= 240:
-                        self._pending_target = t  # synchronous: applied at the next SYNC
-                    else:
-                        self._set_target(t)
-                else:
-                    self.node.data_store.setdefault(index, {})[entry >> 8 & 0xFF] = chunk
-
-        return handler
-
-    def _tpdo_payload(self, i: int) -> bytes | None:
-        cob = self._value(0x1800 + i, 1)
-        n = self._value(0x1A00 + i, 0)
-        if cob & 0x8000_0000 or n == 0:
-            return None
-        out = b""
-        for sub in range(1, n + 1):
-            entry = self._value(0x1A00 + i, sub)
-            index, s, bits = entry >> 16, entry >> 8 & 0xFF, entry & 0xFF
-            out += self.node.get_data(index, s)[: bits // 8]
-        return out
-
-    def _on_sync(self, can_id: int, data: bytearray, ts: float) -> None:
-        if self.silent:
-            return
-        now = self._now()
-        if self.sync_times is not None:
-            self.sync_times.append(now)
-        with self._lock:
-            dt = 0.001 if self.last_sync_s is None else min(max(now - self.last_sync_s, 0.0), 0.1)
-            self.last_sync_s = now
-            self.sync_count += 1
-            if self._pending_target is not None:
-                self._set_target(self._pending_target)
-                self._pending_target = None
-            self.step(dt)
-        self._check_master(now)
-        if self.node.nmt.state != "OPERATIONAL":
-            return
-        for i in range(4):
-            if self._value(0x1800 + i, 2) in range(1, 241):
-                payload = self._tpdo_payload(i)
-                if payload is not None:
-                    self.network.send_message(self._value(0x1800 + i, 1) & 0x7FF, payload)
-
-    # ------------------------------------------------------------------ CiA 402
-    @property
-    def statusword(self) -> int:
-        sw = _STATE_BITS.get(self.state, 0) | 0x0200  # bit 9 remote
-        if self.state in (State.OPERATION_ENABLED, State.SWITCHED_ON, State.QUICK_STOP_ACTIVE):
-            sw |= 0x0010  # voltage enabled
-        if abs(self.target - self.position) < 2:
-            sw |= SW_TARGET_REACHED
-        if self.mode == Mode.HOMING and self.homing_attained:
-            sw |= SW_HOMING_ATTAINED
-        if self.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.PROFILE_POSITION) and self.following_error:
-            sw |= SW_FOLLOWING_ERROR
-        return sw
-
+    # ================================================================== CiA 402
     def _controlword(self, cw: int) -> None:
         with self._lock:
             old, self.controlword = self.controlword, cw
@@ -252,148 +541,390 @@ class SimEpos:
                 if cw & 0x80 and not old & 0x80:
                     self.state = State.SWITCH_ON_DISABLED
                     self.following_error = False
-                    self._emcy(0x0000)  # error reset
+                    self.internal_limit = False
+                    self.error_code = 0
+                    self.error_register = 0
+                    self._emcy(0x0000)
                 return
-            if cw & 0x82 == 0x00:
-                self.state = State.SWITCH_ON_DISABLED
-            elif cw & 0x86 == 0x02:
-                if s is State.OPERATION_ENABLED:
-                    # Quick stop option 2: ramp down on the quick stop ramp, then SWITCH ON
-                    # DISABLED; the position loop holds the stop point.
-                    self.target = round(self.position)
-                    self.state = State.SWITCH_ON_DISABLED
-                else:
-                    self.state = State.SWITCH_ON_DISABLED
-            elif cw & 0x87 == 0x06:
+            if s in (State.NOT_READY_TO_SWITCH_ON, State.FAULT_REACTION_ACTIVE):
+                return
+            new = s
+            if cw & 0x02 == 0:  # disable voltage: transitions 7, 9, 10, 12
+                new = State.SWITCH_ON_DISABLED
+            elif cw & 0x06 == 0x02:  # quick stop: transitions 7, 10, 11
+                new = (
+                    State.QUICK_STOP_ACTIVE
+                    if s is State.OPERATION_ENABLED
+                    else (
+                        State.SWITCH_ON_DISABLED
+                        if s in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON)
+                        else s
+                    )
+                )
+            elif cw & 0x07 == 0x06:  # shutdown: transitions 2, 6, 8
                 if s in (State.SWITCH_ON_DISABLED, State.SWITCHED_ON, State.OPERATION_ENABLED):
-                    self.state = State.READY_TO_SWITCH_ON
-            elif cw & 0x8F == 0x07:
+                    new = State.READY_TO_SWITCH_ON
+            elif cw & 0x0F == 0x07:  # switch on / disable operation: transitions 3, 5
                 if s in (State.READY_TO_SWITCH_ON, State.OPERATION_ENABLED):
-                    self.state = State.SWITCHED_ON
-            elif cw & 0x8F == 0x0F and s in (State.SWITCHED_ON, State.QUICK_STOP_ACTIVE):
-                self.state = State.OPERATION_ENABLED
-                self.target = round(self.position)
-                self._pending_target = None
+                    new = State.SWITCHED_ON
+            elif cw & 0x0F == 0x0F:  # enable operation: 4, 16 (and 3+4 from READY TO SWITCH ON)
+                resume = s is State.QUICK_STOP_ACTIVE and self._value(epos.QUICK_STOP_OPTION) >= 5
+                if s in (State.SWITCHED_ON, State.READY_TO_SWITCH_ON) or resume:
+                    new = State.OPERATION_ENABLED
+            if new is not s:
+                self._enter(new)
             if self.state is State.OPERATION_ENABLED:
-                if self.mode == Mode.HOMING and cw & 0x10 and not old & 0x10:
-                    self._home()
-                if self.mode == Mode.PROFILE_POSITION and cw & 0x10 and not old & 0x10:
-                    self.target = self._value(0x607A)
+                rising = cw & 0x10 and not old & 0x10
+                if self.mode == Mode.HOMING and rising:
+                    self._start_homing()
+                elif self.mode == Mode.PROFILE_POSITION:
+                    if rising and not self._setpoint_ack:
+                        self._new_setpoint(cw)
+                    elif not cw & 0x10:
+                        self._setpoint_ack = False
+                elif self.mode == Mode.INTERPOLATED_POSITION:
+                    if rising and not self.pvt.active:
+                        self.pvt.start(self.motor.x, 0.0)
+                    elif not cw & 0x10 and self.pvt.active:
+                        self.pvt.active = False
+                        self.profile.set(self.profile.x, self.profile.v)
 
-    def _set_target(self, t: int) -> None:
-        lo, hi = self._value(0x607D, 1), self._value(0x607D, 2)
-        if not lo <= t <= hi:
-            self._fault(0x8A82)  # software position limit
-            return
+    def _enter(self, new: State) -> None:
+        """State entry actions (lock held)."""
+        old = self.state
+        self.state = new
+        if new is State.OPERATION_ENABLED and old is not State.OPERATION_ENABLED:
+            self._hold_here()
+        if new in (State.SWITCH_ON_DISABLED, State.READY_TO_SWITCH_ON, State.SWITCHED_ON):
+            self.motor.reset_controller()
+            self.pvt.clear()
+            self._pp_target = None
+            self._setpoint_ack = False
+
+    def _hold_here(self) -> None:
+        """Make the present position the reference (enable, mode change)."""
+        self.profile.set(self.motor.x, 0.0)
+        self._csp_from = self._csp_to = self.motor.x
+        self._csp_t = 0.0
+        self._pp_target = None
+        self.pvt.clear()
+        self._ferr_s = 0.0
+
+    def _set_mode(self, mode: int) -> None:
+        if mode not in ACCEPTED_MODES[self.kind]:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
         with self._lock:
-            # 0x607A holds the latest target (profile position takes it on the bit-4 edge).
-            self.node.data_store.setdefault(0x607A, {})[0] = struct.pack("<i", t)
-            if self.mode == Mode.CYCLIC_SYNC_POSITION and self.state is State.OPERATION_ENABLED:
-                self.target = t
+            self.mode = mode
+            self._hold_here()
+            self._homing_phase = ""
 
-    def _home(self) -> None:
-        method = self._value(0x6098)
-        offset = self._value(0x607C)
-        if method in (37, 35):
-            # Actual position: the present position becomes the home position (+ offset).
-            self.position = float(offset)
-        else:
-            # Current-threshold and switch methods: the simulator has no end stop; it moves a
-            # little, "hits" the threshold and sets home there.
-            self.position = float(offset)
-        self.target = round(self.position)
-        self.homing_attained = True
+    def _limits(self) -> tuple[int, int]:
+        return (
+            self._value(epos.SOFTWARE_POSITION_LIMIT, 1),
+            self._value(epos.SOFTWARE_POSITION_LIMIT, 2),
+        )
 
-    def step(self, dt: float) -> None:
-        """Advance the motor by ``dt`` seconds (called on SYNC)."""
-        if self.state is not State.OPERATION_ENABLED or self.controlword & CW_HALT_BIT:
-            self.position += self.external_disturbance
+    def _target(self, target: int) -> None:
+        with self._lock:
+            if self.mode != Mode.CYCLIC_SYNC_POSITION or self.state is not State.OPERATION_ENABLED:
+                return  # profile position reads 0x607A at the set-point edge
+            if self._controlword_halted():
+                return
+            lo, hi = self._limits()
+            if not lo <= target <= hi:
+                self.internal_limit = True
+                self._fault(SOFTWARE_LIMIT[self.kind])
+                return
+            self._csp_from = self.profile.x
+            self._csp_to = target - self.offset
+            self._csp_t = 0.0
+
+    def _position_mode_setpoint(self, value: int) -> None:
+        with self._lock:
+            if self.mode != Mode.POSITION_MODE or self.state is not State.OPERATION_ENABLED:
+                return
+            lo, hi = self._limits()
+            if not lo <= value <= hi:
+                self._fault(SOFTWARE_LIMIT[self.kind])
+                return
+            self.profile.set(value - self.offset, 0.0)
+
+    def _new_setpoint(self, cw: int) -> None:
+        target = self._value(epos.TARGET_POSITION)
+        if cw & 0x40:  # relative
+            target += round(
+                (self._pp_target if self._pp_target is not None else self.profile.x) + self.offset
+            )
+        lo, hi = self._limits()
+        clamped = min(max(target, lo), hi)
+        self.internal_limit = clamped != target
+        self._pp_target = clamped - self.offset
+        self._setpoint_ack = True
+
+    def _pvt_point(self, data: bytes) -> None:
+        parsed = epos.parse_pvt(data)
+        if parsed is None:
             return
-        if self.mode == Mode.PROFILE_POSITION:
-            vmax = self._value(0x6081) * COUNTS_PER_REV / 60.0
-            err = self.target - self.position
-            self.position += math.copysign(min(abs(err), vmax * dt), err)
-        elif self.mode == Mode.INTERPOLATED_POSITION and self.controlword & 0x10:
-            self._ip_step(dt)
-        elif self.mode == Mode.CYCLIC_SYNC_POSITION:
-            a = math.exp(-dt / POSITION_LOOP_TAU_S)
-            self.position = self.target - (self.target - self.position) * a
-        self.position += self.external_disturbance
-        window = self._value(0x6065)
-        if window and abs(self.target - self.position) > window:
+        pos, rpm, t_ms = parsed
+        with self._lock:
+            if not self.pvt.push(pos - self.offset, rpm * self.cpr / 60.0, t_ms / 1000.0):
+                self._fault(IP_MODE_ERROR)  # buffer overflow
+
+    def _controlword_halted(self) -> bool:
+        return bool(self.controlword & CW_HALT_BIT)
+
+    def _start_homing(self) -> None:
+        method = self._value(epos.HOMING_METHOD)
+        self._homed = False
+        self.profile.set(self.motor.x, 0.0)
+        if method in (35, 37):
+            self._set_home_here()
+        elif method in (-1, -2, -3, -4):
+            self._homing_phase, self._homing_dwell = "search", 0.0
+        else:
+            log.warning("node %d: homing method %d is not simulated", self.node_id, method)
+            self._homing_phase = "error"
+
+    def _homing_objects(self) -> tuple[int, int, int]:
+        if self.kind == "epos4":
+            return (
+                epos.EPOS4_HOME_OFFSET_MOVE,
+                epos.EPOS4_HOME_POSITION,
+                epos.EPOS4_HOMING_CURRENT_THRESHOLD,
+            )
+        return epos.EPOS2_HOME_OFFSET, epos.EPOS2_HOME_POSITION, epos.EPOS2_HOMING_CURRENT_THRESHOLD
+
+    def _set_home_here(self) -> None:
+        _, home, _ = self._homing_objects()
+        self.offset = self._value(home) - self.motor.x
+        self._csp_from = self._csp_to = self.profile.x
+        self._homing_phase = "done"
+        self._homed = True
+
+    # ================================================================== time
+    def step(self, dt_s: float) -> None:
+        """Advance the drive (set-point generators, supervision, motor) by ``dt_s`` seconds."""
+        with self._lock:
+            p = self.motor.p
+            n = max(1, math.ceil(dt_s / p.substep_s - 1e-9))
+            h = dt_s / n
+            for _ in range(n):
+                self._substep(h)
+
+    def _rpm(self, index: int, sub: int = 0) -> float:
+        """A velocity/acceleration object in rpm (or rpm/s) as counts/s (or counts/s²)."""
+        return self._value(index, sub) * self.cpr / 60.0
+
+    def _substep(self, h: float) -> None:
+        """Motor from t to t + h on the reference of t; then the reference moves on to t + h
+        (so the controller compares reference and position of the same instant)."""
+        s = self.state
+        powered = s in (State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE)
+        prof = self.profile
+        if self.load_fn is not None:
+            tau = self.load_fn(self.motor.x + self.offset, self.motor.v)
+        else:
+            tau = self.load_torque_Nm
+        self.motor.substep(h, prof.x, prof.v, prof.a, powered, tau)
+        if s is State.QUICK_STOP_ACTIVE:
+            stopped = prof.stop(self._rpm(epos.QUICK_STOP_DECELERATION), h)
+            at_rest = stopped and abs(self.motor.v) < AT_REST_COUNTS_S
+            if at_rest and self._value(epos.QUICK_STOP_OPTION) in (1, 2):
+                self._enter(State.SWITCH_ON_DISABLED)
+                powered = False
+        elif s is State.OPERATION_ENABLED:
+            if self._controlword_halted() and self.mode != Mode.HOMING:
+                prof.stop(self._rpm(epos.PROFILE_DECELERATION), h)
+                self._csp_from = self._csp_to = prof.x
+            elif self.mode == Mode.CYCLIC_SYNC_POSITION:
+                period = self.interpolation_period_s
+                self._csp_t = min(self._csp_t + h, period)
+                v = (self._csp_to - self._csp_from) / period
+                x = self._csp_from + v * self._csp_t
+                prof.a = 0.0
+                prof.x, prof.v = x, (v if self._csp_t < period else 0.0)
+            elif self.mode == Mode.PROFILE_POSITION:
+                if self._pp_target is not None:
+                    prof.move(
+                        self._pp_target,
+                        self._rpm(epos.PROFILE_VELOCITY),
+                        self._rpm(epos.PROFILE_ACCELERATION),
+                        self._rpm(epos.PROFILE_DECELERATION),
+                        h,
+                    )
+            elif self.mode == Mode.HOMING:
+                self._homing_substep(h)
+            elif self.mode == Mode.INTERPOLATED_POSITION and self.pvt.active:
+                sample = self.pvt.sample(h)
+                if sample is None:
+                    prof.set(*self.pvt.hold)
+                    self.pvt.active = False
+                    self._fault(IP_MODE_ERROR)  # buffer underflow
+                    return
+                prof.a = (sample[1] - prof.v) / h
+                prof.x, prof.v = sample
+        if powered:
+            self._supervise(h)
+
+    def _homing_substep(self, h: float) -> None:
+        prof = self.profile
+        method = self._value(epos.HOMING_METHOD)
+        offset_obj, _, threshold_obj = self._homing_objects()
+        acc = self._rpm(epos.HOMING_ACCELERATION)
+        if self._homing_phase == "search":
+            direction = 1.0 if method in (-1, -3) else -1.0
+            prof.ramp_velocity(direction * self._rpm(epos.HOMING_SPEEDS, 1), acc, h)
+            if abs(self.motor.i) * 1000.0 >= self._value(threshold_obj):
+                self._homing_dwell += h
+                if self._homing_dwell >= HOMING_CURRENT_DWELL_S:
+                    self._homing_phase = "backoff"
+                    self._backoff_to = self.motor.x - direction * self._value(offset_obj)
+                    prof.set(self.motor.x, 0.0)
+                    self.motor.reset_controller()
+            else:
+                self._homing_dwell = 0.0
+        elif self._homing_phase == "backoff":
+            speed = self._rpm(epos.HOMING_SPEEDS, 2)
+            if (
+                prof.move(self._backoff_to, speed, acc, acc, h)
+                and abs(self.motor.v) < AT_REST_COUNTS_S
+            ):
+                self._set_home_here()
+
+    def _supervise(self, h: float) -> None:
+        err = abs(self.profile.x - self.motor.x)
+        if self.mode == Mode.CYCLIC_SYNC_POSITION:
+            self.max_following_error_counts = max(self.max_following_error_counts, err)
+        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
+        searching = self.mode == Mode.HOMING and self._homing_phase == "search"
+        if window != 0xFFFFFFFF and err > window and not searching:
             self.following_error = True
-            self._fault(0x8611)
+            self._ferr_s += h
+            if self._ferr_s * 1000.0 >= self._value(epos.FOLLOWING_ERROR_TIMEOUT):
+                self._fault(FOLLOWING_ERROR)
+                return
+        else:
+            self.following_error = False
+            self._ferr_s = 0.0
+        lo, hi = self._limits()
+        actual = self.motor.x + self.offset
+        if not lo - 1 <= actual <= hi + 1 and self.mode != Mode.HOMING:
+            self.internal_limit = True
+            self._fault(SOFTWARE_LIMIT[self.kind])
+            return
+        switches = self.motor.p.limit_switches_counts
+        if switches is not None:
+            if self.motor.x <= switches[0]:
+                self._fault(NEGATIVE_LIMIT_SWITCH[self.kind])
+            elif self.motor.x >= switches[1]:
+                self._fault(POSITIVE_LIMIT_SWITCH[self.kind])
 
-    def _ip_step(self, dt: float) -> None:
-        """PVT: cubic Hermite from the present point to the next buffered one over its time."""
-        left = dt
-        while left > 0:
-            if self._ip_seg is None:
-                if not self.ip_buffer:
-                    self._ip_vel = 0.0
-                    return  # buffer underflow: hold
-                p1, v1, T = self.ip_buffer.popleft()
-                self._ip_seg = [self.target, self._ip_vel, p1, v1, max(T, 1e-4), 0.0]
-            p0, v0, p1, v1, T, t = self._ip_seg
-            t = min(t + left, T)
-            left -= t - self._ip_seg[5]
-            u = t / T
-            h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
-            h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
-            self.target = round(h00 * p0 + h10 * T * v0 + h01 * p1 + h11 * T * v1)
-            self._ip_seg[5] = t
-            if t >= T:
-                self.target, self._ip_vel, self._ip_seg = round(p1), v1, None
-        self.position = float(self.target)
-
+    # ================================================================== faults
     def _fault(self, code: int) -> None:
+        """Fault reaction: power stage off at once, FAULT, EMCY ``code``."""
         with self._lock:
             if self.state is State.FAULT:
                 return
             self.state = State.FAULT
+            self.motor.i = 0.0  # the power stage goes off at once
+            self.error_code = code
+            self.error_register = error_register_for(code)
+            self.pvt.clear()
+            self._pp_target = None
+            self._setpoint_ack = False
+            self.motor.reset_controller()
+            self.profile.set(self.motor.x, 0.0)
+            history = [self.node.data_store.get(0x1003, {}).get(s) for s in range(1, 8)]
+            store = self.node.data_store.setdefault(0x1003, {})
+            store[1] = struct.pack("<I", code)
+            for s, old in enumerate(history, start=2):
+                if old is not None:
+                    store[s] = old
+            store[0] = bytes((min(8, 1 + sum(o is not None for o in history)),))
         self._emcy(code)
 
     def _emcy(self, code: int) -> None:
         self.emcy_sent.append(code)
-        if not self.silent:
-            self.node.emcy.send(code, 0x01 if code else 0x00)
+        if not self.silent and self.emcy_enabled:
+            self._send(0x080 + self.node_id, encode_emcy(code))
+
+    def _send(self, cob_id: int, data: bytes) -> None:
+        """Send a frame; a node stepped without a bus (tests, plant studies) sends nothing."""
+        try:
+            self.network.send_message(cob_id, data)
+        except (RuntimeError, can.CanError) as exc:
+            log.debug("node %d: 0x%03X not sent (%s)", self.node_id, cob_id, exc)
 
     # ------------------------------------------------------------------ master heartbeat
     def _watch_master(self, value: int) -> None:
         master, ms = (value >> 16) & 0x7F, value & 0xFFFF
-        if self._hb_consumer_cob is not None:
-            self.network.unsubscribe(self._hb_consumer_cob, self._on_master_hb)
-            self._hb_consumer_cob = None
+        if self._master_hb_cob is not None:
+            self.network.unsubscribe(self._master_hb_cob, self._on_master_hb)
+            self._master_hb_cob = None
         self._consumer_ms = ms
+        self._master_hb_s = None  # monitoring starts with the first heartbeat (CiA 301)
         if master and ms:
-            self._hb_consumer_cob = 0x700 + master
-            self.network.subscribe(self._hb_consumer_cob, self._on_master_hb)
+            self._master_hb_cob = 0x700 + master
+            self.network.subscribe(self._master_hb_cob, self._on_master_hb)
 
     def _on_master_hb(self, can_id: int, data: bytearray, ts: float) -> None:
-        self._master_hb_s = self._now()
+        if not self.silent:
+            self._master_hb_s = self._now()
 
-    def _check_master(self, now: float) -> None:
-        if self._master_hb_s is None or not getattr(self, "_consumer_ms", 0):
+    def check_master_heartbeat(self, now: float | None = None) -> None:
+        """Heartbeat consumer: fault with EMCY 0x8130 when the master's heartbeat is overdue."""
+        last = self._master_hb_s
+        if last is None or not self._consumer_ms or self.silent:
             return
-        if now - self._master_hb_s > self._consumer_ms / 1e3:
+        now = self._now() if now is None else now
+        if now - last > self._consumer_ms / 1e3:
             self._master_hb_s = None
-            self._fault(0x8130)
+            self._fault(HEARTBEAT_ERROR)
 
-    def check_master_heartbeat(self) -> None:
-        """Heartbeat consumer check without SYNC (the master may have stopped sending both)."""
-        self._check_master(self._now())
-
-    # ------------------------------------------------------------------ fault injection
-    def inject_emcy(self, code: int) -> None:
-        """Fault with EMCY ``code`` (e.g. 0x8611 following error, 0x2310 over-current)."""
+    # ================================================================== hooks
+    def inject_fault(self, code: int) -> None:
+        """Fault hook: the drive faults with EMCY ``code`` (power stage off)."""
         self._fault(code)
 
+    inject_emcy = inject_fault
+
+    def inject_following_error(self) -> None:
+        self._fault(FOLLOWING_ERROR)
+
+    def inject_over_current(self) -> None:
+        self._fault(OVER_CURRENT)
+
     def stop_heartbeat(self) -> None:
-        """Stop producing heartbeats (everything else keeps working)."""
+        """Fault hook: stop producing heartbeats (everything else keeps working)."""
         self.node.nmt.stop_heartbeat()
 
+    def start_heartbeat(self) -> None:
+        self.node.nmt.start_heartbeat(self._value(epos.HEARTBEAT_PRODUCER))
+
     def go_silent(self) -> None:
-        """Stop answering anything: no SDO, PDO, heartbeat (adapter unplugged, bus off)."""
+        """Fault hook: answer nothing at all (bus off, cable unplugged): no SDO, PDO, EMCY,
+        heartbeat; incoming frames are ignored, the motor keeps its last state."""
         self.silent = True
         self.node.nmt.stop_heartbeat()
-        self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+
+    bus_off = go_silent
+
+    def recover(self) -> None:
+        """Back on the bus after a bus off: fault with EMCY 0x81FD, heartbeats resume."""
+        self.silent = False
+        self.start_heartbeat()
+        self._fault(BUS_OFF)
+
+    def force_state(self, state: State, mode: int | None = None) -> None:
+        """Test hook: put the drive in ``state`` (e.g. left OPERATION ENABLED by a previous
+        session), holding its present position."""
+        with self._lock:
+            if mode is not None:
+                self.mode = mode
+            self.state = state
+            self._hold_here()
+
+    def displace(self, counts: float) -> None:
+        """Shift the motor by ``counts`` (slip, a knock); the position loop sees it as an error."""
+        with self._lock:
+            self.motor.x += counts

@@ -4,58 +4,80 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
+from collections.abc import Mapping, Sequence
 
 import can
 import canopen
 
+from cdcr_ctl.config.drives import DriveConfig
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.sim.epos.node import SimEpos
+from cdcr_ctl.sim.epos.plant import MotorParams
 from cdcr_ctl.sim.slcan_device import SlcanDevice
 
 _channels = itertools.count(1)
 
 #: How often the drives' heartbeat consumers are checked when no SYNC comes (s).
 CONSUMER_CHECK_S = 0.01
+#: The nodes' bus listener wakes this often when idle; stopping waits at most this long (s).
+NOTIFIER_CYCLE_S = 0.05
+#: free_run: with no SYNC for this long, the drives advance on the wall clock (s).
+FREE_RUN_AFTER_S = 0.05
+
+NodeSpec = tuple[int, str]  # (node id, "epos4" | "epos2")
 
 
 class SimDriveBus:
-    """One :class:`SimEpos` per drive of ``rig`` (cable order), booted on start.
+    """One :class:`SimEpos` per drive, booted on :meth:`start`.
 
-    ``interface="virtual"``: the nodes sit on python-can virtual channel ``channel`` (the
-    controller opens the same channel in this process). ``interface="slcan"``: the nodes sit on a
-    private virtual channel bridged to an slcan pseudo-terminal (``link`` symlinks to it).
+    ``drives``: a rig config (its drives in cable order, its bit rate), or drive configs, or
+    (node id, kind) pairs. ``interface="virtual"``: the nodes sit on python-can virtual channel
+    ``channel`` (the controller opens the same channel in this process). ``interface="slcan"``:
+    the nodes sit on a private virtual channel bridged to an slcan pseudo-terminal
+    (:attr:`channel_path`; ``link`` symlinks to it). ``motors`` overrides the motor parameters
+    per node id. ``free_run``: advance the drives on the wall clock while no SYNC comes (a master
+    that never sends SYNC still sees profile moves finish); off by default, so that time moves
+    only with SYNC and runs are reproducible.
     """
 
     def __init__(
         self,
-        rig: RigConfig,
+        drives: RigConfig | Sequence[DriveConfig] | Sequence[NodeSpec],
         interface: str = "virtual",
         channel: str = "cdcr",
         link: str | None = None,
+        *,
+        bitrate: int | None = None,
+        motors: Mapping[int, MotorParams] | None = None,
+        free_run: bool = False,
     ) -> None:
-        self.rig = rig
+        specs, rate = _specs(drives)
+        self.bitrate = bitrate or rate
         self.interface = interface
+        self.device: SlcanDevice | None = None
         if interface == "slcan":
             inner = f"cdcr-sim-{next(_channels)}-{id(self)}"
             self._bus = can.Bus(interface="virtual", channel=inner, receive_own_messages=False)
             self._dev_bus = can.Bus(interface="virtual", channel=inner, receive_own_messages=False)
-            self.device: SlcanDevice | None = SlcanDevice(self._dev_bus, link)
+            self.device = SlcanDevice(self._dev_bus, link, bitrate=self.bitrate)
             self.channel_path = self.device.path
         elif interface == "virtual":
             self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-            self.device = None
             self.channel_path = channel
         else:
             raise ValueError(f"the simulated drives serve 'virtual' or 'slcan', not {interface!r}")
         self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
         self.network.connect()
-        by_cable = {d.cable: d for d in rig.drives}
-        self.drives = [by_cable[c.name] for c in rig.robot.cables]
+        motors = motors or {}
         self.nodes = [
-            SimEpos(self.network, d.node_id, d.type, d.encoder_counts_per_rev) for d in self.drives
+            SimEpos(self.network, nid, kind, motors.get(nid, MotorParams(counts_per_rev=cpr)))
+            for nid, kind, cpr in specs
         ]
+        self.free_run = free_run
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._consumers, name="sim-epos-hb", daemon=True)
+        self._thread = threading.Thread(target=self._background, name="sim-epos", daemon=True)
 
     def start(self) -> SimDriveBus:
         for n in self.nodes:
@@ -63,23 +85,116 @@ class SimDriveBus:
         self._thread.start()
         return self
 
-    def _consumers(self) -> None:
+    def _background(self) -> None:
+        last_sync = [n.sync_count for n in self.nodes]
+        last_change = time.monotonic()
+        last_step = last_change
         while not self._stop.wait(CONSUMER_CHECK_S):
+            now = time.monotonic()
             for n in self.nodes:
-                n.check_master_heartbeat()
-
-    def actual_positions(self) -> list[int]:
-        """Motor positions (counts) in cable order."""
-        return [round(n.position) for n in self.nodes]
+                n.check_master_heartbeat(now)
+            if not self.free_run:
+                continue
+            syncs = [n.sync_count for n in self.nodes]
+            if syncs != last_sync:
+                last_sync, last_change, last_step = syncs, now, now
+            elif now - last_change > FREE_RUN_AFTER_S:
+                for n in self.nodes:
+                    if not n.silent:
+                        n.step(now - last_step)
+                last_step = now
 
     def node(self, node_id: int) -> SimEpos:
-        return next(n for n in self.nodes if n.node_id == node_id)
+        """The simulated drive with ``node_id`` (KeyError if none)."""
+        for n in self.nodes:
+            if n.node_id == node_id:
+                return n
+        raise KeyError(f"no simulated drive with node id {node_id}")
+
+    def actual_positions(self) -> list[int]:
+        """Actual positions (counts) in drive order (cable order for a rig config)."""
+        return [n.position_counts for n in self.nodes]
+
+    def stats(self) -> list[dict[str, object]]:
+        """Per drive: node id, SYNCs seen, set-points missed, largest CSP following error
+        (counts), and the intervals between SYNC arrivals (s: p50, p99, p99.9, max)."""
+        out: list[dict[str, object]] = []
+        for n in self.nodes:
+            times = list(n.sync_times_s)
+            gaps = sorted(b - a for a, b in itertools.pairwise(times))
+
+            def pct(q: float, gaps: list[float] = gaps) -> float | None:
+                return gaps[min(len(gaps) - 1, int(q * len(gaps)))] if gaps else None
+
+            out.append(
+                {
+                    "node": n.node_id,
+                    "syncs": n.sync_count,
+                    "missed_setpoints": n.missed_setpoints,
+                    "max_following_error_counts": round(n.max_following_error_counts, 3),
+                    "sync_interval_s": {
+                        "p50": pct(0.5),
+                        "p99": pct(0.99),
+                        "p99.9": pct(0.999),
+                        "max": gaps[-1] if gaps else None,
+                    },
+                }
+            )
+        return out
+
+    def reset_stats(self) -> None:
+        for n in self.nodes:
+            n.sync_times_s.clear()
+            n.missed_setpoints = 0
+            n.max_following_error_counts = 0.0
+            n.sync_count = 0
+
+    def step(self, dt_s: float) -> None:
+        """Advance every drive by ``dt_s`` seconds (use with ``advance_on_sync = False``)."""
+        for n in self.nodes:
+            n.step(dt_s)
+
+    def unplug(self) -> None:
+        """Fault hook: the bus disappears for the controller (slcan: the adapter's pty closes;
+        virtual: every drive goes silent)."""
+        if self.device is not None:
+            self.device.unplug()
+        else:
+            for n in self.nodes:
+                n.go_silent()
 
     def stop(self) -> None:
         self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(1.0)
         for n in self.nodes:
             n.node.nmt.stop_heartbeat()
         if self.device is not None:
             self.device.stop()
             self._dev_bus.shutdown()
         self.network.disconnect()
+
+    def __enter__(self) -> SimDriveBus:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _specs(
+    drives: RigConfig | Sequence[DriveConfig] | Sequence[NodeSpec],
+) -> tuple[list[tuple[int, str, int]], int]:
+    """(node id, kind, encoder counts per rev) per drive, and the bus bit rate."""
+    if isinstance(drives, RigConfig):
+        by_cable = {d.cable: d for d in drives.drives}
+        ordered = [by_cable[c.name] for c in drives.robot.cables if c.name in by_cable]
+        ordered += [d for d in drives.drives if d not in ordered]
+        return [(d.node_id, d.type, d.encoder_counts_per_rev) for d in ordered], drives.can.bitrate
+    out = []
+    for d in drives:
+        if isinstance(d, DriveConfig):
+            out.append((d.node_id, d.type, d.encoder_counts_per_rev))
+        else:
+            nid, kind = d
+            out.append((int(nid), str(kind), MotorParams().counts_per_rev))
+    return out, 1_000_000
