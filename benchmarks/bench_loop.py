@@ -6,13 +6,18 @@ the DriveGroup sending RPDO targets + SYNC each cycle and reading TPDOs, a plana
 repeated as the setpoint. Printed: cycles, overruns, lateness p50/p99/max, the loop thread's
 CPU time per cycle, the process CPU use, and the bus load of the PDO set.
 
-    .venv/bin/python benchmarks/bench_loop.py [--seconds 60] [--rate 1000]
-    sudo .venv/bin/python benchmarks/bench_loop.py --separate-process   # needs root (ip netns)
+    .venv/bin/python benchmarks/bench_loop.py [--seconds 60] [--rate 1000] [--rt-priority 80]
+        [--transport virtual|slcan|udp_multicast]
 
-``--separate-process`` puts the simulated drives in their own process, as hardware would be, on
-python-can's ``udp_multicast`` bus inside a network namespace made for the run with loopback only
-(``ip netns add``, ``lo`` up with multicast, 224.0.0.0/4 routed on ``lo``); nothing leaves the
-namespace, which is deleted afterwards. The loop then has the interpreter to itself.
+``--transport virtual`` (default): the simulated drives share this process and its interpreter
+lock with the loop (python-can ``virtual`` bus). ``slcan``: the simulated drives run in their own
+process (``python -m cdcr_ctl.sim.epos``) behind the slcan adapter emulator on a pseudo-terminal,
+as a USB-CAN adapter and real drives would be. ``udp_multicast`` (needs root for ``ip netns``): the
+simulated drives in their own process on python-can's ``udp_multicast`` bus inside a network
+namespace made for the run with loopback only (``ip netns add``, ``lo`` up with multicast,
+224.0.0.0/4 routed on ``lo``); nothing leaves the namespace, which is deleted afterwards.
+With ``--rt-priority P`` the loop asks for SCHED_FIFO P and mlockall and the simulated drives'
+process (standing in for drives with their own processors) for P - 1.
 """
 
 from __future__ import annotations
@@ -20,10 +25,13 @@ from __future__ import annotations
 import argparse
 import os
 import resource
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import can
 import numpy as np
@@ -37,16 +45,22 @@ from cdcr_ctl.control.ports import NoTension, NoTip
 from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.control.timing import try_realtime
 from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
-from cdcr_ctl.drives.group import DriveGroup
+from cdcr_ctl.drives.group import open_drive_group
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
 MCAST = "239.74.163.2"
 
 
-def sim_child(cfg_path: str) -> None:
-    """The simulated drives alone in this process, on the udp_multicast bus, until SIGTERM."""
+def sim_child(cfg_path: str, rt_priority: int) -> None:
+    """The simulated drives alone in this process, on the udp_multicast bus, until SIGTERM.
+
+    They stand in for drives with their own processors, so they get the loop's real-time priority
+    (one below it) when it asks for one."""
     import canopen
+
+    if rt_priority > 0:
+        try_realtime(rt_priority - 1, lock_memory=False)
 
     from cdcr_ctl.sim.epos.node import SimEpos
 
@@ -84,37 +98,58 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--rt-priority", type=int, default=0)
-    ap.add_argument("--separate-process", action="store_true")
+    ap.add_argument("--transport", choices=("virtual", "slcan", "udp_multicast"), default="virtual")
     ap.add_argument("--sim-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.sim_child:
-        sim_child(args.sim_child)
+        sim_child(args.sim_child, args.rt_priority)
         return
-    if args.separate_process and "CDCR_BENCH_NETNS" not in os.environ:
+    if args.transport == "udp_multicast" and "CDCR_BENCH_NETNS" not in os.environ:
         sys.exit(in_namespace(sys.argv[1:]))
     period = 1.0 / args.rate
     cfg = load_rig_config("config/qi2023.yaml")
-    interface, channel = ("udp_multicast", MCAST) if args.separate_process else ("virtual", "bench")
+    child = None
+    sim = None
+    work = tempfile.TemporaryDirectory(prefix="cdcr-bench-")
+    if args.transport == "virtual":
+        interface, channel = "virtual", "bench"
+    elif args.transport == "udp_multicast":
+        interface, channel = "udp_multicast", MCAST
+        cmd = [sys.executable, __file__, "--sim-child", "config/qi2023.yaml"]
+        child = subprocess.Popen(
+            [*cmd, "--rt-priority", str(args.rt_priority)], stdout=subprocess.PIPE, text=True
+        )
+    else:
+        interface, channel = "slcan", str(Path(work.name) / "can")
+        nodes = [f"--node={d.node_id}:{d.type}" for d in cfg.drives]
+        cmd = [sys.executable, "-m", "cdcr_ctl.sim.epos", "--link", channel, *nodes]
+        if args.rt_priority > 0 and shutil.which("chrt"):
+            cmd = ["chrt", "-f", str(args.rt_priority - 1), *cmd]
+        child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    if child is not None:
+        assert child.stdout is not None
+        first = child.stdout.readline().strip()
+        if not first:
+            sys.exit(f"the simulated drives did not start ({' '.join(cmd)})")
     can_cfg = cfg.can.model_copy(
-        update={"interface": interface, "channel": channel, "sync_period_s": period}
+        update={
+            "interface": interface,
+            "channel": channel,
+            "sync_period_s": period,
+            # Another process behind a pty or a socket: the same latency allowance as the
+            # simulated rig's config (config/qi2023-sim.yaml).
+            "feedback_timeout_s": None if args.transport == "virtual" else 0.25,
+        }
     )
     cfg = cfg.model_copy(update={"can": can_cfg})
-    child = None
-    if args.separate_process:
-        child = subprocess.Popen(
-            [sys.executable, __file__, "--sim-child", "config/qi2023.yaml"],
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
-        sim = None
-    else:
+    if args.transport == "virtual":
         sim = SimDriveBus(cfg, "virtual", "bench").start()
     by = {d.cable: d for d in cfg.drives}
     drives = [by[c.name] for c in cfg.robot.cables]
-    group = DriveGroup(can.Bus(interface=interface, channel=channel), cfg.can, drives)
-    group.boot()
-    group.configure()
+    # Before the group's threads exist, so they inherit it: a lower-priority thread holding the
+    # interpreter lock would otherwise block the loop (priority inversion through the GIL).
+    notes = try_realtime(args.rt_priority, lock_memory=args.rt_priority > 0)
+    group = open_drive_group(cfg.can, drives)
     model = build_model(cfg)
     port = DriveGroupPort(group)
     loop = ControlLoop(
@@ -125,7 +160,6 @@ def main() -> None:
         NoTip(),
         Supervisor(cfg.limits),
     )
-    notes = try_realtime(args.rt_priority, lock_memory=args.rt_priority > 0)
     loop.start()
     group.enable()
     bend = tj.planar_bend(theta_max_rad=1.2, back=True)
@@ -154,12 +188,13 @@ def main() -> None:
     if child is not None:
         child.terminate()
         child.wait(10)
+    work.cleanup()
     load = cycle_load(pdo_cycle_frames(3), period, cfg.can.bitrate)
-    where = (
-        "in another process on udp_multicast in a loopback-only network namespace"
-        if args.separate_process
-        else "in this process on a python-can virtual bus"
-    )
+    where = {
+        "virtual": "in this process on a python-can virtual bus",
+        "slcan": "in another process behind the slcan adapter emulator on a pty",
+        "udp_multicast": "in another process on udp_multicast in a loopback-only network namespace",
+    }[args.transport]
     print(
         f"loop benchmark: {args.seconds:.0f} s at {args.rate:.0f} Hz, compensation 'model' "
         f"(Qi rig, all effects, chord geometry), 3 simulated EPOS4 {where}, "

@@ -6,6 +6,7 @@ Imported by :func:`cdcr_ctl.cli.main.main`; each command imports what it needs w
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -40,6 +41,7 @@ def daemon(obj: Ctx, verbose: bool) -> None:
     from cdcr_ctl.config.build_model import build_model
     from cdcr_ctl.control import trajectory
     from cdcr_ctl.control.io import open_rig_io
+    from cdcr_ctl.control.timing import try_realtime
     from cdcr_ctl.daemon.service import Daemon
     from cdcr_ctl.runlog.writer import RunLogFactory
 
@@ -54,6 +56,9 @@ def daemon(obj: Ctx, verbose: bool) -> None:
         )
     model = build_model(cfg, source=str(path))
     sinks = RunLogFactory.from_config(cfg, path)
+    # Before any thread exists: every thread of the daemon inherits the policy, so the loop never
+    # waits for the interpreter lock held by a thread of lower priority.
+    try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
     io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
     d = Daemon(cfg, path, io, model, sinks, trajectory)
     try:
@@ -67,13 +72,27 @@ def daemon(obj: Ctx, verbose: bool) -> None:
 
 @cli.command()
 @click.argument("sim_config", type=click.Path(exists=True, dir_okay=False))
-@click.option("--duration-s", type=float, default=None, help="Stop after this long (default: run).")
+@click.option(
+    "--duration-s",
+    type=click.FloatRange(min=0, min_open=True),
+    default=None,
+    help="Stop after this long (default: run).",
+)
+@click.option(
+    "--faults",
+    "faults_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Serve the fault-injection channel (cdcr_ctl.sim.faults) on this Unix socket.",
+)
 @click.option("--verbose", "-v", is_flag=True)
-def sim(sim_config: str, duration_s: float | None, verbose: bool) -> None:
+def sim(sim_config: str, duration_s: float | None, faults_path: str | None, verbose: bool) -> None:
     """Run the simulated rig of SIM_CONFIG in this process until SIGTERM/SIGINT.
 
     Prints one JSON line with the connection points, then serves: EPOS nodes behind an slcan
-    pseudo-terminal, load cells on a serial pseudo-terminal, tracker on 127.0.0.1.
+    pseudo-terminal, load cells on a serial pseudo-terminal, tracker on 127.0.0.1, and with
+    --faults a Unix socket that injects faults (drive EMCY, heartbeat loss, bus off, adapter
+    unplugged, load-cell disconnect/garbage, tracker dropout, tension spike).
     """
     from cdcr_ctl.sim.rig import SimRig
     from cdcr_ctl.sim.simconfig import load_sim_config
@@ -83,8 +102,14 @@ def sim(sim_config: str, duration_s: float | None, verbose: bool) -> None:
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    with SimRig(loaded) as rig:
-        click.echo(json.dumps({"ready": True, **rig.connection_info()}), nl=True)
+    with SimRig(loaded) as rig, contextlib.ExitStack() as extras:
+        info = {"ready": True, **rig.connection_info()}
+        if faults_path:
+            from cdcr_ctl.sim.faults import FaultServer
+
+            extras.enter_context(FaultServer(rig, faults_path))
+            info["faults"] = str(faults_path)
+        click.echo(json.dumps(info), nl=True)
         sys.stdout.flush()
         stop.wait(duration_s)
         click.echo(json.dumps({"stopped": True, "counters": rig.counters.__dict__}), err=True)

@@ -47,7 +47,7 @@ log = logging.getLogger(__name__)
 #: cable velocity limit.
 OFFSET_RAMP_FRACTION = 0.5
 #: Python's GIL switch interval while the loop runs (s); see :meth:`ControlLoop.start`.
-GIL_SWITCH_INTERVAL_S = 2e-4
+GIL_SWITCH_INTERVAL_S = 5e-5
 #: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
 OPERATOR_STOP = "operator_stop"
 
@@ -435,7 +435,12 @@ class ControlLoop:
                 self.counters.rows_dropped += 1
             failure = getattr(sink, "failure", None)
             if failure and self.supervisor.trip is None:
-                self._react(Trip("log_write_failed", Reaction.HALT, str(failure), t_s))
+                # Latched in the supervisor like any trip: status names it, runs are refused.
+                trip = self.supervisor.external(
+                    "log_write_failed", Reaction.HALT, str(failure), t_s
+                )
+                if trip is not None:
+                    self._react(trip)
         if self._end_after_cycle is not None:
             self._finish_run(*self._end_after_cycle)
             self._end_after_cycle = None
@@ -496,6 +501,9 @@ class ControlLoop:
         ) / self.cfg.counts_per_mm
         self._q_offset = self._q_offset + (q_act - self._q_cmd)
         self._q_offset_target = self._q_offset.copy()
+        # The drives are at q_act: the next command's velocity is measured from there, not from
+        # the command computed (but not sent) while they were stopped.
+        self._q_cmd = q_act.copy()
         self._stopped_drives = False
 
 

@@ -26,7 +26,7 @@ LATENESS_EDGES_US = np.array(
 )
 
 #: Sleep this much less than needed and spin the rest (s): time.sleep overshoots by ~50-100 us.
-SPIN_MARGIN_S = 150e-6
+SPIN_MARGIN_S = 200e-6
 
 
 @dataclass

@@ -285,6 +285,8 @@ class DriveGroup:
         )
         self._traffic: can.Listener | None = None
         self._traffic_lock = threading.Lock()
+        #: Why the traffic log stopped on its own (a write error), or None.
+        self.traffic_failure: str | None = None
         self._cycle_lock = threading.RLock()
         self._fault_lock = threading.Lock()
         self._fb_cond = threading.Condition()
@@ -321,6 +323,21 @@ class DriveGroup:
         self._heartbeats = HeartbeatConsumer(
             {d.node_id: d.heartbeat_producer_ms / 1e3 for d in drives}
         )
+        # Receive only what the master consumes: each drive's feedback TPDO, EMCY, heartbeat and
+        # SDO responses. On socketcan the kernel filters; elsewhere python-can drops the rest
+        # before canopen sees it (a multicast or loopback transport echoes our own frames).
+        bus.set_filters(
+            [
+                {"can_id": cob, "can_mask": 0x7FF, "extended": False}
+                for d in self._drives
+                for cob in (
+                    d.layout.feedback.cob_id,
+                    0x080 + d.cfg.node_id,
+                    0x700 + d.cfg.node_id,
+                    0x580 + d.cfg.node_id,
+                )
+            ]
+        )
         self.network.connect()
         assert self.network.notifier is not None
         self.network.notifier.add_listener(_RxTap(self._on_rx, self._on_rx_error))
@@ -341,11 +358,9 @@ class DriveGroup:
         with self.network.send_lock:
             self.network.bus.send(msg, self._send_timeout)
             self._frames.append((self.clock(), "tx", can_id, data))
-        traffic = self._traffic
-        if traffic is not None:
+        if self._traffic is not None:
             msg.timestamp = time.time()
-            with self._traffic_lock:
-                traffic.on_message_received(msg)
+            self._log_frame(msg)
 
     def _send(self, cob_id: int, data: bytes) -> None:
         """Send one frame; a failure latches a bus fault and raises CommError."""
@@ -360,10 +375,26 @@ class DriveGroup:
         if msg.is_error_frame:
             self.error_frames += 1
         self._frames.append((self.clock(), "rx", msg.arbitration_id, bytes(msg.data)))
+        if self._traffic is not None:
+            self._log_frame(msg)
+
+    def _log_frame(self, msg: can.Message) -> None:
+        """One frame to the traffic log. A write error (disk full) stops the traffic log and is
+        kept in :attr:`traffic_failure`; it is not a bus fault and never reaches the caller."""
         traffic = self._traffic
-        if traffic is not None:
+        if traffic is None:
+            return
+        try:
             with self._traffic_lock:
                 traffic.on_message_received(msg)
+        except (OSError, ValueError) as exc:
+            with self._traffic_lock:
+                if self._traffic is traffic:
+                    self._traffic = None
+                    self.traffic_failure = f"CAN traffic log: {exc}"
+                    with contextlib.suppress(Exception):
+                        traffic.stop()
+            log.error("CAN traffic log stopped: %s", exc)
 
     def _on_rx_error(self, exc: Exception) -> None:
         """The bus listener failed to receive (adapter unplugged, interface down): latch a bus
@@ -481,10 +512,14 @@ class DriveGroup:
         with self._traffic_lock:
             old, self._traffic = self._traffic, None
             if old is not None:
-                old.stop()
+                try:
+                    old.stop()
+                except (OSError, ValueError) as exc:  # disk full: the next log may still work
+                    log.error("CAN traffic log: closing failed: %s", exc)
             if path is not None:
                 Path(path).parent.mkdir(parents=True, exist_ok=True)
                 self._traffic = can.Logger(str(path))
+                self.traffic_failure = None
 
     # ================================================================== start-up
     def boot(self, timeout_s: float = BOOT_TIMEOUT_S) -> None:

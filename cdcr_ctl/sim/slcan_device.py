@@ -62,6 +62,8 @@ F_RX_FIFO_FULL, F_TX_FIFO_FULL, F_ERROR_WARNING, F_DATA_OVERRUN = 0x01, 0x02, 0x
 F_ERROR_PASSIVE, F_ARBITRATION_LOST, F_BUS_ERROR = 0x20, 0x40, 0x80
 #: A command line longer than this without ``\\r`` is junk: dropped with a BEL.
 MAX_LINE = 64
+#: How long the rest of a line already partly written may wait for the host (s).
+PARTIAL_LINE_S = 1.0
 #: How long a write to the pty may wait for the host to read before frames are dropped (s).
 WRITE_STALL_S = 0.02
 
@@ -182,6 +184,7 @@ class SlcanDevice:
     def _write(self, data: bytes) -> bool:
         """Write all of ``data`` to the pty, waiting at most WRITE_STALL_S for the host."""
         deadline = time.monotonic() + WRITE_STALL_S
+        whole = len(data)
         with self._lock:
             while data:
                 try:
@@ -189,8 +192,14 @@ class SlcanDevice:
                     data = data[n:]
                 except BlockingIOError:
                     left = deadline - time.monotonic()
+                    if left <= 0 and len(data) == whole:
+                        return False  # dropped whole, as an adapter's full FIFO drops frames
                     if left <= 0:
-                        return False
+                        # Part of the line is out: finish it (within one more second), or the
+                        # host would read two frames run together as one garbled line.
+                        left = deadline + PARTIAL_LINE_S - time.monotonic()
+                        if left <= 0:
+                            return False
                     with contextlib.suppress(OSError, ValueError):
                         select.select([], [self.master_fd], [], left)
                 except OSError:
