@@ -164,6 +164,7 @@ class ControlLoop:
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
         self._last_row: dict[str, Any] = {}
+        self._row_keys: list[str] | None = None
         self._stopped_drives = False
         self._paused = False
         self._manual_sink: Any = None
@@ -446,16 +447,22 @@ class ControlLoop:
             self._end_after_cycle = None
 
     def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event):
+        keys = self._row_keys
+        if keys is None:
+            S, K = len(psi), len(q_nom)
+            keys = self._row_keys = (
+                [f"seg{i}_{a}_cmd_rad" for i in range(1, S + 1) for a in ("theta", "phi")]
+                + [
+                    f"cable{k}_{c}"
+                    for k in range(1, K + 1)
+                    for c in ("q_nominal_mm", "q_cmd_mm", "q_act_mm", "tension_N")
+                ]
+                + ["tip_x_mm", "tip_y_mm", "tip_z_mm"]
+            )
+        per_cable = np.column_stack((q_nom, q_cmd, q_act, force_N)).ravel()
+        values = np.concatenate((np.ravel(psi), per_cable, tip_mm)).tolist()
         row: dict[str, float | str] = {"t_s": round(t_s, 6), "cycle": self.counters.cycles}
-        for i, (th, ph) in enumerate(psi, start=1):
-            row[f"seg{i}_theta_cmd_rad"] = float(th)
-            row[f"seg{i}_phi_cmd_rad"] = float(ph)
-        for k in range(len(q_nom)):
-            row[f"cable{k + 1}_q_nominal_mm"] = float(q_nom[k])
-            row[f"cable{k + 1}_q_cmd_mm"] = float(q_cmd[k])
-            row[f"cable{k + 1}_q_act_mm"] = float(q_act[k])
-            row[f"cable{k + 1}_tension_N"] = float(force_N[k])
-        row["tip_x_mm"], row["tip_y_mm"], row["tip_z_mm"] = (float(v) for v in tip_mm)
+        row.update(zip(keys, values, strict=True))
         row["lateness_us"] = round(lateness_s * 1e6, 1)
         row["event"] = event
         return row

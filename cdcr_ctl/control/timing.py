@@ -25,8 +25,19 @@ LATENESS_EDGES_US = np.array(
     [0, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000, 10_000, 100_000, np.inf], dtype=float
 )
 
-#: Sleep this much less than needed and spin the rest (s): time.sleep overshoots by ~50-100 us.
+#: Sleep this much less than needed and spin the rest (s): a SCHED_OTHER thread's sleep overshoots
+#: by its 50 us timer slack plus scheduling delay (~50-150 us on a busy machine).
 SPIN_MARGIN_S = 200e-6
+#: The same for a SCHED_FIFO/SCHED_RR thread: no timer slack, it preempts everything else.
+SPIN_MARGIN_RT_S = 50e-6
+
+
+def realtime_thread() -> bool:
+    """Whether the calling thread runs under a real-time policy (SCHED_FIFO or SCHED_RR)."""
+    try:
+        return os.sched_getscheduler(0) in (os.SCHED_FIFO, os.SCHED_RR)
+    except (AttributeError, OSError):
+        return False
 
 
 @dataclass
@@ -79,11 +90,18 @@ class Ticker:
     ``(deadline, lateness_s)``; ``done()`` marks the end of the cycle's work for overrun counting.
     """
 
-    def __init__(self, period_s: float, spin: bool = True) -> None:
+    def __init__(self, period_s: float, spin: bool = True, spin_margin_s: float | None = None):
         if period_s <= 0:
             raise ValueError("period_s must be positive")
         self.period_s = period_s
         self.spin = spin
+        #: Sleep until this long before the deadline, then spin (s); by default chosen for the
+        #: scheduling policy of the thread that creates the ticker.
+        self.spin_margin_s = (
+            spin_margin_s
+            if spin_margin_s is not None
+            else (SPIN_MARGIN_RT_S if realtime_thread() else SPIN_MARGIN_S)
+        )
         self.stats = LatenessStats()
         self._t0 = time.monotonic()
         self._n = 0
@@ -99,8 +117,9 @@ class Ticker:
             remaining = deadline - now
             if remaining <= 0:
                 break
-            if remaining > SPIN_MARGIN_S or not self.spin:
-                time.sleep(max(remaining - (SPIN_MARGIN_S if self.spin else 0.0), 0.0))
+            margin = self.spin_margin_s if self.spin else 0.0
+            if remaining > margin:
+                time.sleep(remaining - margin)
                 if not self.spin:
                     now = time.monotonic()
                     break
