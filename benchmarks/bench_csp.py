@@ -310,6 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(f"first fault during the run: {fault}")
     g_side, wire = reaction
+    if not g_side:
+        return 0
     print(
         f"fault reaction ({len(g_side)} EMCY 0x8611 injected at {args.rate:g} Hz): SYNCs sent "
         f"between the master seeing the fault and its quick stops: max {max(g_side)}"
