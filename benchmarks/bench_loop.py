@@ -23,6 +23,7 @@ process (standing in for drives with their own processors) for P - 1.
 from __future__ import annotations
 
 import argparse
+import atexit
 import os
 import resource
 import shutil
@@ -93,6 +94,15 @@ def in_namespace(argv: list[str]) -> int:
         subprocess.run(["ip", "netns", "del", name], check=False)
 
 
+def _end_child(child: subprocess.Popen) -> None:
+    if child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
@@ -127,6 +137,8 @@ def main() -> None:
             cmd = ["chrt", "-f", str(args.rt_priority - 1), *cmd]
         child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     if child is not None:
+        # Whatever happens from here (a drive fault at enable, Ctrl-C), the child goes too.
+        atexit.register(_end_child, child)
         assert child.stdout is not None
         first = child.stdout.readline().strip()
         if not first:
@@ -186,8 +198,7 @@ def main() -> None:
     if sim is not None:
         sim.stop()
     if child is not None:
-        child.terminate()
-        child.wait(10)
+        _end_child(child)
     work.cleanup()
     load = cycle_load(pdo_cycle_frames(3), period, cfg.can.bitrate)
     where = {

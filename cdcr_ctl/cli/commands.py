@@ -60,6 +60,9 @@ def daemon(obj: Ctx, verbose: bool) -> None:
     # waits for the interpreter lock held by a thread of lower priority.
     try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
     io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
+    attach = getattr(model, "attach_attitude", None)  # models that close a loop on attitudes
+    if attach is not None and io.attitude is not None:
+        attach(io.attitude)
     d = Daemon(cfg, path, io, model, sinks, trajectory)
     try:
         d.start()

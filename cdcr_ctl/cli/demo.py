@@ -1,10 +1,17 @@
-"""``cdcr-ctl demo``: the simulated rig, the daemon and the paper's two experiments, end to end.
+"""``cdcr-ctl demo``: the simulated rig, the daemon and a paper's experiments, end to end.
 
 Three processes, as on a lab PC: ``cdcr-ctl sim`` (the simulated rig: EPOS nodes behind an slcan
-pty, load cells on a pty, tracker on 127.0.0.1), ``cdcr-ctl daemon`` (the controller, with the
-simulator's rig config) and this process talking to the daemon through its control socket like
-any CLI call. Each experiment of Qi et al. 2023 section 5 runs without and with compensation; the
-tip errors come from the logged runs.
+pty, load cells / attitude sensors on ptys, tracker on 127.0.0.1), ``cdcr-ctl daemon`` (the
+controller, with the simulator's rig config) and this process talking to the daemon through its
+control socket like any CLI call. Each experiment runs without and with compensation; the tip
+errors come from the logged runs. ``--design`` picks the rig:
+
+- ``cc_disk``: Qi et al. 2023 section 5, planar bend and spatial circle;
+- ``ujoint``: Yang et al. 2022 section 4.2, go-and-return 0 -> 6 deg -> 0 of every sub-joint
+  (both segments, one plane), ideal geometric model (off) vs section 3's algorithm (model);
+- ``vertebra``: the fuel-tank paper's joystick end-following session (Fig. 12), planned offline
+  from a scripted stick (:func:`cdcr_ctl.model.vertebra_follow.plan_session`) and run as a timed
+  trajectory, kinematic control (off) vs sag compensation (model).
 """
 
 from __future__ import annotations
@@ -67,6 +74,14 @@ def make_session(sim_yaml: Path, work: Path, runs: Path) -> tuple[Path, Path]:
         "port": free_port(),
         "command_port": free_port(),
     }
+    attitude = sensors.get("attitude") or _parent_sensors(base_rig).get("attitude")
+    if attitude:
+        rig_doc["sensors"]["attitude"] = {
+            "sensors": [
+                {**port, "port": str(work / f"attitude{i + 1}")}
+                for i, port in enumerate(attitude["sensors"])
+            ]
+        }
     rig_path = work / "rig.yaml"
     rig_path.write_text(yaml.safe_dump(rig_doc, sort_keys=False))
     sim_doc["rig"] = str(rig_path)
@@ -168,23 +183,66 @@ def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str)
     raise RigError(f"run {name} did not finish")
 
 
+#: The simulator config each design's demo runs on.
+SIM_CONFIGS = {
+    "cc_disk": ROOT_CONFIG / "sim" / "qi2023-truth.yaml",
+    "ujoint": ROOT_CONFIG / "sim" / "yang2022-truth.yaml",
+    "vertebra": ROOT_CONFIG / "sim" / "vertebra-truth.yaml",
+}
+
+
+def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
+    """The timed trajectories of a design's demo (name -> Trajectory)."""
+    import math
+
+    from cdcr_ctl.control import trajectory as tj
+
+    if design == "ujoint":
+        # Yang et al. 2022 section 4.2: [0, 6 deg, 0, 6 deg] and back at uniform speed, i.e. a
+        # sub-joint tilt of 6 deg towards x (phi = 0) in both segments.
+        rate = math.radians(2.0 if quick else 1.0)
+        return {"go_and_return": tj.go_and_return(2, math.radians(6.0), rate, 0.0)}
+    if design == "vertebra":
+        from cdcr_ctl.config.designs import follow_params, vertebra_arm
+        from cdcr_ctl.model.vertebra import EndFollowPlanner
+        from cdcr_ctl.model.vertebra_follow import paper_session, plan_session
+
+        planner = EndFollowPlanner(vertebra_arm(rig_cfg), follow_params(rig_cfg))
+        dt = 1.0 / rig_cfg.control.rate_hz
+        t, psi, _ = plan_session(planner, paper_session(scale=0.5 if quick else 1.0), dt)
+        return {"end_following": tj.Trajectory(t, psi, "end_following", "<joystick session>")}
+    theta_max = 1.2 if quick else 1.5708
+    return {
+        "planar_bend": tj.planar_bend(theta_max_rad=theta_max, back=False, hold_s=1.0),
+        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.6 if quick else 0.314),
+    }
+
+
 @click.command("demo")
+@click.option(
+    "--design",
+    type=click.Choice(sorted(SIM_CONFIGS)),
+    default="cc_disk",
+    show_default=True,
+    help="Which rig to simulate (its simulator config unless --sim-config is given).",
+)
 @click.option(
     "--sim-config",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),
-    default=ROOT_CONFIG / "sim" / "qi2023-truth.yaml",
-    show_default=True,
+    default=None,
+    help="Simulator config [default: config/sim/<the design's>-truth.yaml].",
 )
 @click.option(
     "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-output")
 )
 @click.option("--quick", is_flag=True, help="Shorter experiments (for tests).")
 @click.pass_obj
-def demo(obj: Any, sim_config: Path, out: Path, quick: bool) -> None:
-    """Simulated rig + daemon: planar bend and circle, without and with compensation."""
+def demo(obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool) -> None:
+    """Simulated rig + daemon: a paper's experiments, without and with compensation."""
     from cdcr_ctl.analysis import tip_errors
-    from cdcr_ctl.control import trajectory as tj
+    from cdcr_ctl.config import load_rig_config
 
+    sim_config = sim_config or SIM_CONFIGS[design]
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     session = (out / stamp).resolve()
     work = Path(f"/tmp/cdcr-demo-{os.getpid()}")
@@ -193,11 +251,10 @@ def demo(obj: Any, sim_config: Path, out: Path, quick: bool) -> None:
         d.mkdir(parents=True, exist_ok=True)
     rig_path, sim_path = make_session(sim_config.resolve(), work, runs)
     sock = work / "control.sock"
-    theta_max = 1.2 if quick else 1.5708
-    experiments = {
-        "planar_bend": tj.planar_bend(theta_max_rad=theta_max, back=False, hold_s=1.0),
-        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.6 if quick else 0.314),
-    }
+    rig_cfg = load_rig_config(rig_path)
+    if rig_cfg.design != design:
+        raise click.UsageError(f"{sim_config} is a {rig_cfg.design} rig, not {design}")
+    experiments = experiments_for(design, rig_cfg, quick)
     rows: list[dict[str, Any]] = []
     click.echo(f"demo session: {session}", err=True)
     with (

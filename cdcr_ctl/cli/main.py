@@ -220,7 +220,11 @@ def wait_for_run(obj: Ctx, run_id: str, duration_s: float, progress: bool = True
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (2 for usage/config errors, 1 for rig errors)."""
-    from cdcr_ctl.cli import commands  # noqa: F401  registers the heavier commands
+    from cdcr_ctl.cli import (
+        commands,  # noqa: F401  registers the heavier commands
+        discrepancy,  # noqa: F401  registers discrepancy
+        identify,  # noqa: F401  registers identify, experiments
+    )
 
     try:
         cli.main(

@@ -1,12 +1,17 @@
-"""Build the constant-curvature disk model (:mod:`cdcr_ctl.model`) from a validated rig config.
+"""Build the design's model (the loop's ``RobotModelPort``) from a validated rig config.
 
 The model never imports the config: this module turns the pydantic sections into the model's frozen
 dataclasses, once, at start-up. Cable order is the config's ``robot.cables`` order everywhere.
+``design`` picks the model: ``cc_disk`` :class:`~cdcr_ctl.model.compensation.CCDiskModel` (Qi et
+al. 2023), ``ujoint`` :class:`~cdcr_ctl.model.ujoint.UJointModel` (Yang et al. 2022),
+``vertebra`` :class:`~cdcr_ctl.model.vertebra.VertebraModel` (fuel-tank arm); the builders of the
+last two are in :mod:`cdcr_ctl.config.designs`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from cdcr_ctl.config.robot import RobotConfig
 from cdcr_ctl.config.schema import RigConfig
@@ -20,6 +25,9 @@ from cdcr_ctl.model.params import (
     RobotParams,
     SegmentParams,
 )
+
+if TYPE_CHECKING:
+    from cdcr_ctl.control.ports import RobotModelPort
 
 
 def robot_params(robot: RobotConfig) -> RobotParams:
@@ -82,13 +90,48 @@ def build_model(
     effects: Effects | None = None,
     reversal_band_mm: float | None = None,
     source: str = "rig config",
-) -> CCDiskModel:
-    """The control loop's model (``RobotModelPort``) for a ``cc_disk`` rig.
+) -> RobotModelPort:
+    """The control loop's model (``RobotModelPort``) for the rig's ``design``.
 
-    ``effects`` defaults to every effect on, with the cable geometry of ``control.geometry``;
-    ``reversal_band_mm`` defaults to ``control.reversal_band_mm``. ``source`` names the file in
-    errors. Raises :class:`ConfigError` for other designs.
+    ``cc_disk``: ``effects`` defaults to every effect on, with the cable geometry of
+    ``control.geometry``; ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
+    ``ujoint``/``vertebra``: built by :mod:`cdcr_ctl.config.designs` (``effects`` and
+    ``reversal_band_mm`` do not apply and must be None). ``source`` names the file in errors;
+    a design section that contradicts the drives raises :class:`ConfigError`.
     """
+    if cfg.design != "cc_disk":
+        if effects is not None or reversal_band_mm is not None:
+            raise ConfigError(
+                source, "design", "effects/reversal band are cc_disk options", cfg.design
+            )
+        return build_design_model(cfg, source)
+    return build_cc_disk_model(cfg, effects, reversal_band_mm, source)
+
+
+def build_design_model(cfg: RigConfig, source: str = "rig config") -> RobotModelPort:
+    """The model of a ``ujoint`` or ``vertebra`` rig (see :func:`build_model`)."""
+    from cdcr_ctl.config import designs
+    from cdcr_ctl.model.ujoint import UJointModel
+    from cdcr_ctl.model.vertebra import VertebraModel
+
+    if cfg.design == "ujoint":
+        return UJointModel(
+            designs.ujoint_arm(cfg, source),
+            cable_velocity_mm_s=cfg.limits.cable_velocity_mm_s,
+            period_s=1.0 / cfg.control.rate_hz,
+        )
+    if cfg.design == "vertebra":
+        return VertebraModel(designs.vertebra_arm(cfg, source), designs.attitude_loop_params(cfg))
+    raise ConfigError(source, "design", "no model for this design", cfg.design)
+
+
+def build_cc_disk_model(
+    cfg: RigConfig,
+    effects: Effects | None = None,
+    reversal_band_mm: float | None = None,
+    source: str = "rig config",
+) -> CCDiskModel:
+    """The constant-curvature disk model of a ``cc_disk`` rig (see :func:`build_model`)."""
     if effects is None:
         effects = Effects(geometry=cfg.control.geometry)
     if reversal_band_mm is None:

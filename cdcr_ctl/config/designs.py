@@ -5,10 +5,11 @@
 ``design: vertebra`` - ball-jointed vertebrae on an elastic rod (fuel-tank arm): section
 ``vertebra:`` (:class:`VertebraConfig`), model :class:`cdcr_ctl.model.vertebra.VertebraArm`.
 
-Hook into the rig config: :class:`DesignRigConfig` is ``RigConfig`` plus the two optional keys
-and a check that the section of the chosen design is present (and no other); moving those two
-fields and the validator into ``RigConfig`` itself makes every rig file accept them.
-:func:`check_design` returns cross-file problems in the shape of ``loader.cross_check``.
+Hook into the rig config: ``RigConfig`` (:mod:`cdcr_ctl.config.schema`) carries the two optional
+keys and checks that the section of the chosen design is present (and no other); this module must
+therefore not import the schema or the loader at import time. :func:`check_design` returns
+cross-section problems in the shape of ``loader.cross_check``; the builders run it, so a rig whose
+drives do not match its design's transmission fails when its model is built (before any I/O).
 
 How the shared ``robot:`` section reads for these designs (no key changes meaning silently; what
 is unused is said so):
@@ -40,9 +41,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from cdcr_ctl.config.base import Section
-from cdcr_ctl.config.loader import format_key
 from cdcr_ctl.config.robot import NonNegativeFloat, PositiveFloat
-from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, ConfigErrors
 from cdcr_ctl.model.ujoint import (
     DeformationParams,
@@ -53,6 +52,7 @@ from cdcr_ctl.model.ujoint import (
     calibrate_friction_exponent,
 )
 from cdcr_ctl.model.vertebra import (
+    AttitudeLoopParams,
     FollowParams,
     LinearModule,
     VertebraArm,
@@ -208,11 +208,19 @@ class AttitudeDecodeConfig(Section):
     vector (the rotation maps sensor coordinates to joint-end coordinates; None: axes parallel,
     as the paper mounts them). ``singular_tol``: below this the
     bend direction is taken as undefined (kept from the last decode).
+    Joint-space closed loop (compensation mode ``measured``,
+    :class:`cdcr_ctl.model.vertebra.VertebraModel`): integral gain ``closed_loop_gain_per_s``
+    (bending-vector correction per second per rad of error), correction bounded by
+    ``max_correction_rad`` per joint, joints whose decode ``observability`` is below
+    ``min_observability`` are not corrected.
     """
 
     base_up: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 1.0])
     sensor_mounts_rotvec_rad: list[Vec3] | None = None
     singular_tol: PositiveFloat = 1e-9
+    closed_loop_gain_per_s: PositiveFloat = 5.0
+    max_correction_rad: PositiveFloat = 0.3
+    min_observability: Annotated[float, Field(ge=0, le=1)] = 0.2
 
 
 class VertebraConfig(Section):
@@ -225,29 +233,20 @@ class VertebraConfig(Section):
     attitude: AttitudeDecodeConfig = Field(default_factory=AttitudeDecodeConfig)
 
 
-# =========================================================================== the hook
-class DesignRigConfig(RigConfig):
-    """``RigConfig`` with the design sections (until they move into ``RigConfig``)."""
-
-    ujoint: UJointConfig | None = None
-    vertebra: VertebraConfig | None = None
-
-    @model_validator(mode="after")
-    def _design_section(self) -> DesignRigConfig:
-        for key in ("ujoint", "vertebra"):
-            present = getattr(self, key) is not None
-            if self.design == key and not present:
-                raise ValueError(f"design {key} needs a '{key}:' section")
-            if self.design != key and present:
-                raise ValueError(f"a '{key}:' section is only for design {key}")
-        return self
+# =========================================================================== checks
+def check_design_section(design: str, key: str, section: object) -> None:
+    """Section ``key`` (``ujoint``/``vertebra``) is present exactly when ``design`` is ``key``
+    (ValueError otherwise); called by ``RigConfig``'s validator of that key."""
+    if design == key and section is None:
+        raise ValueError(f"design {key} needs a '{key}:' section")
+    if design != key and section is not None:
+        raise ValueError(f"a '{key}:' section is only for design {key}")
 
 
 def check_design(cfg: Any) -> list[tuple[KeyPath, str, Any]]:
     """Cross-section checks of a ujoint / vertebra rig (shape of ``loader.cross_check``).
 
-    ``cfg`` is a rig config carrying the ``ujoint``/``vertebra`` attributes (DesignRigConfig, or
-    RigConfig once the fields move there). Other designs: no problems.
+    ``cfg`` is a ``RigConfig``. Other designs: no problems.
     """
     problems: list[tuple[KeyPath, str, Any]] = []
     design = cfg.design
@@ -350,6 +349,8 @@ def _lead_screw(uj: UJointConfig) -> LeadScrewDrive:
 
 
 def _raise_problems(problems: list[tuple[KeyPath, str, Any]], source: str) -> None:
+    from cdcr_ctl.config.loader import format_key  # the loader imports the schema, which imports us
+
     if problems:
         raise ConfigErrors([ConfigError(source, format_key(k), m, v) for k, m, v in problems])
 
@@ -476,3 +477,21 @@ def sensor_mounts(cfg: Any) -> list[np.ndarray] | None:
     coordinates), or None when the axes are parallel."""
     rv = cfg.vertebra.attitude.sensor_mounts_rotvec_rad
     return None if rv is None else [rotvec_matrix(np.array(v)) for v in rv]
+
+
+def attitude_loop_params(cfg: Any) -> AttitudeLoopParams:
+    """The attitude closed loop's parameters of a vertebra rig config: the gain per control
+    cycle (``closed_loop_gain_per_s / control.rate_hz``, at most 1), the sensors' staleness and
+    the decode settings."""
+    att = cfg.vertebra.attitude
+    sensors = cfg.sensors.attitude
+    mounts = sensor_mounts(cfg)
+    return AttitudeLoopParams(
+        gain_per_tick=min(1.0, att.closed_loop_gain_per_s / cfg.control.rate_hz),
+        max_correction_rad=att.max_correction_rad,
+        min_observability=att.min_observability,
+        stale_after_s=sensors.stale_after_s if sensors is not None else 0.1,
+        base_up=(att.base_up[0], att.base_up[1], att.base_up[2]),
+        mounts=None if mounts is None else tuple(mounts),
+        singular_tol=att.singular_tol,
+    )

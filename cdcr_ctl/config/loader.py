@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 import yaml
 from pydantic import BaseModel, ValidationError
 
+from cdcr_ctl.config.designs import check_design
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, ConfigErrors
 
@@ -43,6 +44,8 @@ def read_yaml(path: str | Path) -> Any:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(p), "", f"cannot read config file: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(p), f"byte {exc.start}", "not UTF-8 text") from exc
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as exc:
@@ -243,4 +246,5 @@ def cross_check(cfg: RigConfig) -> list[tuple[KeyPath, str, Any]]:
         for i, cell in enumerate(lc.cells):
             if cell.cable not in cables:
                 problems.append(((*where, i, "cable"), "no cable of that name", cell.cable))
+    problems.extend(check_design(cfg))
     return problems

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import Field, ValidationInfo, field_validator
 
 from cdcr_ctl.config.base import Section
 from cdcr_ctl.config.control import ControlConfig, DaemonConfig, LimitsConfig, LoggingConfig
+from cdcr_ctl.config.designs import UJointConfig, VertebraConfig, check_design_section
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
 from cdcr_ctl.config.loadcells import LoadCellsConfig
 from cdcr_ctl.config.robot import Name, RobotConfig
@@ -30,7 +31,11 @@ class SensorsConfig(Section):
 
 
 class RigConfig(Section):
-    """Top level of a rig config file."""
+    """Top level of a rig config file.
+
+    ``ujoint``/``vertebra``: the design's own section (:mod:`cdcr_ctl.config.designs`), required
+    for that design and refused for the others; ``cc_disk`` rigs have neither.
+    """
 
     name: Name
     design: Design = "cc_disk"
@@ -42,3 +47,14 @@ class RigConfig(Section):
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
     logging: LoggingConfig = Field(default_factory=LoggingConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
+    # validate_default: a missing section is checked too, and the error names its key
+    ujoint: UJointConfig | None = Field(default=None, validate_default=True)
+    vertebra: VertebraConfig | None = Field(default=None, validate_default=True)
+
+    @field_validator("ujoint", "vertebra")
+    @classmethod
+    def _design_section(cls, value: Any, info: ValidationInfo) -> Any:
+        design = info.data.get("design")
+        if design is not None:  # else 'design' itself failed and is reported
+            check_design_section(design, info.field_name or "", value)
+        return value

@@ -7,6 +7,7 @@ which drive pulls which cable. Everything is put in cable order (``robot.cables`
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,6 +21,7 @@ from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
 from cdcr_ctl.drives.busload import check_drives_bus_load
 from cdcr_ctl.drives.group import DriveGroup, open_drive_group
 from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.sensors.attitude import AttitudeSensors, open_attitude_sensors
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
 
@@ -80,6 +82,26 @@ class TrackerTip:
 
     def close(self) -> None:
         self.tracker.close()
+
+
+class AttitudeAngles:
+    """:class:`~cdcr_ctl.control.ports.AttitudePort` over :class:`AttitudeSensors` (joint order).
+
+    A stale sensor (no frame within its ``stale_after_s``, or its port failed) reads as NaN
+    angles with its age, so the model falls back to open loop for that joint.
+    """
+
+    def __init__(self, sensors: AttitudeSensors) -> None:
+        self.sensors = sensors
+
+    def latest(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        samples = self.sensors.latest()
+        roll = np.array([math.nan if s.stale else s.roll_rad for s in samples])
+        pitch = np.array([math.nan if s.stale else s.pitch_rad for s in samples])
+        return roll, pitch, np.array([s.age_s for s in samples])
+
+    def close(self) -> None:
+        self.sensors.close()
 
 
 def open_tip(tracker_cfg: TrackerConfig) -> TrackerTip:
@@ -164,6 +186,10 @@ def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None
         if cfg.sensors.tracker is not None:
             tip = open_tip(cfg.sensors.tracker)
             opened.append(tip)
+        attitude: AttitudeAngles | None = None
+        if cfg.sensors.attitude is not None:
+            attitude = AttitudeAngles(open_attitude_sensors(cfg.sensors.attitude))
+            opened.append(attitude)
     except BaseException:
         for dev in reversed(opened):
             with contextlib.suppress(Exception):
@@ -171,8 +197,9 @@ def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None
         raise
 
     def close() -> None:
-        for dev in (tip, tensions, drives):
-            with contextlib.suppress(Exception):
-                dev.close()
+        for dev in (attitude, tip, tensions, drives):
+            if dev is not None:
+                with contextlib.suppress(Exception):
+                    dev.close()
 
-    return RigIO(drives=drives, tensions=tensions, tip=tip, close=close)
+    return RigIO(drives=drives, tensions=tensions, tip=tip, close=close, attitude=attitude)

@@ -65,6 +65,17 @@ class TipPort(Protocol):
     def close(self) -> None: ...
 
 
+class AttitudePort(Protocol):
+    """Attitude sensors, one per joint end (vertebra design), in joint order."""
+
+    def latest(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(roll_rad (N,), pitch_rad (N,), age_s (N,)) of each sensor's newest reading (the
+        sensor's Z-Y-X Euler angles, world z up); NaN angles and inf age where none. Never
+        blocks. Yaw is not part of it (the magnetometer heading is not trusted)."""
+
+    def close(self) -> None: ...
+
+
 class NoTension:
     """A rig without load cells."""
 
@@ -125,3 +136,7 @@ class RobotModelPort(Protocol):
 
     def tip(self, psi: np.ndarray) -> np.ndarray:
         """Tip position in the robot base frame (mm) for ``psi``."""
+
+    # Optional (a design with joint attitude sensors, e.g. ``model.vertebra.VertebraModel``):
+    # ``attach_attitude(port: AttitudePort | None) -> None`` hands the model the sensors its
+    # compensation mode ``measured`` closes the loop on. Whoever opens the sensors calls it.

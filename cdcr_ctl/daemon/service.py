@@ -43,6 +43,8 @@ class RigIO:
     tensions: TensionPort
     tip: TipPort
     close: Callable[[], None]
+    #: Per-joint attitude sensors (:class:`~cdcr_ctl.control.ports.AttitudePort`) or None.
+    attitude: Any = None
 
 
 class Daemon:
@@ -112,6 +114,9 @@ class Daemon:
         if install_signals:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, self._signal)
+            # A file-size limit (RLIMIT_FSIZE) must fail the write (EFBIG, handled like a full
+            # disk by the run log) rather than kill the controller with the drives enabled.
+            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         period = self.notifier.watchdog_period_s() or 1.0
         while not self._stop.wait(min(period, 1.0)):
             if self.loop.running:
@@ -192,6 +197,7 @@ class Daemon:
             "tip_age_s": None if not math.isfinite(tip_age) else round(tip_age, 4),
             "fault": None if trip is None else _trip_dict(trip),
             "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
+            "safety": self._safety_status(),
             "run": snap.pop("run"),
             "runs": [r.__dict__ for r in self.loop.history[-10:]],
             "loop": snap,
@@ -334,6 +340,31 @@ class Daemon:
             self.enabled = False
             self.state = "fault"
         self.notifier.status(f"TRIP {trip.cause}: {trip.detail}")
+
+    def _safety_status(self) -> dict[str, Any]:
+        """What the layers below the supervisor latched: the drive group's first fault with the
+        SYNC counts when it was latched and when the quick stop went out, and a sensor link
+        that failed (each only when the I/O offers it)."""
+        out: dict[str, Any] = {"later_trips": self.supervisor.later_trips}
+        group = getattr(self.io.drives, "group", None)
+        if group is not None:
+            fault = group.fault()
+            out["drives"] = {
+                "sync_count": group.sync_count,
+                "fault": None if fault is None else fault.text,
+                "fault_at_sync": group.fault_at_sync,
+                "quick_stop_at_sync": group.quick_stop_at_sync,
+                "traffic_log_failure": getattr(group, "traffic_failure", None),
+            }
+        sampler = getattr(self.io.tensions, "sampler", None)
+        if sampler is not None:
+            failure = getattr(sampler, "failure", None)
+            out["load_cells"] = {"failure": None if failure is None else str(failure)}
+        tracker = getattr(self.io.tip, "tracker", None)
+        if tracker is not None:
+            failure = getattr(tracker, "failure", None)
+            out["tracker"] = {"failure": None if failure is None else str(failure)}
+        return out
 
     def _status_line(self) -> str:
         run = self.loop.snapshot()["run"]

@@ -5,7 +5,15 @@ Given the desired pose psi of every segment and the friction state, the chain of
 -> base tensions -> pulley friction -> actuator tensions (and the tension at each load cell) ->
 elongation delta -> q~ = q_geom + delta. With the tensions of the load cells in place of the
 modelled ones (mode ``"measured"``) only the friction propagation and the elongation are
-modelled. Zero friction and rigid cables give delta = 0 exactly.
+modelled, and the pretension (no-moment) mode of each segment's measured tensions is pinned by
+the model's pretension rule (:meth:`Compensator.measured_transfer` says why: fed forward, it
+closes a loop of gain ~1). Zero friction and rigid cables give delta = 0 exactly.
+
+Reversals (eq. 17-19 with memory): the friction sign follows the direction in which cable
+material crosses the base hole; pulling in (+1) needs more cable than paying out (-1) at one
+pose, by the dead zone the truth's stuck cable makes the actuator travel. With
+``reversal_band_mm`` = 0 the command crosses that dead zone in one step (the exact inverse); a
+band spreads it over that much cable travel, so a reversal does not demand a velocity step.
 
 Two ways in:
 
@@ -31,7 +39,7 @@ from cdcr_ctl.model.friction import FrictionState, band_update, direction_update
 from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects, Location, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
-from cdcr_ctl.model.transfer import ForceTransfer, Transfer
+from cdcr_ctl.model.transfer import ForceTransfer, Pose, Transfer
 
 MODES = ("off", "model", "measured")
 
@@ -87,6 +95,7 @@ class Compensator:
             raise ModelError(f"need one load-cell location per cable ({K})")
         self.reversal_band_mm = float(reversal_band_mm)
         self._lengths = [s.length_mm for s in params.segments]
+        self._T0 = [c.pretension_N for c in params.cables]
         self._B = cable_matrix_x(params)
 
     @property
@@ -123,12 +132,60 @@ class Compensator:
         if mode == "measured":
             if measured_N is None:
                 raise ModelError("mode 'measured' needs load-cell tensions")
-            return self.transfer.evaluate_measured(
-                xs, s_list, [float(v) for v in measured_N], self.locations
-            )
+            return self.measured_transfer(xs, s_list, [float(v) for v in measured_N])
         if mode not in MODES:
             raise ModelError(f"compensation mode must be one of {MODES}, not {mode!r}")
         return self.transfer.evaluate(xs, s_list)
+
+    def measured_transfer(
+        self, xs: list[float], s: list[float], measured_N: list[float], pose: Pose | None = None
+    ) -> Transfer:
+        """The chain with load-cell tensions in place of the modelled ones, common mode pinned.
+
+        Each reading (N, at :attr:`locations`; NaN: use the model) is carried to the anchor
+        through the friction of state ``s`` (eq. 23, 29-32). What the compensation then feeds
+        forward is the stretch those tensions cause (eq. 33-37), with one exception: the
+        *pretension mode* of each segment, the combination of its own cables' mean tensions
+        that produces no moment (for three cables at 120 deg about [1, 1, 1]; in general the
+        null vector n of the 2 x m arm matrix, Qi eq. 10). The load cells cannot be trusted
+        along it in a feedforward: a common rise of the measured tensions commands a common
+        extra pull delta = T L / EA, which raises the tensions by T L_true / EA_true, a loop
+        gain of about 1 (a neutrally stable integrator that, with noise and lag, drifts the
+        cables slack or tight; seen on the simulated rig). So the measured mean tensions of a
+        segment's own cables are shifted along n until the least-tensioned one sits at its
+        pretension, the same rule as the model's statics; the moment they carry (the part that
+        bends the robot) is the measured one. A segment with a missing reading, or whose null
+        vector is not all of one sign, is used as measured.
+        """
+        tr = self.transfer
+        P = tr.pose(xs) if pose is None else pose
+        Fb, Eb = tr.factors(P, s)
+        K = self.n_cables
+        T: list[float] = [0.0] * K
+        missing = [False] * K
+        T_model: list[float] | None = None
+        for k in range(K):
+            v = measured_N[k]
+            if v != v:  # NaN: no reading for this cable
+                if T_model is None:
+                    T_model = tr.statics(P, Fb)
+                T[k] = T_model[k]
+                missing[k] = True
+                continue
+            Tb = v if self.locations[k] == "robot_base" else tr.base_from_actuator(k, v, s[k])
+            T[k] = Tb * math.exp(-Eb[k])
+        for i in range(self.n_segments):
+            own = list(self.params.cables_of(i))
+            if any(missing[k] for k in own):
+                continue
+            n = _null_vector([P.arm[k][i] for k in own])
+            if n is None:
+                continue
+            M = [T[k] * Fb[k][i] for k in own]
+            c = max((self._T0[k] - M[j]) / n[j] for j, k in enumerate(own))
+            for j, k in enumerate(own):
+                T[k] = (M[j] + c * n[j]) / Fb[k][i]
+        return tr.evaluate(xs, s, T_distal=T, pose=P)
 
     # ------------------------------------------------------------------ stateful
     def new_state(self, friction: FrictionState | None = None) -> CompensationState:
@@ -175,9 +232,7 @@ class Compensator:
         if mode == "measured":
             if measured_N is None:
                 raise ModelError("mode 'measured' needs load-cell tensions")
-            res = tr.evaluate_measured(
-                xs, new_s, [float(v) for v in measured_N], self.locations, pose=P
-            )
+            res = self.measured_transfer(xs, new_s, [float(v) for v in measured_N], P)
         state.last = res
         return res
 
@@ -188,6 +243,30 @@ class Compensator:
         for j in range(len(effs) - 1, -1, -1):
             q = effs[j].to_actuator(q, state.effect_states[j])
         return q
+
+
+def _null_vector(arms: list[tuple[float, float]]) -> list[float] | None:
+    """Positive n with sum_j n_j arms_j = 0 (max component 1), for 2 or 3 arms; else None.
+
+    Three arms: n = (a2 x a3, a3 x a1, a1 x a2) (2D cross products); two opposed arms:
+    n = (|a2|, |a1|). None when the arms admit no such vector of one sign.
+    """
+    if len(arms) == 3:
+        (x1, y1), (x2, y2), (x3, y3) = arms
+        n = [x2 * y3 - y2 * x3, x3 * y1 - y3 * x1, x1 * y2 - y1 * x2]
+    elif len(arms) == 2:
+        (x1, y1), (x2, y2) = arms
+        if abs(x1 * y2 - y1 * x2) > 1e-9 * (x1 * x1 + y1 * y1 + x2 * x2 + y2 * y2):
+            return None
+        n = [math.hypot(x2, y2), math.hypot(x1, y1)]
+    else:
+        return None
+    if all(v < 0.0 for v in n):
+        n = [-v for v in n]
+    top = max(n)
+    if top <= 0.0 or min(n) <= 1e-9 * top:
+        return None
+    return [v / top for v in n]
 
 
 class CCDiskModel(Compensator):

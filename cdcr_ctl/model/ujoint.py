@@ -59,9 +59,11 @@ NEWTON_STEP_TOL_RAD = 1e-13
 #: Newton iteration of eq. 10: give up after this many iterations.
 NEWTON_MAX_ITER = 60
 #: A change of a joint angle smaller than this (rad) counts as "not moving" (eq. 17, theta_dot = 0).
-MOTION_EPS_RAD = 1e-12
-#: A change of a cable output smaller than this (mm) keeps the cable's last direction.
-CABLE_MOTION_EPS_MM = 1e-12
+#: Above the statics' round-off (STATICS_TOL_RAD) so that solver noise at rest is no motion.
+MOTION_EPS_RAD = 1e-9
+#: A change of a cable output smaller than this (mm) keeps the cable's last direction: above the
+#: statics' round-off (~1e-8 mm of cable), far below an encoder count (~1e-4 mm).
+CABLE_MOTION_EPS_MM = 1e-6
 #: Central-difference step for the geometric stiffness of the pretension (rad).
 FD_STEP_RAD = 1e-6
 #: Iterations of the statics and of its inverse, and their tolerance (rad), which sits above the
@@ -360,11 +362,17 @@ class UJointEffects:
 
     ``dead_zone``: cable stick at direction reversal (section 4.1); ``deformation``: eq. 14-17;
     ``statics``: cable elasticity with pretension vs gravity (:func:`statics_angles`).
+    ``friction_driven_deformation`` (truth only): the sign of eq. 14/17 comes from the friction
+    state of the distal segment's own cables (:func:`cable_friction_state`,
+    :func:`segment_friction_direction`) instead of sgn(theta_dot_m): the friction torque reverses
+    while those cables cross their dead zone, not at the first tiny backward motion of the distal
+    angle (which the proximal segment's own motion can cause through the coupling of eq. 11).
     """
 
     dead_zone: bool = True
     deformation: bool = True
     statics: bool = True
+    friction_driven_deformation: bool = False
 
 
 # =========================================================================== rotations
@@ -819,12 +827,13 @@ def deformation_rad(
     eq. 14 / 16-17 as set out in :class:`DeformationParams` (rad).
 
     ``theta_n`` (N, 2): the segments' (undeformed) angles; ``distal_direction`` (N, 2):
-    sgn(theta_dot) of every segment coordinate (+1, -1, 0). The most distal segment never deforms
+    sgn(theta_dot) of every segment coordinate (+1, -1, 0), or a friction state in [-1, 1]
+    (:func:`segment_friction_direction`). The most distal segment never deforms
     (no cable drives through it).
     """
     p = arm.deformation
     t = np.asarray(theta_n, dtype=float)
-    s = np.sign(np.asarray(distal_direction, dtype=float))
+    s = np.clip(np.asarray(distal_direction, dtype=float), -1.0, 1.0)  # sgn, or a friction state
     out = np.zeros_like(t)
     if p.kind == "off":
         return out
@@ -879,6 +888,43 @@ def motion_direction(
     if hold:
         sign = np.where(sign == 0.0, last, sign)
     return sign
+
+
+def cable_friction_state(
+    q_in_mm: np.ndarray, q_out_mm: np.ndarray, pull_mm: np.ndarray, release_mm: np.ndarray
+) -> np.ndarray:
+    """Where each cable is in its dead zone, sigma in [-1, 1] (the sign and share of the full
+    sliding friction it carries): +1 sliding while pulled in (q_in - q_out = e_p), -1 while
+    released (q_in - q_out = -e_r), linear in between (stick: the friction force builds up
+    along the cable as the input crosses the dead zone, :func:`dead_zone_mm`). A cable with no
+    dead zone: 0."""
+    half = 0.5 * (np.asarray(pull_mm) + np.asarray(release_mm))
+    mid = 0.5 * (np.asarray(pull_mm) - np.asarray(release_mm))
+    lag = np.asarray(q_in_mm, dtype=float) - np.asarray(q_out_mm, dtype=float)
+    safe = np.where(half > 0, half, 1.0)
+    return np.where(half > 0, np.clip((lag - mid) / safe, -1.0, 1.0), 0.0)
+
+
+def segment_friction_direction(arm: UJointArm, theta: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """Per segment and coordinate, the direction of its cables' friction torque (N, 2) in
+    [-1, 1], the continuous stand-in for sgn(theta_dot_m) of eq. 14/17.
+
+    A cable k pulled in (q_dot > 0) moves the segment with J_k . theta_dot < 0 (its path
+    shortens, J = :func:`segment_cable_jacobian`), so sliding along theta_dot_j > 0 gives
+    sigma_k = -sgn(J_kj) for the cables that carry coordinate j, and
+    s_j = -(J^T sigma)_j / sum_k |J_kj| = +1; sliding back gives -1; in between (cables in their
+    dead zone) s moves smoothly; at rest after a move it keeps its value (static friction).
+    """
+    t = np.asarray(theta, dtype=float)
+    out = np.zeros((arm.n_segments, 2))
+    for n, seg in enumerate(arm.segments):
+        own = arm.own_cables[n]
+        _, J = segment_cable_jacobian(
+            t[n, 0], t[n, 1], arm.betas[own], arm.rhos[own], seg.half_gap_mm, seg.n_subjoints
+        )
+        norm = np.abs(J).sum(axis=0)
+        out[n] = np.where(norm > 0, -(J.T @ sigma[own]) / np.where(norm > 0, norm, 1.0), 0.0)
+    return np.clip(out, -1.0, 1.0)
 
 
 # =========================================================================== statics
@@ -1145,6 +1191,10 @@ def truth_angles(
     direction = motion_direction(
         kin, st.theta_kin, st.direction, arm.deformation.hold_when_stopped, MOTION_EPS_RAD
     )
+    if eff.friction_driven_deformation and eff.dead_zone:
+        pull, release = arm.dead_zones_mm
+        sigma = cable_friction_state(q_in, q_out, pull, release)
+        direction = segment_friction_direction(arm, kin, sigma)
     if eff.deformation and arm.deformation.kind != "off":
         # deformation of n needs only segments <= n solved: one pass, proximal first
         N = arm.n_segments
@@ -1270,34 +1320,100 @@ def compensate(
 
 
 # =========================================================================== loop adapter
+def joint_angles_from_psi(psi: np.ndarray) -> np.ndarray:
+    """Sub-joint angles (theta_{2n-1}, theta_{2n}) (N, 2) from the loop's rows (tilt, direction).
+
+    The loop, its trajectories and logs speak one language for every design: per segment a bend
+    magnitude >= 0 and its direction (rad). For this design the bend is the TILT of one sub-joint
+    (the angle between the z axes of D1 and D2, which every sub-joint of the segment shares) and
+    the direction phi is where that tilt points, from x about z. With the sub-joint rotation
+    Rx(a) Ry(b) (eq. 4), the tilted axis is Rx(a) Ry(b) e_z = (sin b, -sin a cos b, cos a cos b)
+    = (sin t cos phi, sin t sin phi, cos t), so
+
+        b = asin(sin t cos phi),   a = atan2(-sin t sin phi, cos t)       (t in [0, pi/2))
+
+    e.g. (t, 0) -> (0, t): Yang's go-and-return [0, 6 deg, 0, 6 deg] is t = 6 deg, phi = 0 for
+    both segments. Smooth through t = 0 (a ~ -t sin phi, b ~ t cos phi).
+    """
+    p = np.asarray(psi, dtype=float)
+    st, ct = np.sin(p[:, 0]), np.cos(p[:, 0])
+    b = np.arcsin(np.clip(st * np.cos(p[:, 1]), -1.0, 1.0))
+    a = np.arctan2(-st * np.sin(p[:, 1]), ct)
+    return np.column_stack((a, b))
+
+
+def psi_from_joint_angles(theta: np.ndarray, phi_if_straight: float = 0.0) -> np.ndarray:
+    """Inverse of :func:`joint_angles_from_psi`: rows (tilt >= 0, direction) from (a, b) (rad)."""
+    t = np.asarray(theta, dtype=float)
+    a, b = t[:, 0], t[:, 1]
+    v = np.column_stack((np.sin(b), -np.sin(a) * np.cos(b), np.cos(a) * np.cos(b)))
+    tilt = np.arctan2(np.hypot(v[:, 0], v[:, 1]), v[:, 2])
+    phi = np.where(tilt > 0.0, np.arctan2(v[:, 1], v[:, 0]), phi_if_straight)
+    return np.column_stack((tilt, phi))
+
+
+#: Share of the cable velocity limit the compensation term may use on top of the ideal motion,
+#: and the share it may always use (even when the ideal motion alone is near the limit).
+DELTA_HEADROOM = 0.9
+DELTA_FLOOR = 0.05
+
+
 @dataclass
 class UJointLoopState:
-    """Mutable holder of the compensation memory for :class:`UJointModel`."""
+    """Mutable holder of the compensation memory for :class:`UJointModel`: section 3's state,
+    the compensation term now applied (mm, rate-limited) and the last ideal command (mm)."""
 
     comp: UJointCompState
+    delta_mm: np.ndarray | None = None
+    q_nominal_prev: np.ndarray | None = None
 
 
 class UJointModel:
     """The universal-joint design as the control loop's ``RobotModelPort``.
 
-    ``psi`` rows are (theta_{2n-1}, theta_{2n}) of the paper (sub-joint angles about x and y, rad),
-    NOT the (bend, direction) pair of the constant-curvature design. Cable displacements are mm
-    pulled in at the drives, in ``arm.cables`` order. ``effects`` selects what mode ``model``
-    compensates; mode ``measured`` has no meaning here (no tension-based model) and raises.
+    ``psi`` rows are (tilt, direction) per segment (:func:`joint_angles_from_psi`), the same
+    (bend, direction) form as the other designs, so trajectories, logs and limits
+    (``limits.bend_rad`` is the sub-joint tilt) need nothing design-specific; internally every
+    call converts them to the paper's (theta_{2n-1}, theta_{2n}). Cable displacements are mm pulled
+    in at the drives, in ``arm.cables`` order. ``effects`` selects what mode ``model`` compensates
+    (section 3's algorithm, :func:`compensate`); mode ``measured`` has no meaning here (no
+    tension-based model) and raises.
+
+    The dead zone makes section 3's command STEP by e_p + e_r (up to ~1 mm) where a cable
+    reverses, and the proximal deformation term flips with it. With ``cable_velocity_mm_s`` and
+    ``period_s`` given, the compensation term delta = q_command - q_nominal moves towards its
+    target by the same fraction on every cable per cycle, the largest fraction for which no cable
+    exceeds the headroom the ideal motion leaves under the velocity limit,
+    max(DELTA_HEADROOM v dt - |dq_nominal|, DELTA_FLOOR v dt): a synchronised move, so the distal
+    cables cross their dead zone (reversing the friction torque) while the proximal cables take up
+    the reversed deformation, and the command never exceeds the limit the supervisor enforces.
     """
 
-    def __init__(self, arm: UJointArm, effects: UJointEffects | None = None) -> None:
+    def __init__(
+        self,
+        arm: UJointArm,
+        effects: UJointEffects | None = None,
+        cable_velocity_mm_s: float | None = None,
+        period_s: float | None = None,
+    ) -> None:
         self.arm = arm
         self.effects = effects or UJointEffects()
         self.n_segments = arm.n_segments
         self.n_cables = arm.n_cables
+        if (cable_velocity_mm_s is None) != (period_s is None):
+            raise ModelError("give both cable_velocity_mm_s and period_s, or neither")
+        self.step_mm: float | None = None
+        if cable_velocity_mm_s is not None and period_s is not None:
+            self.step_mm = cable_velocity_mm_s * period_s
+        if self.step_mm is not None and not self.step_mm > 0:
+            raise ModelError("cable velocity and period must be > 0")
 
     def new_state(self) -> UJointLoopState:
         return UJointLoopState(UJointCompState.initial(self.arm))
 
     def q_nominal(self, psi: np.ndarray) -> np.ndarray:
-        """Ideal inverse kinematics, eq. 11 (mm pulled in)."""
-        return cable_displacements(self.arm, psi)
+        """Ideal inverse kinematics, eq. 11 (mm pulled in): the ideal geometric model."""
+        return cable_displacements(self.arm, joint_angles_from_psi(psi))
 
     def q_command(
         self,
@@ -1313,14 +1429,33 @@ class UJointModel:
             raise ModelError("q_command needs the state made by new_state()")
         if mode not in ("off", "model"):
             raise ModelError(f"the ujoint model compensates in mode off or model, not {mode!r}")
+        theta = joint_angles_from_psi(psi)
         q_comp, state.comp = compensate(
-            self.arm, psi, state.comp, self.effects, statics_evals=LOOP_STATICS_EVALS
+            self.arm, theta, state.comp, self.effects, statics_evals=LOOP_STATICS_EVALS
         )
         q = np.asarray(q_nominal, dtype=float)
+        q_prev = state.q_nominal_prev
+        state.q_nominal_prev = q.copy()
         if mode == "off":
+            state.delta_mm = None  # the loop ramps a mode switch out itself
             return q
-        return q + (q_comp - cable_displacements(self.arm, psi))
+        target = q_comp - cable_displacements(self.arm, theta)
+        if self.step_mm is None or state.delta_mm is None:
+            delta = target if self.step_mm is None else np.zeros_like(target)
+        else:
+            delta = state.delta_mm
+        if self.step_mm is not None:
+            moved = np.zeros_like(q) if q_prev is None else np.abs(q - q_prev)
+            room = np.maximum(DELTA_HEADROOM * self.step_mm - moved, DELTA_FLOOR * self.step_mm)
+            # every cable covers the same fraction of its way per cycle: the distal cables
+            # cross their dead zone (reversing the friction torque) in step with the proximal
+            # cables taking up the reversed deformation, as one synchronised move
+            need = np.abs(target - delta)
+            frac = float(np.min(np.where(need > room, room / np.maximum(need, 1e-300), 1.0)))
+            delta = delta + frac * (target - delta)
+        state.delta_mm = delta
+        return q + delta
 
     def tip(self, psi: np.ndarray) -> np.ndarray:
         """Tip position in the robot base frame (mm), eq. 1-2."""
-        return tip_position(self.arm, psi)
+        return tip_position(self.arm, joint_angles_from_psi(psi))

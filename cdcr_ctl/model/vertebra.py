@@ -1054,22 +1054,133 @@ def statics_inverse_x(arm: VertebraArm, x_target: np.ndarray) -> np.ndarray:
     raise ModelError("statics inverse did not converge (sag too large for small deflection)")
 
 
+def statics_inverse_step(arm: VertebraArm, x_target: np.ndarray, guess: np.ndarray) -> np.ndarray:
+    """One fixed-point step of :func:`statics_inverse_x` from ``guess`` (the control loop's warm
+    start: its error is |d sag / d x| times the change of the sag offset since the last tick)."""
+    target = np.asarray(x_target, dtype=float).reshape(-1, 2)
+    pre = np.asarray(guess, dtype=float).reshape(-1, 2)
+    return pre + (target - statics_x(arm, pre)[0])
+
+
 # =========================================================================== loop adapter
+#: Default integral gain of the attitude loop (1/s): bending-vector correction per second per
+#: rad of error. Sensor at 100 Hz with ~10-30 ms delay: 5/s keeps > 60 deg of phase margin.
+ATTITUDE_GAIN_PER_S = 5.0
+#: Largest attitude correction of one joint's bending vector (rad): a wrong sensor cannot drive
+#: the arm far (anti-windup).
+ATTITUDE_MAX_CORRECTION_RAD = 0.3
+#: A joint whose decode observability is below this is not corrected (gravity nearly along its
+#: bend axis: the tilt does not show the bend).
+ATTITUDE_MIN_OBSERVABILITY = 0.2
+#: The error the integral sees is saturated at this (rad per joint): the correction then moves
+#: at most gain * this rad/s (5/s * 0.02 = 0.1 rad/s, ~1.5 mm/s of cable at r = 15 mm), so a
+#: decode jump or a large transient error cannot push the cables past their speed limit.
+ATTITUDE_MAX_ERROR_RAD = 0.02
+
+
+@dataclass(frozen=True)
+class AttitudeLoopParams:
+    """The joint-space closed loop on the attitude sensors (mode ``measured``).
+
+    ``gain_per_tick``: integral gain per control cycle (gain per s times the period);
+    ``max_correction_rad``, ``min_observability``, ``max_error_rad``: see the constants;
+    ``stale_after_s``: older readings are not used (the correction is held); ``base_up``,
+    ``mounts``, ``singular_tol``: :func:`decode_joint_attitudes`.
+    """
+
+    gain_per_tick: float = ATTITUDE_GAIN_PER_S / 100.0
+    max_correction_rad: float = ATTITUDE_MAX_CORRECTION_RAD
+    min_observability: float = ATTITUDE_MIN_OBSERVABILITY
+    max_error_rad: float = ATTITUDE_MAX_ERROR_RAD
+    stale_after_s: float = 0.1
+    base_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    mounts: tuple[np.ndarray, ...] | None = None
+    singular_tol: float = SINGULAR_TOL
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.gain_per_tick <= 1.0 and self.max_correction_rad > 0):
+            raise ModelError("attitude loop: 0 < gain_per_tick <= 1 and max_correction_rad > 0")
+
+
+@dataclass
+class VertebraLoopState:
+    """Memory of :class:`VertebraModel` between cycles: the statics offset (warm start, x_kin -
+    x_target), the attitude loop's integral correction (N, 2 bending vectors), the last decoded
+    directions (continuity through singular poses) and the last measured joint poses."""
+
+    sag_offset: np.ndarray | None = None
+    correction: np.ndarray | None = None
+    prev_phi: np.ndarray | None = None
+    measured_psi: np.ndarray | None = None
+    updates: int = 0
+
+
 class VertebraModel:
     """The vertebra design as the control loop's ``RobotModelPort``: psi rows (theta, phi) per
-    joint (rad); mm pulled in, cable order. Mode ``model`` compensates the statics sag
-    (:func:`statics_inverse_x`); ``measured`` has no meaning here and raises."""
+    joint (rad); mm pulled in, cable order.
 
-    def __init__(self, arm: VertebraArm) -> None:
+    Modes: ``off`` the paper's kinematic control (eq. 5); ``model`` adds the statics sag
+    compensation (:func:`statics_inverse_x`, warm-started: one statics evaluation per cycle);
+    ``measured`` closes a joint-space loop on the attitude sensors: each cycle the joints' poses
+    are decoded from the sensors (eq. 6-8, :func:`decode_joint_attitudes`) and the commanded
+    bending vectors are corrected by an integral of their error,
+
+        c <- clip(c + g (x_cmd - x_measured)),   q = eq. 5 (x_cmd + c),
+
+    per joint while its reading is fresh and observable (else c is held). The sensors reach the
+    model through :meth:`attach_attitude` (an :class:`~cdcr_ctl.control.ports.AttitudePort`:
+    latest roll, pitch and age per joint, never blocking); without one, ``measured`` raises.
+    """
+
+    def __init__(self, arm: VertebraArm, attitude_loop: AttitudeLoopParams | None = None) -> None:
         self.arm = arm
         self.n_segments = arm.n_joints
         self.n_cables = arm.n_cables
+        self.attitude_loop = attitude_loop or AttitudeLoopParams()
+        self.attitude: object | None = None
 
-    def new_state(self) -> None:
-        return None
+    def attach_attitude(self, port: object | None) -> None:
+        """Use ``port`` (``latest() -> (roll_rad (N,), pitch_rad (N,), age_s (N,))``) in mode
+        ``measured``; None detaches."""
+        self.attitude = port
+
+    def new_state(self) -> VertebraLoopState:
+        return VertebraLoopState()
 
     def q_nominal(self, psi: np.ndarray) -> np.ndarray:
         return cable_displacements(self.arm, psi)
+
+    def measure(self, state: VertebraLoopState) -> tuple[np.ndarray, np.ndarray] | None:
+        """Decode the attached sensors: (psi (N, 2), usable (N,) bool), or None without sensors.
+
+        A joint is usable when its sensor and its parent's are fresh and its observability is
+        at least ``min_observability``.
+        """
+        if self.attitude is None:
+            return None
+        p = self.attitude_loop
+        roll, pitch, age = (np.asarray(v, dtype=float) for v in self.attitude.latest())  # type: ignore[attr-defined]
+        N = self.arm.n_joints
+        if roll.shape != (N,) or pitch.shape != (N,):
+            raise ModelError(f"attitude port gave {roll.shape} readings for {N} joints")
+        fresh = np.isfinite(roll) & np.isfinite(pitch) & (np.asarray(age) <= p.stale_after_s)
+        if not fresh.any():
+            return np.zeros((N, 2)), np.zeros(N, dtype=bool)
+        dec = decode_joint_attitudes(
+            np.where(fresh, roll, 0.0),
+            np.where(fresh, pitch, 0.0),
+            np.asarray(p.base_up),
+            None if p.mounts is None else list(p.mounts),
+            state.prev_phi,
+            p.singular_tol,
+        )
+        psi = np.array([[d.theta, d.phi] for d in dec])
+        parent_fresh = np.concatenate(([True], fresh[:-1]))
+        obs = np.array([d.observability for d in dec])
+        usable = fresh & parent_fresh & (obs >= p.min_observability)
+        state.prev_phi = psi[:, 1].copy()
+        state.measured_psi = psi
+        return psi, usable
 
     def q_command(
         self,
@@ -1079,13 +1190,41 @@ class VertebraModel:
         mode: str,
         measured_N: np.ndarray | None,
     ) -> np.ndarray:
+        if not isinstance(state, VertebraLoopState):
+            raise ModelError("q_command needs the state made by new_state()")
         if mode == "off":
             return np.asarray(q_nominal, dtype=float)
-        if mode != "model":
-            raise ModelError(f"the vertebra model compensates in mode off or model, not {mode!r}")
-        x_kin = statics_inverse_x(self.arm, x_from_psi(_psi_array(psi, self.arm.n_joints)))
+        p_cmd = _psi_array(psi, self.arm.n_joints)
+        x_cmd = x_from_psi(p_cmd)
+        if mode == "model":
+            guess = x_cmd if state.sag_offset is None else x_cmd + state.sag_offset
+            x_kin = statics_inverse_step(self.arm, x_cmd, guess)
+            state.sag_offset = x_kin - x_cmd
+            return np.asarray(q_nominal, dtype=float) + (
+                cable_displacements(self.arm, psi_from_xs(x_kin, p_cmd[:, 1]))
+                - cable_displacements(self.arm, p_cmd)
+            )
+        if mode != "measured":
+            raise ModelError(
+                f"the vertebra model compensates in mode off, model or measured, not {mode!r}"
+            )
+        got = self.measure(state)
+        if got is None:
+            raise ModelError("mode measured needs the attitude sensors (none attached)")
+        psi_meas, usable = got
+        c = np.zeros_like(x_cmd) if state.correction is None else state.correction
+        err = x_cmd - x_from_psi(psi_meas)
+        p = self.attitude_loop
+        e_norm = np.hypot(err[:, 0], err[:, 1])
+        err = err * np.minimum(1.0, p.max_error_rad / np.maximum(e_norm, 1e-300))[:, None]
+        c = c + np.where(usable[:, None], p.gain_per_tick * err, 0.0)
+        norm = np.hypot(c[:, 0], c[:, 1])
+        c = c * np.minimum(1.0, p.max_correction_rad / np.maximum(norm, 1e-300))[:, None]
+        state.correction = c
+        state.updates += int(usable.any())
         return np.asarray(q_nominal, dtype=float) + (
-            cable_displacements(self.arm, psi_from_xs(x_kin)) - cable_displacements(self.arm, psi)
+            cable_displacements(self.arm, psi_from_xs(x_cmd + c, p_cmd[:, 1]))
+            - cable_displacements(self.arm, p_cmd)
         )
 
     def tip(self, psi: np.ndarray) -> np.ndarray:

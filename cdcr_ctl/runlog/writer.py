@@ -14,9 +14,10 @@ A run directory holds
 Real-time path: :meth:`RunLogWriter.write` appends the row object to a bounded deque and returns
 (no lock, no I/O, no formatting). A writer thread wakes every :data:`DRAIN_INTERVAL_S`, formats
 the queued rows as CSV, writes and flushes them (a killed process keeps everything flushed) and
-fsyncs every ``fsync_every_s`` (a power cut keeps everything fsynced). A write error (disk full)
-stops the writing, keeps what is on disk and is exposed by :attr:`RunLogWriter.failure` and the
-``on_failure`` callback; nothing raises into the caller of ``write``.
+fsyncs every ``fsync_every_s`` (a power cut keeps everything fsynced). A write error (disk full,
+a file-size limit) stops the writing, cuts a partly written batch back to the last whole row, keeps
+what is on disk and is exposed by :attr:`RunLogWriter.failure` and the ``on_failure`` callback;
+nothing raises into the caller of ``write``.
 """
 
 from __future__ import annotations
@@ -419,6 +420,7 @@ class RunLogWriter:
             except (OSError, ValueError) as exc:
                 self._lost += len(batch)
                 self._fail(exc, "write")
+                self._trim_partial_row()
                 continue
             self._written += len(batch)
             self._bytes += len(data)
@@ -487,6 +489,22 @@ class RunLogWriter:
                 self._on_failure(self._failure)
             except Exception:
                 log.exception("run log on_failure callback raised")
+
+    def _trim_partial_row(self) -> None:
+        """After a failed write (disk full, file-size limit) part of the batch may have reached
+        the file: cut it back to the last whole row written, so the file ends on a complete row.
+        Truncating frees space, so it works on a full disk; it never grows the file."""
+        try:
+            size = os.stat(self.samples_path).st_size
+            if size > self._bytes:
+                os.truncate(self.samples_path, self._bytes)
+                log.warning(
+                    "%s: cut %d bytes of a partly written batch",
+                    self.samples_path,
+                    size - self._bytes,
+                )
+        except OSError as exc:
+            log.error("%s: cannot cut the partial row: %s", self.samples_path, exc)
 
     def _finish(self) -> None:
         try:

@@ -4,7 +4,9 @@ A callable returns the truth tensions (N) per cell; :class:`SensorNoise` adds Ga
 linear drift and random dropouts (no reply / a missing line). Fault hooks let tests and the
 simulated rig break the link on purpose: :meth:`PtySim.drop_next`, :meth:`PtySim.corrupt_next`
 (bad CRC / unparsable line), :meth:`PtySim.inject_garbage`, :meth:`PtySim.split_next` (a frame
-written in two pieces) and :meth:`PtySim.disconnect` (the pty is closed, as if unplugged).
+written in two pieces), :meth:`PtySim.garble_for` (nothing valid for a while),
+:meth:`PtySim.disconnect` (the pty is closed, as if unplugged) / :meth:`PtySim.reconnect`, and
+:meth:`TensionFeed.spike` (``sim.feed.spike``: a snagged cable reads high).
 
 Timing: a pty moves bytes instantly and ignores the baud rate. With ``emulate_baud`` the Modbus
 slave answers when a real bus would have delivered its last reply byte (request + t3.5 + reply
@@ -67,6 +69,9 @@ FRAME_GAP_S = 0.02
 #: How long the serving thread blocks in one read before checking for stop (s).
 POLL_S = 0.02
 
+#: Line noise sent before every frame while :meth:`PtySim.garble_for` is in force.
+GARBLE_NOISE = b"\x00\xff\x55\xaa#?\r"
+
 #: Registers past the highest one the map uses that still read as 0 (beyond: illegal address).
 SPARE_REGISTERS = 16
 
@@ -120,6 +125,15 @@ class TensionFeed:
         )
         if len(self.drift_N_per_s) != n_cells:
             raise ValueError(f"{len(self.drift_N_per_s)} drift rates for {n_cells} cells")
+        #: Per cell: (extra tension N, until clock s) of an injected spike (a snagged cable).
+        self._spikes: dict[int, tuple[float, float]] = {}
+
+    def spike(self, index: int, add_N: float, duration_s: float) -> None:
+        """Fault hook: cell ``index`` reads ``add_N`` (N) more than the truth for
+        ``duration_s`` (s), as when its cable snags on a guide."""
+        if not 0 <= index < self.n_cells:
+            raise IndexError(f"no load cell {index} (have {self.n_cells})")
+        self._spikes[index] = (float(add_N), self.clock() + float(duration_s))
 
     def measure(self, index: int) -> float | None:
         """Tension (N) cell ``index`` reports now, or None when this reading drops out."""
@@ -128,7 +142,11 @@ class TensionFeed:
         truth = list(self.tensions())
         if len(truth) != self.n_cells:
             raise ValueError(f"tension callback gave {len(truth)} values for {self.n_cells} cells")
-        value = float(truth[index]) + self.drift_N_per_s[index] * (self.clock() - self.t0_s)
+        now = self.clock()
+        value = float(truth[index]) + self.drift_N_per_s[index] * (now - self.t0_s)
+        spike = self._spikes.get(index)
+        if spike is not None and now < spike[1]:
+            value += spike[0]
         if self.noise.noise_N:
             value += float(self.rng.normal(0.0, self.noise.noise_N))
         return value
@@ -239,6 +257,7 @@ class _Faults:
     split: int = 0
     split_gap_s: float = 0.005
     garbage: bytearray = field(default_factory=bytearray)
+    garble_until_s: float = -math.inf
 
 
 class PtySim:
@@ -295,9 +314,29 @@ class PtySim:
         with self._faults_lock:
             self._faults.garbage += data
 
+    def garble_for(self, duration_s: float) -> None:
+        """Fault hook: for ``duration_s`` (s) every reply / line is corrupted and preceded by
+        line noise (a broken shield, a transmitter gone mad): no valid reading gets through."""
+        with self._faults_lock:
+            self._faults.garble_until_s = time.monotonic() + float(duration_s)
+
     def disconnect(self) -> None:
         """Close the pty: the client's next read or write fails, as if the cable were pulled."""
         self.pty.close()
+
+    def reconnect(self) -> None:
+        """Plug back in after :meth:`disconnect`: a new pty at the same link, served anew.
+        (The client must open the port again.)"""
+        if not self.pty.closed:
+            return
+        old = self.pty
+        if self._thread is not None:
+            self._thread.join(2.0)
+        old.release()
+        self.pty = PtyEndpoint(old.link)
+        self._thread = None
+        if not self._stop.is_set():
+            self.start()
 
     # -- life cycle -----------------------------------------------------------------------
 
@@ -339,8 +378,12 @@ class PtySim:
                 f.drop -= 1
                 self.stats.dropped += 1
                 return
-            if f.corrupt:
-                f.corrupt -= 1
+            garbling = time.monotonic() < f.garble_until_s
+            if f.corrupt or garbling:
+                if not garbling:
+                    f.corrupt -= 1
+                else:
+                    f.garbage += GARBLE_NOISE
                 frame = corrupt(frame)
                 self.stats.corrupted += 1
             garbage, f.garbage = bytes(f.garbage), bytearray()

@@ -10,6 +10,11 @@ The connection points are the ones the rig config (``rig:`` of the simulator YAM
 pty and load-cell pty are symlinked to ``can.channel`` and ``sensors.load_cells.serial.port``, the
 tracker listens on ``sensors.tracker.host``/``command_port``. So the daemon runs against the
 simulator with the rig config unchanged.
+
+The truth is the rig's design's (:func:`cdcr_ctl.sim.design_truth.make_truth`): constant-curvature
+disks, universal-joint segments or vertebrae. A rig with ``sensors.attitude`` (the vertebra arm)
+gets one simulated WitMotion sensor per joint end on a pty (symlinked to its configured port),
+reading the truth's joint-end orientation.
 """
 
 from __future__ import annotations
@@ -23,10 +28,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.loadcells import SensorNoise, sim_for_config
 from cdcr_ctl.sim.simconfig import LoadedSim
 from cdcr_ctl.sim.tracker import sim_tracker_from_config
-from cdcr_ctl.sim.truth import TruthModel
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +62,7 @@ class SimRig:
     ) -> None:
         self.loaded = loaded
         self.rig = loaded.rig
-        self.truth = TruthModel(loaded)
+        self.truth = make_truth(loaded)
         self.counters = SimCounters()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -67,6 +72,8 @@ class SimRig:
         self.drives: Any = None
         self.load_cells: Any = None
         self.tracker: Any = None
+        self.attitude: list[Any] = []
+        self._links: list[Path] = []
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> SimRig:
@@ -95,6 +102,8 @@ class SimRig:
                 self.truth.tip_pose, self.rig.sensors.tracker, self.loaded.sim
             )
             self.tracker.start()
+        if self.rig.sensors.attitude is not None:
+            self._start_attitude()
         self.drives = SimDriveBus(
             self.rig,
             interface=self.can_interface,
@@ -108,14 +117,49 @@ class SimRig:
         self._thread.start()
         return self
 
+    def _start_attitude(self) -> None:
+        """One simulated WitMotion per configured sensor (joint order) on the truth."""
+        from cdcr_ctl.sim.attitude import SimWitMotion
+
+        cfg = self.rig.sensors.attitude
+        assert cfg is not None
+        orientation = getattr(self.truth, "sensor_orientation", None)
+        if orientation is None:
+            raise ValueError(f"design {self.rig.design} has no joint attitudes to simulate")
+        sim = self.loaded.sim.attitude
+        for i, port in enumerate(cfg.sensors):
+            dev = SimWitMotion(
+                lambda i=i: orientation(i),
+                rate_hz=sim.rate_hz,
+                noise_deg=sim.noise_deg,
+                yaw_offset_deg=sim.yaw_offset_deg,
+                latency_s=sim.latency_s,
+                seed=self.loaded.sim.seed + i,
+            )
+            self.attitude.append(dev)
+            if self.link_paths:
+                link = Path(port.port)
+                link.parent.mkdir(parents=True, exist_ok=True)
+                with contextlib.suppress(FileNotFoundError):
+                    link.unlink()
+                link.symlink_to(dev.path)
+                self._links.append(link)
+            dev.start()
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5.0)
-        for dev in (self.drives, self.load_cells, self.tracker):
+        for dev in (self.drives, self.load_cells, self.tracker, *self.attitude):
             if dev is not None:
                 with contextlib.suppress(Exception):
                     dev.stop()
+        for dev in self.attitude:
+            with contextlib.suppress(Exception):
+                dev.close()
+        for link in self._links:
+            with contextlib.suppress(OSError):
+                link.unlink()
 
     def __enter__(self) -> SimRig:
         return self.start()
@@ -131,6 +175,8 @@ class SimRig:
         }
         if self.load_cells is not None:
             info["load_cells"] = {"port": str(self.load_cells.path)}
+        if self.attitude:
+            info["attitude"] = [str(dev.path) for dev in self.attitude]
         if self.tracker is not None:
             info["tracker"] = {
                 "host": self.rig.sensors.tracker.host,

@@ -53,11 +53,28 @@ class TrackerSimConfig(Section):
     dropout: Probability = 0.0
 
 
+class AttitudeSimConfig(Section):
+    """Simulated attitude sensors (vertebra design): output rate, Gaussian angle noise (deg),
+    heading error (deg; the decode does not use yaw), latency (s)."""
+
+    rate_hz: PositiveFloat = 100.0
+    noise_deg: NonNegativeFloat = 0.0
+    yaw_offset_deg: float = 0.0
+    latency_s: NonNegativeFloat = 0.0
+
+
 class SimConfig(Section):
-    """Top level of a simulator YAML file."""
+    """Top level of a simulator YAML file.
+
+    ``truth_design``: merged over the rig's design section (``ujoint:``/``vertebra:``) for the
+    world (:func:`cdcr_ctl.sim.design_truth.truth_rig_config`); ``attitude``: the simulated
+    attitude sensors of a rig with ``sensors.attitude``.
+    """
 
     rig: Annotated[str, Field(min_length=1)]
     truth_robot: dict[str, Any] = Field(default_factory=dict)
+    truth_design: dict[str, Any] = Field(default_factory=dict)
+    attitude: AttitudeSimConfig = Field(default_factory=AttitudeSimConfig)
     effects: TruthEffects = Field(default_factory=TruthEffects)
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
     tracker: TrackerSimConfig = Field(default_factory=TrackerSimConfig)

@@ -19,6 +19,7 @@ import numpy as np
 from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import Effects, ForwardStepper
+from cdcr_ctl.model.effects import BacklashPlay
 from cdcr_ctl.model.kinematics import chain
 from cdcr_ctl.sim.simconfig import LoadedSim
 
@@ -43,6 +44,8 @@ class TruthModel:
     def __init__(self, loaded: LoadedSim) -> None:
         rig, eff = loaded.rig, loaded.sim.effects
         self.params = robot_params(loaded.truth)
+        # Transmission effects the controller's config has no key for (actuator -> cable).
+        actuator = (BacklashPlay(eff.backlash_mm),) if eff.backlash_mm > 0 else ()
         self.effects = Effects(
             disk_friction=eff.disk_friction,
             pulley_friction=eff.pulley_friction,
@@ -50,6 +53,7 @@ class TruthModel:
             coupling=eff.coupling,
             gravity=eff.gravity,
             geometry=eff.geometry,
+            actuator=actuator,
         )
         self.stepper = ForwardStepper(self.params, self.effects)
         by_cable = {d.cable: d for d in rig.drives}

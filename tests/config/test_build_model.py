@@ -11,7 +11,7 @@ import yaml
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, cable_names, loadcell_locations, robot_params
-from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.errors import ConfigErrors
 from cdcr_ctl.model.compensation import CCDiskModel
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -65,12 +65,12 @@ def test_cable_order_follows_config_and_segments_resolve_by_name(tmp_path):
     assert [c.segment for c in p.cables] == [2, 2, 2, 1, 1, 1, 0, 0, 0]
 
 
-def test_other_designs_are_refused(tmp_path):
+def test_a_design_without_its_section_is_refused(tmp_path):
     data = yaml.safe_load(QI.read_text())
     data["design"] = "ujoint"
     path = tmp_path / "rig.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    cfg = load_rig_config(path)
-    with pytest.raises(ConfigError) as err:
-        build_model(cfg, source=str(path))
-    assert err.value.key == "design" and err.value.file == str(path)
+    with pytest.raises(ConfigErrors) as err:
+        load_rig_config(path)
+    assert any(e.key.startswith("ujoint") and e.file == str(path) for e in err.value.errors)
+    assert "needs a 'ujoint:' section" in str(err.value)

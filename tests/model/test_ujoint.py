@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cdcr_ctl.config.designs import DesignRigConfig, check_design, ujoint_arm
+from cdcr_ctl.config.designs import check_design, ujoint_arm
 from cdcr_ctl.config.loader import cross_check, load_yaml_model
+from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, ModelError
 from cdcr_ctl.model import ujoint as uj
 
@@ -22,7 +23,7 @@ STEEL_1_2_EA = 70000.0 * math.pi * 1.2**2 / 4.0  # N, the config's effective mod
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_yaml_model(CONFIG, DesignRigConfig)
+    return load_yaml_model(CONFIG, RigConfig)
 
 
 @pytest.fixture(scope="module")
@@ -489,13 +490,32 @@ def test_compensation_without_effects_is_ideal_inverse_kinematics(arm):
     np.testing.assert_allclose(q, uj.cable_displacements(arm, td), atol=1e-13)
 
 
+def test_loop_psi_is_subjoint_tilt_and_direction():
+    # the loop's rows (tilt, phi) <-> Rx(a) Ry(b): the tilted axis is Rx(a) Ry(b) e_z
+    rng = np.random.default_rng(3)
+    psi = np.column_stack((rng.uniform(0.0, 1.2, 20), rng.uniform(-math.pi, math.pi, 20)))
+    ab = uj.joint_angles_from_psi(psi)
+    for (t, phi), (a, b) in zip(psi, ab, strict=True):
+        z = (rot([1, 0, 0], a) * rot([0, 1, 0], b)).apply([0.0, 0.0, 1.0])
+        np.testing.assert_allclose(
+            z, [math.sin(t) * math.cos(phi), math.sin(t) * math.sin(phi), math.cos(t)], atol=1e-12
+        )
+    np.testing.assert_allclose(uj.psi_from_joint_angles(ab), psi, atol=1e-12)
+    # Yang's [0, 6 deg] is a 6 deg tilt towards x
+    np.testing.assert_allclose(
+        uj.joint_angles_from_psi(np.array([[math.radians(6), 0.0]])),
+        [[0.0, math.radians(6)]],
+        atol=1e-15,
+    )
+
+
 def test_loop_adapter_modes(arm):
     model = uj.UJointModel(arm)
     state = model.new_state()
-    psi = np.array([[0.0, 0.01], [0.0, 0.02]])
+    psi = uj.psi_from_joint_angles(np.array([[0.0, 0.01], [0.0, 0.02]]))
     q_nom = model.q_nominal(psi)
     np.testing.assert_allclose(model.q_command(psi, q_nom, state, "off", None), q_nom)
-    psi2 = psi * 2
+    psi2 = psi * [2.0, 1.0]
     q_cmd = model.q_command(psi2, model.q_nominal(psi2), state, "model", None)
     pull, _ = arm.dead_zones_mm
     moved = np.abs(model.q_nominal(psi2) - q_nom) > 1e-9
@@ -513,10 +533,11 @@ def test_loop_adapter_one_statics_evaluation_per_tick_tracks_truth(arm):
     s = np.linspace(0.0, 1.0, 151)  # 1 ms ticks of a 0.15 s move
     errs = []
     for v in s:
-        psi = np.array([[0.01 * v, 0.05 * v], [-0.02 * v, 0.08 * v]])
+        theta = np.array([[0.01 * v, 0.05 * v], [-0.02 * v, 0.08 * v]])
+        psi = uj.psi_from_joint_angles(theta)
         q = model.q_command(psi, model.q_nominal(psi), state, "model", None)
         th, t_state = uj.truth_angles(a, q, t_state)
-        errs.append(np.abs(th - psi).max())
+        errs.append(np.abs(th - theta).max())
     assert max(errs) < 1e-7  # one warm-started statics evaluation per tick suffices
 
 
@@ -534,10 +555,10 @@ def test_yang2022_config_builds_the_papers_arm(cfg, arm):
 def test_design_sections_are_checked(cfg):
     data = cfg.model_dump()
     with pytest.raises(ValueError, match="needs a 'ujoint:' section"):
-        DesignRigConfig.model_validate({**data, "ujoint": None})
+        RigConfig.model_validate({**data, "ujoint": None})
     with pytest.raises(ValueError, match="only for design ujoint"):
-        DesignRigConfig.model_validate({**data, "design": "cc_disk"})
-    bad = DesignRigConfig.model_validate(
+        RigConfig.model_validate({**data, "design": "cc_disk"})
+    bad = RigConfig.model_validate(
         {**data, "drives": [{**d, "counts_per_mm": 1000.0} for d in data["drives"]]}
     )
     problems = check_design(bad)
@@ -545,7 +566,7 @@ def test_design_sections_are_checked(cfg):
     with pytest.raises(ConfigError, match="counts_per_mm"):
         ujoint_arm(bad)
     short = {**data, "ujoint": {**data["ujoint"], "half_gap_mm": 50.0}}
-    assert check_design(DesignRigConfig.model_validate(short))[0][0] == (
+    assert check_design(RigConfig.model_validate(short))[0][0] == (
         "robot",
         "segments",
         0,

@@ -12,13 +12,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cdcr_ctl.config.designs import (
-    DesignRigConfig,
     check_design,
     follow_params,
     sensor_mounts,
     vertebra_arm,
 )
 from cdcr_ctl.config.loader import cross_check, load_yaml_model
+from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import vertebra as vt
 
@@ -27,7 +27,7 @@ CONFIG = Path(__file__).resolve().parents[2] / "config" / "vertebra.yaml"
 
 @pytest.fixture(scope="module")
 def cfg():
-    return load_yaml_model(CONFIG, DesignRigConfig)
+    return load_yaml_model(CONFIG, RigConfig)
 
 
 @pytest.fixture(scope="module")
@@ -411,10 +411,45 @@ def test_loop_adapter(arm):
     psi = np.array([[0.5, 0.2], [0.3, -1.0], [0.2, 2.0]])
     q = model.q_nominal(psi)
     np.testing.assert_allclose(model.q_command(psi, q, model.new_state(), "off", None), q)
-    q_cmd = model.q_command(psi, q, model.new_state(), "model", None)
+    state = model.new_state()
+    for _ in range(20):  # one warm-started statics evaluation per cycle: converges over cycles
+        q_cmd = model.q_command(psi, q, state, "model", None)
     np.testing.assert_allclose(vt.truth_pose(arm, q_cmd), psi, atol=1e-8)
     with pytest.raises(ModelError):
         model.q_command(psi, q, None, "measured", None)
+    with pytest.raises(ModelError, match="attitude"):
+        model.q_command(psi, q, model.new_state(), "measured", None)
+
+
+def test_attitude_closed_loop_removes_the_sag(arm):
+    """Mode measured: the sensors see the sagged truth (eq. 6 angles of the joint-end frames);
+    the integral correction drives the true joint poses to the command."""
+
+    class Sensors:
+        def __init__(self):
+            self.q = np.zeros(arm.n_cables)
+
+        def latest(self):
+            psi = vt.truth_pose(arm, self.q)
+            T = np.eye(4)
+            roll, pitch = [], []
+            for i, j in enumerate(arm.joints):
+                T = T @ vt.joint_transform(psi[i, 0], psi[i, 1], j)
+                r = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX")  # yaw, pitch, roll
+                roll.append(r[2])
+                pitch.append(r[1])
+            return np.array(roll), np.array(pitch), np.zeros(arm.n_joints)
+
+    sensors = Sensors()
+    model = vt.VertebraModel(arm, vt.AttitudeLoopParams(gain_per_tick=0.3))
+    model.attach_attitude(sensors)
+    psi = np.array([[0.6, 0.3], [0.5, 0.3], [0.4, 0.3]])
+    open_loop = np.abs(vt.truth_pose(arm, model.q_nominal(psi)) - psi).max()
+    state = model.new_state()
+    for _ in range(60):
+        sensors.q = model.q_command(psi, model.q_nominal(psi), state, "measured", None)
+    closed = np.abs(vt.truth_pose(arm, sensors.q) - psi).max()
+    assert open_loop > 0.02 and closed < 1e-3 * open_loop / 0.02
 
 
 # --------------------------------------------------------------------------- config
@@ -435,7 +470,7 @@ def test_vertebra_config_builds_the_papers_arm(cfg, arm):
             },
         },
     )
-    assert check_design(DesignRigConfig.model_validate(bad))[0][0] == (
+    assert check_design(RigConfig.model_validate(bad))[0][0] == (
         "sensors",
         "attitude",
         "sensors",

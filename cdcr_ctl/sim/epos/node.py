@@ -29,7 +29,10 @@ Fault injection: :meth:`inject_fault` (any EMCY code; :meth:`inject_following_er
 :meth:`inject_over_current` 0x2310), :attr:`emcy_enabled` (False: EMCY frames get lost),
 :meth:`stop_heartbeat` / :meth:`start_heartbeat`,
 :meth:`go_silent` (stops answering anything: bus off, unplugged) / :meth:`recover` (comes back
-with EMCY 0x81FD), :meth:`force_state` (a drive left enabled by a previous session).
+with EMCY 0x81FD), :meth:`enter_bus_off` / :meth:`recover_from_bus_off` (an EPOS going bus off
+faults itself), :meth:`force_state` (a drive left enabled by a previous session).
+Measurements for fault tests: :attr:`transitions` (every state change with its time and SYNC
+count) and :attr:`last_target_change` (when the CSP target last changed).
 """
 
 from __future__ import annotations
@@ -106,6 +109,10 @@ _LIVE = (
 )
 
 
+#: State changes each simulated drive keeps for the fault-matrix measurements.
+TRANSITIONS_KEPT = 256
+
+
 @dataclass
 class _Pdo:
     number: int
@@ -141,6 +148,8 @@ class SimEpos:
         self.motor = Motor(motor or MotorParams())
         self.cpr = self.motor.p.counts_per_rev
         self._lock = threading.RLock()
+        self.last_target: int | None = None
+        self.last_target_change: tuple[float, int] = (time.monotonic(), 0)
         self.state = State.SWITCH_ON_DISABLED
         self.mode = 0
         self.controlword = 0
@@ -189,6 +198,27 @@ class SimEpos:
         self.node.add_write_callback(self._on_write)
         self.node.add_read_callback(self._on_read)
         self._rebuild_pdos()
+
+    # ================================================================== fault-matrix records
+    @property
+    def state(self) -> State:
+        """CiA 402 state; every change is recorded in :attr:`transitions`."""
+        return self._state
+
+    @state.setter
+    def state(self, new: State) -> None:
+        old = self.__dict__.get("_state")
+        self._state = new
+        if new is not old:
+            # (monotonic time s, SYNCs seen, new state): how fast a fault made the drive safe.
+            self.__dict__.setdefault("transitions", collections.deque(maxlen=TRANSITIONS_KEPT))
+            self.transitions.append((time.monotonic(), self.__dict__.get("sync_count", 0), new))
+
+    def _record_target(self, target: int) -> None:
+        """Remember when the CSP target last changed (time s, SYNCs): a halted master holds it."""
+        if target != self.last_target:
+            self.last_target = target
+            self.last_target_change = (time.monotonic(), self.sync_count)
 
     # ================================================================== values
     def _value(self, index: int, sub: int = 0) -> int:
@@ -630,6 +660,7 @@ class SimEpos:
                 return  # profile position reads 0x607A at the set-point edge
             if self._controlword_halted():
                 return
+            self._record_target(target)
             lo, hi = self._limits()
             if not lo <= target <= hi:
                 self.internal_limit = True
@@ -908,6 +939,20 @@ class SimEpos:
         self.node.nmt.stop_heartbeat()
 
     bus_off = go_silent
+
+    def enter_bus_off(self) -> None:
+        """Fault hook: the drive's CAN controller goes bus off. As an EPOS does, the drive
+        faults (power stage off, error 0x81FD recorded; the EMCY cannot get out) and answers
+        nothing until :meth:`recover`, which resumes its heartbeat and reports the fault."""
+        self.go_silent()
+        self._fault(BUS_OFF)
+
+    def recover_from_bus_off(self) -> None:
+        """Back on the bus after :meth:`enter_bus_off`: heartbeats resume, EMCY 0x81FD goes out
+        (the drive stays in FAULT until a fault reset)."""
+        self.silent = False
+        self.start_heartbeat()
+        self._emcy(BUS_OFF)
 
     def recover(self) -> None:
         """Back on the bus after a bus off: fault with EMCY 0x81FD, heartbeats resume."""

@@ -1,0 +1,257 @@
+"""Soak: the daemon on the simulated rig for N minutes of random trajectories and random faults.
+
+What runs: ``cdcr-ctl sim`` (with its fault channel) and ``cdcr-ctl daemon`` as processes, as on a
+lab PC. Repeatedly: clear any trip and enable; start a logged random smooth trajectory
+(:func:`~cdcr_ctl.control.trajectory.random_smooth`, 4-12 s); in about two runs of three inject
+one random fault part-way (drive EMCY following error / over-current on a random node, heartbeat
+loss, a drive bus off, tension spike, load-cell garbage, tracker dropout) and undo it once the
+daemon has reacted; wait for the run to end and check it.
+
+Checks per run: the daemon reported the trip (cause, reaction) for an injected fault; the drives
+reached a safe state (quick-stop faults: every drive in QUICK STOP ACTIVE / SWITCH ON DISABLED /
+FAULT; halt faults: targets held); the log is readable, its ``cycle`` column has no gap (samples
+expected = last cycle - first cycle + 1 = rows logged) and ``run.yaml`` counts nothing dropped or
+lost; the rig recovers (fault reset, enable) for the next run.
+
+Memory: the daemon's RSS (``/proc/PID/status`` VmRSS) after the first two runs (baseline, the
+model and buffers warmed up) and at the end; growth in percent.
+
+    nice .venv/bin/python benchmarks/soak.py --minutes 30
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import random
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "system"))
+
+from faulthelp import (  # noqa: E402
+    call,
+    hold_after,
+    make_ready,
+    rows_on_disk,
+    safe_after,
+    start_sim_with_faults,
+    status,
+    wait_for,
+)
+
+from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket  # noqa: E402
+from cdcr_ctl.control import trajectory as tj  # noqa: E402
+from cdcr_ctl.runlog import load_run  # noqa: E402
+from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
+
+TRUTH = ROOT / "config" / "sim" / "qi2023-truth.yaml"
+
+#: (fault, args maker, undo fault or None, expected reaction)
+FAULTS = [
+    ("emcy", lambda r: {"node": r.randint(1, 3), "code": "following_error"}, None, "QUICK_STOP"),
+    ("emcy", lambda r: {"node": r.randint(1, 3), "code": "over_current"}, None, "QUICK_STOP"),
+    ("heartbeat_stop", lambda r: {"node": r.randint(1, 3)}, "heartbeat_start", "QUICK_STOP"),
+    ("bus_off", lambda r: {"node": r.randint(1, 3)}, "bus_recover", "QUICK_STOP"),
+    (
+        "tension_spike",
+        lambda r: {"cable": f"c{r.randint(1, 3)}", "add_N": 80.0, "duration_s": 0.3},
+        None,
+        "QUICK_STOP",
+    ),
+    ("loadcell_garbage", lambda r: {"duration_s": 0.6}, None, "HALT"),
+    ("tracker_dropout", lambda r: {"duration_s": 0.6}, None, "HALT"),
+]
+
+
+def rss_kB(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise RuntimeError(f"no VmRSS for pid {pid}")
+
+
+def check_run(run_dir: str) -> tuple[int, int, int]:
+    """(rows expected from the cycle span, rows logged, gaps); raises if the log is unreadable."""
+    run = load_run(run_dir)
+    cycles = run.data["cycle"]
+    if len(run) == 0:
+        return 0, 0, 0
+    expected = int(cycles[-1] - cycles[0]) + 1
+    gaps = int(np.sum(np.diff(cycles) != 1))
+    ended = run.ended or {}
+    rows = ended.get("rows") or {}
+    if rows.get("dropped") or rows.get("lost"):
+        gaps += 1
+    return expected, len(run), gaps
+
+
+def soak(minutes: float, seed: int, keep: bool) -> dict:
+    rng = random.Random(seed)
+    work = Path(tempfile.mkdtemp(prefix="cdcr-soak-", dir="/tmp"))
+    runs_dir = work / "runs"
+    runs_dir.mkdir()
+    rig, sim = make_session(TRUTH, work, runs_dir)
+    out: dict = {
+        "minutes": minutes,
+        "runs": 0,
+        "runs_completed": 0,
+        "runs_tripped": 0,
+        "faults_injected": 0,
+        "faults_tripped": 0,
+        "faults_safe": 0,
+        "faults_recovered": 0,
+        "faults_missed": [],
+        "unexpected_trips": [],
+        "recovery_errors": [],
+        "samples_expected": 0,
+        "samples_logged": 0,
+        "log_gaps": 0,
+        "by_fault": {},
+    }
+    t_end = time.monotonic() + minutes * 60
+    try:
+        with (
+            start_sim_with_faults(sim, work / "faults.sock", work / "sim.log"),
+            running(_cli("--config", str(rig), "daemon"), work / "daemon.log") as d,
+        ):
+            wait_for_socket(work / "control.sock", d, work / "daemon.log")
+            fc = FaultClient(work / "faults.sock")
+            rss0 = None
+            pending_recovery: str | None = None
+            while time.monotonic() < t_end:
+                try:
+                    make_ready(work)
+                except Exception as exc:  # counted; the next iteration tries again
+                    out["recovery_errors"].append(f"{type(exc).__name__}: {exc}"[:200])
+                    time.sleep(1.0)
+                    if len(out["recovery_errors"]) > 20:
+                        break
+                    continue
+                if pending_recovery is not None:
+                    out["faults_recovered"] += 1
+                    out["by_fault"][pending_recovery]["recovered"] += 1
+                    pending_recovery = None
+                if out["runs"] == 2:
+                    rss0 = rss_kB(d.pid)
+                    out["rss_baseline_kB"] = rss0
+                duration = rng.uniform(4.0, 12.0)
+                traj = tj.random_smooth(1, duration, 1.0, 0.5, seed=rng.randrange(1 << 30))
+                name = f"soak{out['runs']}"
+                res = call(
+                    work,
+                    "trajectory",
+                    name=name,
+                    samples=traj.rows(),
+                    compensation=rng.choice(["off", "model"]),
+                    log=True,
+                )
+                out["runs"] += 1
+                log_dir = res["log_dir"]
+                wait_for(
+                    lambda d=log_dir: rows_on_disk(d) > 50 or status(work)["run"] is None,
+                    15,
+                    "rows",
+                )
+                fault = None
+                if rng.random() < 0.67 and status(work)["run"] is not None:
+                    time.sleep(rng.uniform(0.2, max(0.3, duration / 2)))
+                    fault, make_args, undo, reaction = rng.choice(FAULTS)
+                    args = make_args(rng)
+                    key = f"{fault}:{args.get('code', '')}".rstrip(":")
+                    stats = out["by_fault"].setdefault(
+                        key, {"injected": 0, "tripped": 0, "safe": 0, "recovered": 0}
+                    )
+                    inj = fc.inject(fault, **args)
+                    out["faults_injected"] += 1
+                    stats["injected"] += 1
+                    try:
+                        st = wait_for(lambda: (s := status(work))["fault"] and s, 10, "trip")
+                        out["faults_tripped"] += 1
+                        stats["tripped"] += 1
+                        got = st["fault"]["reaction"]
+                        if reaction == "QUICK_STOP":
+                            safe = safe_after(fc, inj, 5).all_safe and got == "QUICK_STOP"
+                        else:
+                            safe = hold_after(fc, inj, 5).all_safe and got in ("HALT", "QUICK_STOP")
+                        if safe:
+                            out["faults_safe"] += 1
+                            stats["safe"] += 1
+                    except AssertionError:
+                        out["faults_missed"].append(key)
+                    if undo is not None:
+                        fc.inject(undo, **args)
+                    time.sleep(0.7)  # spikes, garbage and dropouts end
+                    pending_recovery = key
+                wait_for(lambda: status(work)["run"] is None, duration + 30, "run end")
+                st = status(work)
+                done = next(r for r in st["runs"] if r["log_dir"] == res["log_dir"])
+                if done["state"] == "completed":
+                    out["runs_completed"] += 1
+                else:
+                    out["runs_tripped"] += 1
+                    if fault is None:
+                        out["unexpected_trips"].append(done["end_reason"])
+                time.sleep(0.3)  # the writer closes the log
+                expected, logged, gaps = check_run(res["log_dir"])
+                out["samples_expected"] += expected
+                out["samples_logged"] += logged
+                out["log_gaps"] += gaps
+                elapsed = minutes * 60 - (t_end - time.monotonic())
+                print(
+                    f"[{elapsed:7.1f} s] {name}: {done['state']:9s} {fault or '-':16s} "
+                    f"rows {logged}/{expected}",
+                    flush=True,
+                )
+            if pending_recovery is not None:
+                make_ready(work)
+                out["faults_recovered"] += 1
+                out["by_fault"][pending_recovery]["recovered"] += 1
+            rss1 = rss_kB(d.pid)
+            out["rss_final_kB"] = rss1
+            if rss0:
+                out["rss_growth_pct"] = round(100.0 * (rss1 - rss0) / rss0, 2)
+            out["daemon_alive"] = d.poll() is None
+            with contextlib.suppress(Exception):
+                fc.close()
+    finally:
+        if not keep:
+            shutil.rmtree(work, ignore_errors=True)
+        else:
+            out["work_dir"] = str(work)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=30.0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--keep", action="store_true", help="keep the run logs and process logs")
+    args = ap.parse_args(argv)
+    t0 = time.monotonic()
+    out = soak(args.minutes, args.seed, args.keep)
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    print(json.dumps(out, indent=2))
+    ok = (
+        out["samples_expected"] == out["samples_logged"]
+        and out["log_gaps"] == 0
+        and not out["faults_missed"]
+        and out["faults_safe"] == out["faults_tripped"] == out["faults_injected"]
+        and out["faults_recovered"] == out["faults_injected"]
+        and out.get("rss_growth_pct", 0.0) <= 10.0
+        and out.get("daemon_alive", False)
+        and not out["recovery_errors"]
+    )
+    print("SOAK", "PASSED" if ok else "FAILED")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

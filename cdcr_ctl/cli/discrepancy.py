@@ -1,0 +1,129 @@
+"""``cdcr-ctl discrepancy RUN_DIR...``: which physical effect the model is missing (issue 9).
+
+Simulates the logged drive positions with the controller's model, compares with the tracked tip
+and the load cells, fits every candidate effect of :data:`cdcr_ctl.model.effects.CANDIDATES`
+(and pairs), selects by blocked cross-validation, refits the winner and writes a report, plots and
+a config fragment (:mod:`cdcr_ctl.discrepancy.report`). Works offline: no daemon needed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cdcr_ctl.cli.main import Ctx, cli
+
+
+def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
+    if not items:
+        return None
+    out = {}
+    for it in items:
+        key, sep, val = it.partition("=")
+        if not sep or val.lower() not in ("on", "off", "true", "false"):
+            raise click.BadParameter(f"{it!r}: use SWITCH=on|off", param_hint="--model-effects")
+        out[key.strip()] = val.lower() in ("on", "true")
+    return out
+
+
+@cli.command("discrepancy")
+@click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
+@click.option(
+    "--rig-config",
+    type=click.Path(exists=True, dir_okay=False),
+    default=None,
+    help="The controller's rig config (default: the copy in each run directory).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Report directory [default: FIRST_RUN_DIR/discrepancy].",
+)
+@click.option(
+    "--effects", default=None, help="Comma-separated subset of the candidate effects (default all)."
+)
+@click.option(
+    "--model-effects",
+    multiple=True,
+    help="Switch of the controller's model the run does not record, e.g. coupling=off.",
+)
+@click.option("--folds", type=click.IntRange(2, 20), default=5, show_default=True)
+@click.option("--pairs/--no-pairs", default=True, show_default=True, help="Also fit pairs.")
+@click.option(
+    "--max-points",
+    type=click.IntRange(50, 100000),
+    default=700,
+    show_default=True,
+    help="Largest number of simulated samples per run (the rest are interpolated).",
+)
+@click.option("--jobs", type=click.IntRange(1, 64), default=2, show_default=True)
+@click.option("--plots/--no-plots", default=True, show_default=True)
+@click.option("--progress/--no-progress", default=True, show_default=True)
+@click.pass_obj
+def discrepancy(
+    obj: Ctx,
+    run_dirs: tuple[str, ...],
+    rig_config: str | None,
+    out: str | None,
+    effects: str | None,
+    model_effects: tuple[str, ...],
+    folds: int,
+    pairs: bool,
+    max_points: int,
+    jobs: int,
+    plots: bool,
+    progress: bool,
+) -> None:
+    """Find where model and measurement disagree, name the missing effect, refit.
+
+    Exit code 0 whatever the verdict; the verdict is the first line of the output.
+    """
+    from cdcr_ctl.discrepancy import analyse
+    from cdcr_ctl.discrepancy.report import summary_lines, write_report
+    from cdcr_ctl.model.effects import CANDIDATES, candidate
+
+    terms = CANDIDATES
+    if effects:
+        try:
+            terms = tuple(candidate(n.strip()) for n in effects.split(",") if n.strip())
+        except KeyError as exc:
+            raise click.BadParameter(str(exc), param_hint="--effects") from None
+    res = analyse(
+        list(run_dirs),
+        rig_config=rig_config,
+        candidates=terms,
+        model_effects=_switches(model_effects),
+        folds=folds,
+        pairs=pairs,
+        max_points=max_points,
+        jobs=jobs,
+        progress=progress,
+    )
+    dest = Path(out) if out else Path(run_dirs[0]) / "discrepancy"
+    paths = write_report(res, dest, with_plots=plots)
+    b, a = res.systematic_gap_mm
+    result = {
+        "verdict": res.selection.verdict,
+        "effect": res.named,
+        "parameters": (
+            {
+                n: {"value": float(v), "ci95": float(c), "unit": u}
+                for n, u, v, c in zip(
+                    res.refit.names, res.refit.units, res.refit.values, res.refit.ci95, strict=True
+                )
+            }
+            if res.refit
+            else {}
+        ),
+        "tip_rms_before_mm": res.tip_rms_before_mm,
+        "tip_rms_after_mm": res.tip_rms_after_mm,
+        "gap_shrink_percent": 100 * res.gap_shrink,
+        "tip_gap_above_noise_mm": [b, a],
+        "gap_above_noise_shrink_percent": 100 * res.systematic_gap_shrink,
+        "elapsed_s": res.elapsed_s,
+        "files": {k: str(v) for k, v in paths.items()},
+    }
+    text = "\n".join([*summary_lines(res), f"report: {paths['report']}"])
+    obj.emit(result, text)

@@ -1,0 +1,122 @@
+"""Forward simulation of a logged run with a :class:`~cdcr_ctl.model.effects.ModelSpec`.
+
+The spec's :class:`~cdcr_ctl.model.forward.ForwardStepper` (friction memory, transmission
+effects) is stepped through the decimated input path of the run (``AlignedRun.sim_idx``); the
+predictions are then interpolated to every row along the input path (:func:`path_weights`).
+A step the model cannot solve keeps the last solution and is counted. A spec with a
+``coupling_gain`` between the forward model's two switch positions is the blend of both
+solutions (:class:`SegmentCoupling`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from cdcr_ctl.discrepancy.alignment import AlignedRun
+from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.effects import ModelSpec
+from cdcr_ctl.model.forward import ForwardStepper
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Model outputs at every row of a run: tip (N, 3) mm as the tracker would report it,
+    tensions at the load-cell locations (N, K) N, pose (N, S, 2) rad, failed steps."""
+
+    tip_mm: np.ndarray
+    tension_N: np.ndarray
+    psi: np.ndarray
+    failures: int
+
+
+def path_weights(q: np.ndarray, t: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For every row: the simulated row before it (index into ``idx``) and the fraction u of the
+    way to the next one, measured along the input path: u = (q - q_a).(q_b - q_a) / |q_b - q_a|^2
+    (clipped to [0, 1]; by time when the inputs did not move). The model is a smooth function of
+    q between simulated rows, so this is far better than interpolating in time."""
+    n = len(t)
+    seg = np.clip(np.searchsorted(idx, np.arange(n), side="right") - 1, 0, len(idx) - 2)
+    if len(idx) < 2:
+        return np.zeros(n, dtype=int), np.zeros(n)
+    a, b = idx[seg], idx[seg + 1]
+    dq = q[b] - q[a]
+    den = np.einsum("ij,ij->i", dq, dq)
+    num = np.einsum("ij,ij->i", q - q[a], dq)
+    tt = (t - t[a]) / np.maximum(t[b] - t[a], 1e-12)
+    u = np.where(den > 1e-12, num / np.maximum(den, 1e-300), tt)
+    return seg, np.clip(u, 0.0, 1.0)
+
+
+def _interp(seg: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    if len(y) < 2:
+        return np.repeat(y[:1], len(seg), axis=0)
+    flat = y.reshape(len(y), -1)
+    out = flat[seg] + u[:, None] * (flat[seg + 1] - flat[seg])
+    return out.reshape((len(seg), *y.shape[1:]))
+
+
+def _step_path(spec: ModelSpec, run: AlignedRun) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    stepper = ForwardStepper(spec.params, spec.effects)
+    idx = run.sim_idx
+    K, S = run.n_cables, spec.params.n_segments
+    tip = np.empty((len(idx), 3))
+    T = np.empty((len(idx), K))
+    psi = np.empty((len(idx), S, 2))
+    fails = 0
+    last = None
+    base = [loc == "robot_base" for loc in run.locations]
+    for n, i in enumerate(idx):
+        try:
+            last = stepper.step(run.q_in_mm[i])
+        except ModelError:
+            fails += 1
+            if last is None:
+                raise
+        tip[n] = last.tip_mm
+        T[n] = np.where(base, last.tension_base_N, last.tension_actuator_N)
+        psi[n] = last.psi
+    return tip, T, psi, fails
+
+
+def model_part(spec: ModelSpec) -> ModelSpec:
+    """``spec`` without its tip measurement map (what the forward simulation depends on), with
+    a coupling gain of exactly 0 or 1 turned into the switch."""
+    spec = replace(spec, tip_rotvec_rad=(0.0, 0.0, 0.0), tip_translation_mm=(0.0, 0.0, 0.0))
+    lam = spec.coupling_gain
+    if lam is not None and lam in (0.0, 1.0):
+        spec = replace(spec, effects=replace(spec.effects, coupling=lam == 1.0), coupling_gain=None)
+    elif lam is not None and lam == (1.0 if spec.effects.coupling else 0.0):
+        spec = replace(spec, coupling_gain=None)
+    return spec
+
+
+def simulate_model(spec: ModelSpec, run: AlignedRun) -> Prediction:
+    """Predictions of ``spec`` without its tip map (see :func:`model_part`)."""
+    spec = model_part(spec)
+    lam = spec.coupling_gain
+    if lam is None:
+        tip, T, psi, fails = _step_path(spec, run)
+    else:
+        a = _step_path(replace(spec, effects=replace(spec.effects, coupling=False)), run)
+        b = _step_path(replace(spec, effects=replace(spec.effects, coupling=True)), run)
+        tip, T, psi = ((1.0 - lam) * x + lam * y for x, y in zip(a[:3], b[:3], strict=True))
+        fails = a[3] + b[3]
+    seg, u = path_weights(run.q_in_mm, run.t_s, run.sim_idx)
+    return Prediction(
+        tip_mm=_interp(seg, u, tip),
+        tension_N=_interp(seg, u, T),
+        psi=_interp(seg, u, psi),
+        failures=fails,
+    )
+
+
+def with_tip_map(spec: ModelSpec, pred: Prediction) -> Prediction:
+    """``pred`` (of the model part of ``spec``) as the tracker reports it."""
+    return replace(pred, tip_mm=spec.tip_map(pred.tip_mm))
+
+
+def simulate(spec: ModelSpec, run: AlignedRun) -> Prediction:
+    """Predictions of ``spec`` at every row of ``run`` (see module doc)."""
+    return with_tip_map(spec, simulate_model(spec, run))

@@ -1,0 +1,372 @@
+"""The model-discrepancy workflow: runs in, the missing effect and how much it explains out.
+
+``analyse(run_dirs)``:
+
+1. load and align every run (:mod:`~cdcr_ctl.discrepancy.alignment`): the controller's model,
+   the input path, the measurements, noise levels;
+2. simulate the baseline (the controller's model) and localise the disagreement
+   (:mod:`~cdcr_ctl.discrepancy.localise`);
+3. one forward simulation per parameter of every applicable candidate term
+   (:data:`~cdcr_ctl.model.effects.CANDIDATES`), the linearised fits of every term and pair,
+   blocked cross-validation, AIC/BIC and the significance rule
+   (:mod:`~cdcr_ctl.discrepancy.selection`);
+4. the nonlinear refit of the winner, residuals before and after, the tip gap shrink.
+
+Simulations run in ``jobs`` worker processes when ``jobs > 1``; a progress bar (tqdm, on stderr)
+counts them.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from cdcr_ctl.discrepancy.alignment import AlignedRun, align_run
+from cdcr_ctl.discrepancy.localise import Table, localise
+from cdcr_ctl.discrepancy.selection import (
+    Design,
+    Refit,
+    Selection,
+    active_terms,
+    build_design,
+    refit,
+    select,
+)
+from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
+
+
+@dataclass
+class RunOutcome:
+    """Per run: tip RMS gap (mm) and tension RMS gap (N) before and after the refit, and the
+    tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove."""
+
+    name: str
+    tip_noise_floor_mm: float
+    tip_rms_before_mm: float
+    tip_rms_after_mm: float
+    tension_rms_before_N: float
+    tension_rms_after_N: float
+    lag_s: float
+    tables: list[Table]
+    t_s: np.ndarray
+    tip_err_before_mm: np.ndarray
+    tip_err_after_mm: np.ndarray
+
+
+@dataclass
+class DiscrepancyResult:
+    """Everything the report shows."""
+
+    runs: list[AlignedRun]
+    terms: list[EffectTerm]
+    design: Design
+    selection: Selection
+    refit: Refit | None
+    outcomes: list[RunOutcome]
+    notes: list[str] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    simulations: int = 0
+
+    @property
+    def named(self) -> str | None:
+        """Name of the effect (or ``a + b``) found missing, None when none is named."""
+        return self.selection.chosen.name if self.selection.chosen is not None else None
+
+    @property
+    def tip_rms_before_mm(self) -> float:
+        return _pooled([o.tip_rms_before_mm for o in self.outcomes], self.outcomes)
+
+    @property
+    def tip_rms_after_mm(self) -> float:
+        return _pooled([o.tip_rms_after_mm for o in self.outcomes], self.outcomes)
+
+    @property
+    def tip_noise_floor_mm(self) -> float:
+        return _pooled([o.tip_noise_floor_mm for o in self.outcomes], self.outcomes)
+
+    @property
+    def gap_shrink(self) -> float:
+        """1 - RMS after / RMS before of the measured tip gap (0 when nothing was refitted)."""
+        b = self.tip_rms_before_mm
+        return 1.0 - self.tip_rms_after_mm / b if b > 0 else 0.0
+
+    @property
+    def systematic_gap_mm(self) -> tuple[float, float]:
+        """Tip gap beyond the tracker noise, before and after: sqrt(RMS^2 - floor^2) (mm)."""
+        f2 = self.tip_noise_floor_mm**2
+        return (
+            math.sqrt(max(self.tip_rms_before_mm**2 - f2, 0.0)),
+            math.sqrt(max(self.tip_rms_after_mm**2 - f2, 0.0)),
+        )
+
+    @property
+    def systematic_gap_shrink(self) -> float:
+        """1 - systematic gap after / before (the share of the model error removed)."""
+        b, a = self.systematic_gap_mm
+        return 1.0 - a / b if b > 0 else 0.0
+
+
+def _pooled(values: list[float], outcomes: list[RunOutcome]) -> float:
+    n = [np.isfinite(o.tip_err_before_mm).sum() for o in outcomes]
+    v = np.asarray(values)
+    ok = np.isfinite(v)
+    if not ok.any():
+        return float("nan")
+    w = np.asarray(n, dtype=float)[ok]
+    return float(np.sqrt(np.sum(w * v[ok] ** 2) / max(w.sum(), 1)))
+
+
+def _sim_job(args: tuple[ModelSpec, AlignedRun]) -> Prediction:
+    spec, run = args
+    return simulate_model(spec, run)
+
+
+class _Simulator:
+    """Runs forward simulations (here or in worker processes), caches them by the model part of
+    the spec (a changed tip map needs no new simulation), counts them for the progress bar."""
+
+    def __init__(self, runs: Sequence[AlignedRun], jobs: int, bar) -> None:
+        self.runs = runs
+        self.jobs = jobs
+        self.bar = bar
+        self.count = 0
+        self.cache: dict[tuple[str, int], Prediction] = {}
+        self.pool = ProcessPoolExecutor(jobs) if jobs > 1 else None
+
+    @staticmethod
+    def key(spec: ModelSpec, ri: int) -> tuple[str, int]:
+        return repr(model_part(spec)), ri
+
+    def __call__(self, spec: ModelSpec, ri: int) -> Prediction:
+        m = model_part(spec)
+        if m.coupling_gain is not None:  # a blend of the two cached switch positions
+            lam = m.coupling_gain
+            a = self(replace(m, coupling_gain=0.0), ri)
+            b = self(replace(m, coupling_gain=1.0), ri)
+            mix = Prediction(
+                (1 - lam) * a.tip_mm + lam * b.tip_mm,
+                (1 - lam) * a.tension_N + lam * b.tension_N,
+                (1 - lam) * a.psi + lam * b.psi,
+                a.failures + b.failures,
+            )
+            return with_tip_map(spec, mix)
+        k = self.key(spec, ri)
+        if k not in self.cache:
+            self.cache[k] = simulate_model(spec, self.runs[ri])
+            self._tick()
+        return with_tip_map(spec, self.cache[k])
+
+    def many(self, items: list[tuple[ModelSpec, int]]) -> list[Prediction]:
+        todo = {}
+        for s, i in items:
+            k = self.key(s, i)
+            if k not in self.cache and k not in todo:
+                todo[k] = (s, i)
+        if self.pool is None or len(todo) < 2:
+            for s, i in todo.values():
+                self(s, i)
+        else:
+            futs = {k: self.pool.submit(_sim_job, (s, self.runs[i])) for k, (s, i) in todo.items()}
+            for k, f in futs.items():
+                self.cache[k] = f.result()
+                self._tick()
+        return [self(s, i) for s, i in items]
+
+    def _tick(self) -> None:
+        self.count += 1
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def close(self) -> None:
+        if self.pool is not None:
+            self.pool.shutdown()
+
+
+def analyse(
+    run_dirs: Sequence[str | Path],
+    rig_config: str | Path | None = None,
+    candidates: Sequence[EffectTerm] = CANDIDATES,
+    model_effects: dict[str, bool] | None = None,
+    folds: int = 5,
+    pairs: bool = True,
+    max_points: int = 700,
+    jobs: int = 2,
+    progress: bool = True,
+    refit_evals: int = 8,
+) -> DiscrepancyResult:
+    """Run the workflow on ``run_dirs`` (see module doc). Raises :class:`RigError` for runs of
+    different rigs or runs that cannot be analysed."""
+    t0 = time.monotonic()
+    runs = [align_run(d, rig_config, model_effects, max_points=max_points) for d in run_dirs]
+    if not runs:
+        raise RigError("no runs given")
+    K = {r.n_cables for r in runs}
+    S = {r.spec.params.n_segments for r in runs}
+    if len(K) > 1 or len(S) > 1:
+        raise RigError("the runs are of different rigs (segment/cable counts differ)")
+    terms, notes = active_terms(runs, candidates)
+    n_cols = sum(len(t.parameters(runs[0].spec)) for t in terms if t.kind != "measurement")
+    total = len(runs) * (1 + n_cols + refit_evals)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc="discrepancy", unit="sim", leave=False)
+    sim = _Simulator(runs, jobs, bar)
+    try:
+        baselines = sim.many([(r.spec, i) for i, r in enumerate(runs)])
+        # every column simulation up front (in parallel when asked), then the design from cache
+        items: list[tuple[ModelSpec, int]] = []
+        for ri, r in enumerate(runs):
+            for t in terms:
+                if t.kind == "measurement":
+                    continue
+                params = t.parameters(r.spec)
+                for j, p in enumerate(params):
+                    v = np.zeros(len(params))
+                    v[j] = p.step
+                    items.append((t.apply(r.spec, v), ri))
+        sim.many(items)
+        design = build_design(runs, terms, baselines, folds, sim)
+        selection = select(design, terms, folds, pairs=pairs)
+        rf = None
+        if selection.chosen is not None:
+            rf = refit(design, runs, selection.chosen, sim, max_nfev=refit_evals)
+            rf = _maybe_pair(design, runs, selection, rf, sim, refit_evals)
+        outcomes = _outcomes(runs, baselines, design, rf)
+    finally:
+        sim.close()
+        if bar is not None:
+            bar.close()
+    for r in runs:
+        notes += [f"{r.name}: {n}" for n in r.notes]
+    fails = sum(b.failures for b in baselines)
+    if fails:
+        notes.append(f"{fails} baseline steps the model could not solve (last solution kept)")
+    return DiscrepancyResult(
+        runs=runs,
+        terms=terms,
+        design=design,
+        selection=selection,
+        refit=rf,
+        outcomes=outcomes,
+        notes=notes,
+        elapsed_s=time.monotonic() - t0,
+        simulations=sim.count,
+    )
+
+
+def _maybe_pair(d: Design, runs, sel: Selection, rf: Refit, sim, evals: int) -> Refit:
+    """Refit the pair that beat the single in linearised CV; keep it only if, refitted, it
+    removes a further ``pair_gain`` of the excess over noise (in noise variances per residual)."""
+    pair = sel.pair
+    if pair is None:
+        return rf
+    N = sel.n_entries
+    margin = sel.pair_gain * max(sel.baseline.cv_sse / N - 1.0, 0.0)
+    if pair.cv_sse / N >= rf.mean_square - margin:
+        sel.reasons.append(
+            f"pair {pair.name} not better than the refitted {sel.chosen.name}"
+            f" ({rf.mean_square:.2f} noise variances): the single effect is kept"
+        )
+        return rf
+    rp = refit(d, runs, pair, sim, max_nfev=evals)
+    if rp.mean_square < rf.mean_square - margin:
+        sel.reasons.append(
+            f"the pair {pair.name} (refitted mean square {rp.mean_square:.2f}) beats the single"
+            f" {sel.chosen.name} ({rf.mean_square:.2f}) by more than {margin:.2f}: both are missing"
+        )
+        sel.chosen = pair
+        return rp
+    sel.reasons.append(
+        f"pair {pair.name} refitted ({rp.mean_square:.2f}) is not better than {sel.chosen.name}"
+        f" ({rf.mean_square:.2f}) by {margin:.2f}: the single effect is kept"
+    )
+    return rf
+
+
+def _nuisance_fit(run_i: int, d: Design, resid_entries: np.ndarray) -> np.ndarray:
+    m = d.run == run_i
+    Nu = d.Nu[m]
+    keep = np.any(Nu != 0, axis=0)
+    p = np.zeros(d.Nu.shape[1])
+    if keep.any():
+        p[keep] = np.linalg.lstsq(Nu[:, keep], resid_entries[m], rcond=None)[0]
+    return p
+
+
+def _corrected_tip_error(
+    run: AlignedRun, pred: Prediction, d: Design, ri: int, nuis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Tip error (N,) mm and tension residual (N, K) N after removing the nuisance (lag,
+    load-cell offsets) fitted to them; and the lag (s)."""
+    m = d.run == ri
+    rows, chans = d.row[m], d.chan[m]
+    corr = d.Nu[m] @ nuis
+    tip_e = run.tip_mm - pred.tip_mm
+    tip_c = tip_e.copy()
+    t_m = chans < 3
+    tip_c[rows[t_m], chans[t_m]] -= corr[t_m] * run.sigma_tip_mm
+    Te = None
+    if run.tension_N is not None:
+        Te = run.tension_N - pred.tension_N
+        Te[rows[~t_m], chans[~t_m] - 3] -= corr[~t_m] * run.sigma_tension_N
+    lag_names = [i for i, n in enumerate(d.nu_names) if n.startswith(f"{run.name}: tracker lag")]
+    lag = float(nuis[lag_names[0]]) if lag_names else 0.0
+    return np.linalg.norm(tip_c, axis=1), Te, lag
+
+
+def _outcomes(
+    runs: Sequence[AlignedRun], baselines: Sequence[Prediction], d: Design, rf: Refit | None
+) -> list[RunOutcome]:
+    out = []
+    for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
+        nb = _nuisance_fit(ri, d, d.r0)
+        eb, Tb, lag = _corrected_tip_error(run, base, d, ri, nb)
+        if rf is not None:
+            after = rf.predictions[ri]
+            ea, Ta, _ = _corrected_tip_error(run, after, d, ri, rf.nuisance)
+        else:
+            after, ea, Ta = base, eb, Tb
+        tables = localise(run, _shifted(base, run, lag))
+
+        def rms(x):
+            return (
+                float(np.sqrt(np.nanmean(x**2)))
+                if x is not None and np.isfinite(x).any()
+                else float("nan")
+            )
+
+        out.append(
+            RunOutcome(
+                name=run.name,
+                tip_noise_floor_mm=math.sqrt(3.0) * run.sigma_tip_mm,
+                tip_rms_before_mm=rms(eb),
+                tip_rms_after_mm=rms(ea),
+                tension_rms_before_N=rms(Tb),
+                tension_rms_after_N=rms(Ta),
+                lag_s=lag,
+                tables=tables,
+                t_s=run.t_s,
+                tip_err_before_mm=eb,
+                tip_err_after_mm=ea,
+            )
+        )
+    return out
+
+
+def _shifted(pred: Prediction, run: AlignedRun, lag_s: float) -> Prediction:
+    """Prediction delayed by the fitted tracker lag (for the localisation tables)."""
+    if lag_s == 0.0:
+        return pred
+    t = run.t_s - lag_s
+    tip = np.column_stack([np.interp(t, run.t_s, pred.tip_mm[:, a]) for a in range(3)])
+    return Prediction(tip, pred.tension_N, pred.psi, pred.failures)

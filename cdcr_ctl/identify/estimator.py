@@ -1,0 +1,558 @@
+"""Joint least-squares identification from dwell points, with the poses as nuisance unknowns.
+
+Why not replay the forward model: the forward model (:class:`~cdcr_ctl.model.ForwardStepper`)
+costs ~2-4 ms per pose, so a fit by replaying the sweep through it needs minutes. And why not
+eq. 38 as printed (the inverse model's tensions against the load cells): the inverse model
+closes the statics with the pretension rule (the least-tensioned cable keeps T0), which holds for
+a compensated command but not for what an uncompensated sweep does to the passive cables (they
+go nearly slack). Instead every equation of the model is written at the *measured* state of each
+dwell, which holds whatever the command was (errors-in-variables least squares):
+
+unknowns per dwell j: the bending vectors x_j (2S, rad), the anchor tensions T_j (K, N) and, where
+the friction state is not certain (:mod:`.dwell`), the mobilised fractions s_jk in [-1, 1];
+global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, pulley α/n).
+
+residuals per dwell, each divided by its standard deviation:
+
+* tip:     p(x_j) - p_tracker                                    (eq. 1-3; 3 rows, mm)
+* cell:    T_cell(x_j, T_j, s_j) - T_load cell                    (eq. 23, 29-32; N)
+  (the tension entering the base hole, T_j exp(s μ Σ η), or beyond the pulleys at the actuator)
+* moment:  Σ_k T_jk F̄_k(s, μ) a_k(x_j) - m_req(x_j; EI, gravity) (eq. 8-15; 2S rows, N mm)
+* compat:  q_geom(x_j) + δ_in + δ_out - q_act                     (eq. 4, 33-37; mm)
+  dropped for a cable whose measured tension is below ``slack_N`` (a slack cable is longer
+  than its path)
+
+The standard deviations come from the spread of each dwell's samples (:mod:`.dwell`) with floors
+(:class:`FitOptions`); the moment equations are the model's own and get the tension noise times
+the routing radius.
+
+Stages (each a bounded trust-region least squares; the next starts where the last ended):
+0. nuisance only, nominal parameters, without compatibility: poses and tensions that fit tip,
+   load cells and moment balance;
+1. + μ, EI (and pulley α, n when cells sit at the actuator): the force side;
+2. + compatibility, EA, T0 (and pulley α with cells at the base): the length side, force side fixed;
+3. everything jointly. The 95 % confidence intervals come from its Jacobian:
+   cov = s² (JᵀJ)⁻¹ over all free unknowns (nuisance included, those on a bound excluded),
+   s² = SSR/(m - n), Student t quantile; log-fitted parameters get exp of the interval.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.stats import t as student_t
+
+from cdcr_ctl.errors import ModelError, RigError
+from cdcr_ctl.identify.dwell import DwellPoint
+from cdcr_ctl.identify.parameters import FORCE_KINDS, FitParameter, NotIdentified, apply_values
+from cdcr_ctl.model.kinematics import tip_position_fast
+from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.transfer import ForceTransfer
+
+RESIDUAL_KINDS = ("tip", "cell", "moment", "compat")
+_H_VAR = 1e-6  # finite-difference step of a global unknown (log or natural units)
+_H_X = 1e-7  # rad
+_H_S = 1e-6
+_X_BOUND = 3.2  # rad, bound of each bending-vector component
+_T_MAX = 1e3  # N
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Noise floors (standard deviations of a dwell mean) and solver settings.
+
+    ``tip_floor_mm``: tracker; ``tension_floor_N``: load cell; ``q_floor_mm``: drive position
+    (counts resolution and following error); ``moment_floor_Nmm``: model tolerance of the moment
+    balance. ``slack_N``: below it a cable's compatibility is not used. ``max_nfev``: function
+    evaluations per stage. ``max_rel_ci``: a parameter whose 95 % half-interval exceeds this
+    fraction of its value is reported as poorly identified (and, for pulleys with cells at the
+    robot base, put back to nominal and the fit repeated without it).
+    """
+
+    tip_floor_mm: float = 0.005
+    tension_floor_N: float = 0.002
+    q_floor_mm: float = 0.001
+    moment_floor_Nmm: float = 0.005
+    slack_N: float = 0.1
+    max_nfev: int = 60
+    max_rel_ci: float = 0.5
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A fitted parameter: value, standard error and 95 % interval (natural units)."""
+
+    parameter: FitParameter
+    value: float
+    std: float
+    ci95: tuple[float, float]
+    at_bound: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.parameter.name
+
+    @property
+    def nominal(self) -> float:
+        return self.parameter.nominal
+
+    @property
+    def change_pct(self) -> float:
+        nom = self.parameter.nominal
+        return 100.0 * (self.value - nom) / nom if nom else math.nan
+
+    @property
+    def rel_halfwidth(self) -> float:
+        lo, hi = self.ci95
+        return 0.5 * (hi - lo) / abs(self.value) if self.value else math.inf
+
+
+@dataclass
+class Identification:
+    """Result of :func:`identify`: fitted parameters, what stayed nominal, residual statistics.
+
+    ``rms_before``/``rms_after``: RMS of each residual kind in its own unit (mm, N, N mm, mm)
+    with the nominal and the fitted parameters (poses and tensions re-estimated for each).
+    ``residuals_before``/``residuals_after``: per kind, (point index, value) arrays for plots.
+    ``poses``: fitted bending vectors per point (N, 2S); ``s``: friction fractions (N, K).
+    """
+
+    nominal: RobotParams
+    fitted: RobotParams
+    estimates: list[Estimate]
+    fixed: list[NotIdentified]
+    points: list[DwellPoint]
+    rms_before: dict[str, float]
+    rms_after: dict[str, float]
+    residuals_before: dict[str, tuple[np.ndarray, np.ndarray]]
+    residuals_after: dict[str, tuple[np.ndarray, np.ndarray]]
+    poses: np.ndarray
+    s: np.ndarray
+    chi2_reduced: float
+    n_residuals: int
+    n_unknowns: int
+    stages: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def estimate(self, name: str) -> Estimate:
+        for e in self.estimates:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+
+class _Problem:
+    """Residuals and Jacobian of the joint problem for one set of free globals and residual kinds.
+
+    The unknown vector is [free globals (fit variables) | per-point nuisance blocks]; each point's
+    residual rows depend on the globals and on its own block only.
+    """
+
+    def __init__(
+        self,
+        base: RobotParams,
+        effects: Effects,
+        points: Sequence[DwellPoint],
+        locations: Sequence[Location],
+        fps: Sequence[FitParameter],
+        options: FitOptions,
+    ) -> None:
+        self.base = base
+        self.effects = effects
+        self.points = list(points)
+        self.locations = list(locations)
+        self.fps = list(fps)
+        self.opt = options
+        S, K = base.n_segments, base.n_cables
+        self.S, self.K = S, K
+        self.lengths = [s.length_mm for s in base.segments]
+        r = [c.routing_radius_mm for c in base.cables]
+        self.unc: list[list[int]] = []  # per point: cables with an unknown friction state
+        self.sig_tip: list[float] = []
+        self.sig_T: list[list[float]] = []
+        self.sig_q: list[list[float]] = []
+        self.sig_M: list[float] = []
+        for p in self.points:
+            self.unc.append([k for k in range(K) if not p.s_known[k]])
+            self.sig_tip.append(max(p.tip_se_mm, options.tip_floor_mm))
+            sT = [max(float(p.tension_se_N[k]), options.tension_floor_N) for k in range(K)]
+            self.sig_T.append(sT)
+            self.sig_q.append([max(float(p.q_act_se_mm[k]), options.q_floor_mm) for k in range(K)])
+            self.sig_M.append(
+                max(options.moment_floor_Nmm, math.sqrt(sum((sT[k] * r[k]) ** 2 for k in range(K))))
+            )
+        self.block = [2 * S + K + len(u) for u in self.unc]
+        self.offsets = np.concatenate(([0], np.cumsum(self.block)))
+        self._ft_key: tuple[float, ...] | None = None
+        self._ft: ForceTransfer | None = None
+        self.g_all = np.array([fp.to_var(fp.nominal) for fp in self.fps])
+        self.set_stage(list(range(len(self.fps))), RESIDUAL_KINDS)
+
+    # ------------------------------------------------------------------ layout
+    def set_stage(self, free: Sequence[int], kinds: Sequence[str]) -> None:
+        """Choose the free globals (indices into ``fps``) and the residual kinds."""
+        self.free = list(free)
+        self.kinds = frozenset(kinds)
+        self.rows: list[list[tuple[str, int]]] = []  # per point: (kind, item) of each row
+        for p in self.points:
+            rows: list[tuple[str, int]] = []
+            if "tip" in self.kinds and p.has_tip:
+                rows += [("tip", a) for a in range(3)]
+            if "cell" in self.kinds:
+                rows += [("cell", k) for k in range(self.K) if math.isfinite(float(p.tension_N[k]))]
+            if "moment" in self.kinds:
+                rows += [("moment", a) for a in range(2 * self.S)]
+            if "compat" in self.kinds:
+                for k in range(self.K):
+                    T = float(p.tension_N[k])
+                    if math.isfinite(float(p.q_act_mm[k])) and not (
+                        math.isfinite(T) and T < self.opt.slack_N
+                    ):
+                        rows.append(("compat", k))
+            self.rows.append(rows)
+        self.row_off = np.concatenate(([0], np.cumsum([len(r) for r in self.rows])))
+
+    @property
+    def n_free(self) -> int:
+        return len(self.free)
+
+    def pack(self, nuis: np.ndarray) -> np.ndarray:
+        return np.concatenate((self.g_all[self.free], nuis))
+
+    def unpack(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        g = self.g_all.copy()
+        g[self.free] = z[: self.n_free]
+        return g, z[self.n_free :]
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = [], []
+        for j in self.free:
+            a, b = self.fps[j].var_bounds()
+            lo.append(a)
+            hi.append(b)
+        for u in self.unc:
+            lo += [-_X_BOUND] * (2 * self.S) + [0.0] * self.K + [-1.0] * len(u)
+            hi += [_X_BOUND] * (2 * self.S) + [_T_MAX] * self.K + [1.0] * len(u)
+        return np.array(lo), np.array(hi)
+
+    # ------------------------------------------------------------------ model
+    def params_of(self, g: np.ndarray) -> RobotParams:
+        vals = [fp.from_var(v) for fp, v in zip(self.fps, g, strict=True)]
+        return apply_values(self.base, self.fps, vals)
+
+    def transfer(self, g: np.ndarray) -> ForceTransfer:
+        key = tuple(float(v) for v in g)
+        if key != self._ft_key:
+            self._ft = ForceTransfer(self.params_of(g), self.effects)
+            self._ft_key = key
+        assert self._ft is not None
+        return self._ft
+
+    def split_block(self, j: int, b: np.ndarray) -> tuple[list[float], list[float], list[float]]:
+        """(xs, T, s) of point j from its nuisance block."""
+        S2, K = 2 * self.S, self.K
+        xs = [float(v) for v in b[:S2]]
+        T = [float(v) for v in b[S2 : S2 + K]]
+        s = [float(v) for v in self.points[j].s]
+        for m, k in enumerate(self.unc[j]):
+            s[k] = float(b[S2 + K + m])
+        return xs, T, s
+
+    def point_residual(self, ft: ForceTransfer, j: int, b: np.ndarray) -> list[float]:
+        """Weighted residual rows of point j (see the module docstring)."""
+        p = self.points[j]
+        xs, T, s = self.split_block(j, b)
+        P = ft.pose(xs)
+        Fb, Eb = ft.factors(P, s)
+        mom = ft.moment_residual(P, Fb, T) if "moment" in self.kinds else None
+        tip = tip_position_fast(xs, self.lengths) if "tip" in self.kinds and p.has_tip else None
+        cab = [ft.cable(P, k, T[k], s[k], Fb[k], Eb[k]) for k in range(self.K)]
+        out = []
+        for kind, a in self.rows[j]:
+            if kind == "tip":
+                out.append((tip[a] - float(p.tip_mm[a])) / self.sig_tip[j])
+            elif kind == "cell":
+                tb, ta, _, _ = cab[a]
+                model = tb if self.locations[a] == "robot_base" else ta
+                out.append((model - float(p.tension_N[a])) / self.sig_T[j][a])
+            elif kind == "moment":
+                out.append(mom[a] / self.sig_M[j])
+            else:
+                out.append((cab[a][3] - float(p.q_act_mm[a])) / self.sig_q[j][a])
+        return out
+
+    def residuals(self, z: np.ndarray) -> np.ndarray:
+        g, nuis = self.unpack(z)
+        ft = self.transfer(g)
+        out: list[float] = []
+        for j in range(len(self.points)):
+            out += self.point_residual(ft, j, nuis[self.offsets[j] : self.offsets[j + 1]])
+        return np.asarray(out)
+
+    def jacobian(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Forward differences: one full evaluation per free global, and one per nuisance slot
+        (all points' slot m perturbed together: point residuals are independent)."""
+        r0 = self.residuals(z)
+        J = np.zeros((r0.size, z.size))
+        P = self.n_free
+        for c in range(P):
+            h = _H_VAR if z[c] + _H_VAR <= hi[c] else -_H_VAR
+            zz = z.copy()
+            zz[c] += h
+            J[:, c] = (self.residuals(zz) - r0) / h
+        g, nuis = self.unpack(z)
+        ft = self.transfer(g)
+        S2, K = 2 * self.S, self.K
+        for m in range(max(self.block)):
+            for j in range(len(self.points)):
+                if m >= self.block[j]:
+                    continue
+                col = P + int(self.offsets[j]) + m
+                hstep = _H_X if m < S2 else (1e-6 * max(1.0, abs(z[col])) if m < S2 + K else _H_S)
+                if z[col] + hstep > hi[col]:
+                    hstep = -hstep
+                b = nuis[self.offsets[j] : self.offsets[j + 1]].copy()
+                b[m] += hstep
+                rj = np.asarray(self.point_residual(ft, j, b))
+                a0, a1 = self.row_off[j], self.row_off[j + 1]
+                J[a0:a1, col] = (rj - r0[a0:a1]) / hstep
+        return J
+
+    def solve(self, nuis0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, object]:
+        lo, hi = self.bounds()
+        z0 = np.clip(self.pack(nuis0), lo + 1e-12, hi - 1e-12)
+        sol = least_squares(
+            self.residuals,
+            z0,
+            jac=lambda z: self.jacobian(z, lo, hi),
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            xtol=1e-10,
+            ftol=1e-10,
+            gtol=1e-10,
+        )
+        g, nuis = self.unpack(sol.x)
+        self.g_all = g
+        return nuis, sol
+
+    # ------------------------------------------------------------------ reporting helpers
+    def kind_residuals(self, z: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Unweighted residuals per kind: (point index, value in the kind's unit)."""
+        r = self.residuals(z)
+        out: dict[str, tuple[list[int], list[float]]] = {k: ([], []) for k in RESIDUAL_KINDS}
+        for j, rows in enumerate(self.rows):
+            for n, (kind, a) in enumerate(rows):
+                v = float(r[self.row_off[j] + n])
+                if kind == "tip":
+                    v *= self.sig_tip[j]
+                elif kind == "cell":
+                    v *= self.sig_T[j][a]
+                elif kind == "moment":
+                    v *= self.sig_M[j]
+                else:
+                    v *= self.sig_q[j][a]
+                out[kind][0].append(j)
+                out[kind][1].append(v)
+        return {k: (np.array(i, dtype=int), np.array(v)) for k, (i, v) in out.items()}
+
+
+def _rms(res: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+    return {k: float(np.sqrt(np.mean(v**2))) if v.size else math.nan for k, (_, v) in res.items()}
+
+
+def initial_nuisance(
+    params: RobotParams,
+    effects: Effects,
+    points: Sequence[DwellPoint],
+    locations: Sequence[Location],
+    unc: Sequence[Sequence[int]],
+) -> np.ndarray:
+    """Starting poses (tip inversion for one segment, else the command) and anchor tensions
+    (load cells through the nominal friction, else the nominal statics, else T0)."""
+    ft = ForceTransfer(params, effects)
+    S, K = params.n_segments, params.n_cables
+    out: list[float] = []
+    for p, u in zip(points, unc, strict=True):
+        xs: list[float] = []
+        if S == 1 and p.has_tip:
+            px, py, pz = (float(v) for v in p.tip_mm)
+            rho = math.hypot(px, py)
+            th = 2.0 * math.atan2(rho, pz)  # tip of an arc: rho/z = tan(theta/2)
+            ph = math.atan2(py, px)
+            xs = [th * math.cos(ph), th * math.sin(ph)]
+        else:
+            for i in range(S):
+                th, ph = float(p.psi_cmd[i, 0]), float(p.psi_cmd[i, 1])
+                xs += [th * math.cos(ph), th * math.sin(ph)]
+        s = [float(v) * (0.9 if k in u else 1.0) for k, v in enumerate(p.s)]
+        P = ft.pose(xs)
+        Fb, Eb = ft.factors(P, s)
+        try:
+            T_model = ft.statics(P, Fb)
+        except ModelError:
+            T_model = [c.pretension_N for c in params.cables]
+        T = []
+        for k in range(K):
+            m = float(p.tension_N[k])
+            if math.isfinite(m):
+                tb = m if locations[k] == "robot_base" else ft.base_from_actuator(k, m, s[k])
+                T.append(max(tb * math.exp(-Eb[k]), 0.0))
+            else:
+                T.append(max(T_model[k], 0.0))
+        out += xs + T + [s[k] for k in u]
+    return np.asarray(out)
+
+
+def identify(
+    params: RobotParams,
+    effects: Effects,
+    points: Sequence[DwellPoint],
+    locations: Sequence[Location],
+    fit_params: Sequence[FitParameter],
+    fixed: Sequence[NotIdentified] = (),
+    options: FitOptions | None = None,
+) -> Identification:
+    """Fit ``fit_params`` to the dwell ``points`` in the stages of the module docstring.
+
+    ``params`` are the controller's nominal parameters (the start and the values of everything
+    not fitted); ``effects`` the controller's model effects; ``locations`` the load-cell
+    location per cable. Raises :class:`RigError` when there is nothing to fit from.
+    """
+    opt = FitOptions() if options is None else options
+    pts = list(points)
+    if not pts:
+        raise RigError("identification: no dwell points")
+    fps = list(fit_params)
+    fixed = list(fixed)
+    warnings: list[str] = []
+    stages: list[str] = []
+    while True:
+        prob = _Problem(params, effects, pts, locations, fps, opt)
+        nuis = initial_nuisance(params, effects, pts, locations, prob.unc)
+        force = [j for j, f in enumerate(fps) if f.kind in FORCE_KINDS]
+        pulley_force = [
+            j
+            for j, f in enumerate(fps)
+            if f.kind.startswith("pulley") and any(loc == "actuator" for loc in locations)
+        ]
+        first = force + pulley_force
+        rest = [j for j in range(len(fps)) if j not in first]
+        # stage 0: nuisance only
+        prob.set_stage([], ("tip", "cell", "moment"))
+        nuis, sol = prob.solve(nuis, opt.max_nfev)
+        stages.append(f"stage 0 (poses, tensions): cost {sol.cost:.4g}, {sol.nfev} evaluations")
+        prob.set_stage([], RESIDUAL_KINDS)
+        before = prob.kind_residuals(prob.pack(nuis))
+        if first:
+            prob.set_stage(first, ("tip", "cell", "moment"))
+            nuis, sol = prob.solve(nuis, opt.max_nfev)
+            stages.append(f"stage 1 (force side): cost {sol.cost:.4g}, {sol.nfev} evaluations")
+        if rest:
+            prob.set_stage(rest, RESIDUAL_KINDS)
+            nuis, sol = prob.solve(nuis, opt.max_nfev)
+            stages.append(f"stage 2 (length side): cost {sol.cost:.4g}, {sol.nfev} evaluations")
+        prob.set_stage(list(range(len(fps))), RESIDUAL_KINDS)
+        nuis, sol = prob.solve(nuis, opt.max_nfev)
+        stages.append(
+            f"stage 3 (joint): cost {sol.cost:.4g}, {sol.nfev} evaluations, {sol.message}"
+        )
+        estimates, chi2, m, n = _estimates(prob, sol.x)
+        # A pulley parameter fitted only through the stretch may be too poorly determined.
+        weak = [
+            e
+            for e in estimates
+            if e.parameter.kind.startswith("pulley")
+            and not any(loc == "actuator" for loc in locations)
+            and not e.rel_halfwidth <= opt.max_rel_ci
+        ]
+        if not weak:
+            break
+        for e in weak:
+            fps.remove(e.parameter)
+            fixed.append(
+                NotIdentified(
+                    e.name,
+                    e.nominal,
+                    f"too weakly determined with load cells at the robot base "
+                    f"(fitted {e.value:.4g}, 95 % CI ±{100 * e.rel_halfwidth:.0f} %)",
+                )
+            )
+        stages.append("refit without " + ", ".join(e.name for e in weak))
+    for e in estimates:
+        if not e.rel_halfwidth <= opt.max_rel_ci:
+            warnings.append(f"{e.name}: poorly identified (95 % CI ±{100 * e.rel_halfwidth:.0f} %)")
+        if e.at_bound:
+            warnings.append(f"{e.name}: fitted value {e.value:.4g} is on its bound")
+    after = prob.kind_residuals(sol.x)
+    _, nuis_final = prob.unpack(sol.x)
+    S = params.n_segments
+    poses = np.array(
+        [nuis_final[prob.offsets[j] : prob.offsets[j] + 2 * S] for j in range(len(pts))]
+    )
+    s_fit = np.array(
+        [
+            prob.split_block(j, nuis_final[prob.offsets[j] : prob.offsets[j + 1]])[2]
+            for j in range(len(pts))
+        ]
+    )
+    return Identification(
+        nominal=params,
+        fitted=prob.params_of(prob.g_all),
+        estimates=estimates,
+        fixed=fixed,
+        points=pts,
+        rms_before=_rms(before),
+        rms_after=_rms(after),
+        residuals_before=before,
+        residuals_after=after,
+        poses=poses,
+        s=s_fit,
+        chi2_reduced=chi2,
+        n_residuals=m,
+        n_unknowns=n,
+        stages=stages,
+        warnings=warnings,
+    )
+
+
+def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, int, int]:
+    """Values, standard errors and 95 % intervals of the free globals at the solution ``z``."""
+    lo, hi = prob.bounds()
+    J = prob.jacobian(z, lo, hi)
+    r = prob.residuals(z)
+    span = np.maximum(hi - lo, 1e-300)
+    on_bound = (np.abs(z - lo) <= 1e-9 * np.maximum(1.0, np.abs(lo))) | (
+        np.abs(hi - z) <= 1e-9 * np.maximum(1.0, np.abs(hi))
+    )
+    on_bound &= np.isfinite(span)
+    keep = ~on_bound
+    Jk = J[:, keep]
+    m, n = r.size, int(keep.sum())
+    dof = max(m - n, 1)
+    s2 = float(r @ r) / dof
+    JtJ = Jk.T @ Jk
+    try:
+        cov = s2 * np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        cov = s2 * np.linalg.pinv(JtJ)
+    idx = np.cumsum(keep) - 1  # column of each kept unknown in cov
+    tq = float(student_t.ppf(0.975, dof))
+    out = []
+    for c, j in enumerate(prob.free):
+        fp = prob.fps[j]
+        v = fp.from_var(float(z[c]))
+        sd = math.sqrt(max(float(cov[idx[c], idx[c]]), 0.0)) if keep[c] else math.nan
+        if fp.log:
+            std = v * sd
+            ci = (math.exp(z[c] - tq * sd), math.exp(z[c] + tq * sd))
+        else:
+            std = sd
+            ci = (v - tq * sd, v + tq * sd)
+        out.append(Estimate(fp, v, std, ci, at_bound=bool(on_bound[c])))
+    return out, s2, m, n

@@ -1,0 +1,254 @@
+"""Which model parameters a logged sweep can identify, and how each is fitted.
+
+A :class:`FitParameter` is one fitted scalar mapped onto one or more
+:class:`~cdcr_ctl.model.identification.ParamRef` (several when tied: identical pulleys in series
+cannot be told apart, so they share one α and one n). :func:`plan_parameters` applies the rules
+below to the data present and returns the parameters to fit and, for the others, why not.
+
+Identifiability (what shows the parameter in the data; derivations in :mod:`.estimator`):
+
+* μ_k, disk-hole friction of cable k (eq. 16-24, 38): the ratio of its tension between pulling
+  in and paying out at the same pose, growing with the wrap (≈ θ). Needs a load cell on cable k,
+  the tip (the pose the wrap depends on) and both motion directions.
+* EI_i, backbone of segment i (eq. 8-10): the moment balance between the measured tensions and
+  the measured bend. Needs load cells and the tip, with segment i bent. Without load cells only
+  the ratio EI/EA shows (a stiffer backbone and a stiffer cable give the same lost motion).
+* EA_k and pretension T0_k (eq. 33-36): cable compatibility q_act = q_geom(pose) + δ, with
+  δ = (∫T ds - T0 L_k)/EA_k linear in the measured tension level: EA_k from the slope, T0_k from
+  the offset. Needs drive feedback, the tip (q_geom of the true pose) and a load cell on cable k.
+* Pulley α (and n) (eq. 25-32): with load cells at the actuator, the ratio of actuator tension
+  to the tension entering the robot (inferred from the moment balance); the friction exponent n
+  from how that ratio changes with the tension level. With load cells at the robot base the
+  pulleys only show through the stretch of the cable outside the robot (a second-order effect
+  next to EA): α is tried and kept only if its 95 % interval is narrow; n is not fitted.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdcr_ctl.identify.dwell import DwellPoint
+from cdcr_ctl.model.identification import ParamRef, get_value, with_values
+from cdcr_ctl.model.params import Location, RobotParams
+
+#: Kinds of fitted parameters, in report order.
+KINDS = ("EI", "mu", "EA", "pretension", "pulley_alpha", "pulley_n")
+#: Kinds fitted from the force side (tensions, moment balance) in the first stage.
+FORCE_KINDS = frozenset({"EI", "mu"})
+#: A segment whose dwells span less bend than this (rad) shows no stiffness.
+MIN_BEND_RANGE_RAD = 0.2
+
+
+@dataclass(frozen=True)
+class FitParameter:
+    """One fitted scalar. ``refs[j]`` gets ``value * scales[j]`` (natural units).
+
+    ``name`` is the report name (``c1.mu_disk``, ``seg1.EI_Nmm2``, ``pulleys.alpha``); ``kind``
+    one of :data:`KINDS`; ``index`` the cable/segment index (-1 for pulleys); bounds in
+    natural units; ``log`` fits ln(value).
+    """
+
+    name: str
+    kind: str
+    index: int
+    refs: tuple[ParamRef, ...]
+    scales: tuple[float, ...]
+    nominal: float
+    lower: float
+    upper: float
+    log: bool = True
+
+    def to_var(self, value: float) -> float:
+        return math.log(value) if self.log else float(value)
+
+    def from_var(self, var: float) -> float:
+        return math.exp(var) if self.log else float(var)
+
+    def var_bounds(self) -> tuple[float, float]:
+        if self.log:
+            return math.log(self.lower), math.log(self.upper)
+        return self.lower, self.upper
+
+
+@dataclass(frozen=True)
+class NotIdentified:
+    """A parameter left at its nominal value, and why."""
+
+    name: str
+    nominal: float
+    reason: str
+
+
+def apply_values(
+    params: RobotParams, fps: Sequence[FitParameter], values: Sequence[float]
+) -> RobotParams:
+    """``params`` with every fitted parameter set (natural units; tied refs scaled)."""
+    refs: list[ParamRef] = []
+    vals: list[float] = []
+    for fp, v in zip(fps, values, strict=True):
+        for ref, sc in zip(fp.refs, fp.scales, strict=True):
+            refs.append(ref)
+            vals.append(float(v) * sc)
+    return with_values(params, refs, vals) if refs else params
+
+
+def _pulley_names(params: RobotParams) -> list[str]:
+    names: list[str] = []
+    for c in params.cables:
+        for p in c.pulleys:
+            if p.name not in names:
+                names.append(p.name)
+    return names
+
+
+def plan_parameters(
+    params: RobotParams,
+    points: Sequence[DwellPoint],
+    locations: Sequence[Location],
+    fit_pulleys: str = "auto",
+) -> tuple[list[FitParameter], list[NotIdentified]]:
+    """The parameters the dwell data can identify (module docstring) and the ones it cannot.
+
+    ``locations`` per cable: where its load cell sits (the config's). ``fit_pulleys``:
+    ``"auto"`` (α always tried, n only with actuator-side cells), ``"on"`` (α and n tried),
+    ``"off"``.
+    """
+    K = params.n_cables
+    pts = list(points)
+    has_tip = any(p.has_tip for p in pts)
+    has_q = any(np.all(np.isfinite(p.q_act_mm)) for p in pts)
+    cell = [any(math.isfinite(float(p.tension_N[k])) for p in pts) for k in range(K)]
+    dirs = [{p.s[k] for p in pts} for k in range(K)]
+    fit: list[FitParameter] = []
+    fixed: list[NotIdentified] = []
+
+    def cable_name(k: int) -> str:
+        return params.cables[k].name
+
+    for i, seg in enumerate(params.segments):
+        name = f"{seg.name}.EI_Nmm2"
+        nom = seg.EI_Nmm2
+        own = params.cables_of(i)
+        bends = [float(p.psi_cmd[i, 0]) for p in pts]
+        if not has_tip:
+            fixed.append(NotIdentified(name, nom, "no tracker tip: the bend is not measured"))
+        elif not any(cell[k] for k in own):
+            fixed.append(
+                NotIdentified(name, nom, "no load cell on its cables: only EI/EA would show")
+            )
+        elif max(bends) - min(bends) < MIN_BEND_RANGE_RAD:
+            fixed.append(NotIdentified(name, nom, "the segment was not bent in the sweep"))
+        else:
+            ref = ParamRef("segment", i, "EI_Nmm2")
+            fit.append(FitParameter(name, "EI", i, (ref,), (1.0,), nom, nom / 10, nom * 10))
+
+    for k in range(K):
+        name = f"{cable_name(k)}.mu_disk"
+        nom = params.cables[k].mu_disk
+        if not cell[k]:
+            fixed.append(NotIdentified(name, nom, "no load cell on this cable"))
+        elif not has_tip:
+            fixed.append(NotIdentified(name, nom, "no tracker tip: the wrap angle is unknown"))
+        elif not ({1.0, -1.0} <= dirs[k]):
+            fixed.append(NotIdentified(name, nom, "the cable did not move both ways"))
+        else:
+            ref = ParamRef("cable", k, "mu_disk")
+            fit.append(FitParameter(name, "mu", k, (ref,), (1.0,), nom, 1e-4, max(2.0, 4 * nom)))
+
+    for k in range(K):
+        c = params.cables[k]
+        for field, kind, nom in (
+            ("EA_N", "EA", c.EA_N),
+            ("pretension_N", "pretension", c.pretension_N),
+        ):
+            name = f"{cable_name(k)}.{field}"
+            if not has_q:
+                fixed.append(NotIdentified(name, nom, "no drive feedback or command"))
+            elif not has_tip:
+                fixed.append(
+                    NotIdentified(name, nom, "no tracker tip: the geometric length is unknown")
+                )
+            elif not cell[k]:
+                fixed.append(NotIdentified(name, nom, "no load cell on this cable"))
+            elif kind == "EA" and not math.isfinite(nom):
+                fixed.append(NotIdentified(name, nom, "the config says the cable is rigid"))
+            else:
+                ref = ParamRef("cable", k, field)
+                if kind == "EA":
+                    fp = FitParameter(name, kind, k, (ref,), (1.0,), nom, nom / 20, nom * 20)
+                else:
+                    hi = max(10.0 * nom, 20.0)
+                    fp = FitParameter(name, kind, k, (ref,), (1.0,), nom, 0.0, hi, log=False)
+                fit.append(fp)
+
+    names = _pulley_names(params)
+    if names and fit_pulleys != "off":
+        first = names[0]
+        ref0 = ParamRef("pulley", first, "alpha")
+        a0 = get_value(params, ref0)
+        n0 = get_value(params, ParamRef("pulley", first, "n"))
+        alphas = [get_value(params, ParamRef("pulley", nm, "alpha")) for nm in names]
+        ns = [get_value(params, ParamRef("pulley", nm, "n")) for nm in names]
+        pulley_cells = [locations[k] for k, c in enumerate(params.cables) if c.pulleys and cell[k]]
+        at_actuator = any(loc == "actuator" for loc in pulley_cells)
+        if not pulley_cells:
+            fixed.append(NotIdentified("pulleys.alpha", a0, "no load cell on a cable with pulleys"))
+        elif not has_tip or not has_q:
+            fixed.append(NotIdentified("pulleys.alpha", a0, "needs the tip and drive feedback"))
+        elif a0 <= 0.0:
+            fixed.append(NotIdentified("pulleys.alpha", a0, "nominal alpha is 0 (frictionless)"))
+        else:
+            refs = tuple(ParamRef("pulley", nm, "alpha") for nm in names)
+            fit.append(
+                FitParameter(
+                    "pulleys.alpha",
+                    "pulley_alpha",
+                    -1,
+                    refs,
+                    tuple(a / a0 for a in alphas),
+                    a0,
+                    a0 / 20,
+                    min(2.0, 20 * a0),
+                )
+            )
+        if at_actuator or fit_pulleys == "on":
+            if len(set(ns)) > 1:
+                fixed.append(NotIdentified("pulleys.n", n0, "pulleys have different nominal n"))
+            elif has_tip and has_q and pulley_cells:
+                refs = tuple(ParamRef("pulley", nm, "n") for nm in names)
+                fit.append(
+                    FitParameter(
+                        "pulleys.n",
+                        "pulley_n",
+                        -1,
+                        refs,
+                        (1.0,) * len(names),
+                        n0,
+                        0.3,
+                        1.0,
+                        log=False,
+                    )
+                )
+        else:
+            fixed.append(
+                NotIdentified(
+                    "pulleys.n",
+                    n0,
+                    "load cells at the robot base: the pulley tension ratio is not measured",
+                )
+            )
+    elif names:
+        fixed.append(
+            NotIdentified(
+                "pulleys.alpha",
+                get_value(params, ParamRef("pulley", names[0], "alpha")),
+                "pulley fit switched off",
+            )
+        )
+    order = {k: j for j, k in enumerate(KINDS)}
+    fit.sort(key=lambda f: (order[f.kind], f.index))
+    return fit, fixed

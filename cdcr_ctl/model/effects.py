@@ -1,0 +1,556 @@
+"""Candidate physical effects for model-discrepancy analysis, and two transmission effects.
+
+Pure physics, numpy only: no I/O, no clocks. Units: mm, N, rad, g; frames: the robot base frame.
+
+Transmission effects (:class:`~cdcr_ctl.model.params.ActuatorEffect`, between the drive and the
+cable leaving the spool, applied by :class:`~cdcr_ctl.model.forward.ForwardStepper`):
+
+* :class:`BacklashPlay` - a play (dead band) of width b in the transmission: the cable follows the
+  actuator only while the actuator pushes against one side of the play,
+  y = clip(y_prev, x - b/2, x + b/2)  (the "play operator" of hysteresis theory; a dead zone at
+  every reversal whose width is independent of speed and tension; Yang et al. 2022 eq. 13-17 model
+  the same dead zone at direction reversal).
+* :class:`TransmissionScale` - the cable moves ``factor`` mm per mm the drive reports (lead or
+  counts-per-mm error): y = factor * x.
+
+Candidate effects (:class:`EffectTerm`): each is one physical term with parameters, units and a
+signature, written as a change of a :class:`ModelSpec` (robot parameters, switchable effects,
+tip measurement map). Every parameter vector is a *correction* of the controller's model: zero
+means "the model as it is", so the same term explains an effect the model lacks (switched off)
+and one it has with the wrong magnitude. A new effect is one subclass with :meth:`parameters`,
+:meth:`apply` and optionally :meth:`not_applicable`; add an instance to :data:`CANDIDATES`.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from cdcr_ctl.model.params import CableParams, Effects, RobotParams
+
+#: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
+#: E = 4960 MPa (Qi et al. 2023 section 3) -> EA = 4960 * pi * 0.4^2 = 2493 N.
+REFERENCE_EA_N = 2493.0
+#: Reference disk mass (g) when the config gives none (Qi et al. 2023 aluminium disks, ~0.8 g).
+REFERENCE_DISK_MASS_G = 0.8
+#: Standard gravity in the base frame when the config's gravity vector is zero (mm/s^2).
+STANDARD_GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
+
+
+# ---------------------------------------------------------------------- transmission effects
+@dataclass(frozen=True)
+class BacklashPlay:
+    """Play of total width ``width_mm`` (per cable or one for all) between drive and cable.
+
+    Forward (:meth:`to_cable`): y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred
+    (y = 0 at x = 0). Inverse (:meth:`to_actuator`): x = y + sign * b/2 with the sign of the last
+    motion of the wanted cable position (kept while it does not move). State: (K, 2) array of
+    [last cable position (mm), last direction (+1/-1/0)]. Units mm.
+    """
+
+    width_mm: float | tuple[float, ...]
+
+    def _b(self, n: int) -> np.ndarray:
+        b = np.broadcast_to(np.asarray(self.width_mm, dtype=float), (n,))
+        if np.any(b < 0):
+            raise ValueError("backlash width must be >= 0")
+        return b
+
+    def new_state(self, n_cables: int) -> np.ndarray:
+        return np.zeros((n_cables, 2))
+
+    def to_cable(self, q_act_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
+        x = np.asarray(q_act_mm, dtype=float)
+        half = 0.5 * self._b(x.size)
+        y = np.clip(state[:, 0], x - half, x + half)
+        state[:, 0] = y
+        return y
+
+    def to_actuator(self, q_cable_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
+        y = np.asarray(q_cable_mm, dtype=float)
+        half = 0.5 * self._b(y.size)
+        dy = y - state[:, 0]
+        direction = np.where(dy > 1e-12, 1.0, np.where(dy < -1e-12, -1.0, state[:, 1]))
+        state[:, 0] = y
+        state[:, 1] = direction
+        return y + direction * half
+
+
+@dataclass(frozen=True)
+class TransmissionScale:
+    """Cable travel per reported drive travel (dimensionless, per cable or one for all).
+
+    A counts-per-mm (or screw lead) error: the drive reports x mm, the cable moves factor * x.
+    The truth's ``counts_per_mm_scale`` s gives factor = 1/s. Stateless.
+    """
+
+    factor: float | tuple[float, ...]
+
+    def new_state(self, n_cables: int) -> None:
+        return None
+
+    def to_cable(self, q_act_mm: np.ndarray, state: None) -> np.ndarray:
+        x = np.asarray(q_act_mm, dtype=float)
+        return x * np.broadcast_to(np.asarray(self.factor, dtype=float), x.shape)
+
+    def to_actuator(self, q_cable_mm: np.ndarray, state: None) -> np.ndarray:
+        y = np.asarray(q_cable_mm, dtype=float)
+        return y / np.broadcast_to(np.asarray(self.factor, dtype=float), y.shape)
+
+
+# ---------------------------------------------------------------------- model specification
+def rotation_from_rotvec(rotvec_rad: np.ndarray | tuple[float, ...]) -> np.ndarray:
+    """Rodrigues: rotation matrix of the rotation vector (axis * angle, rad)."""
+    w = np.asarray(rotvec_rad, dtype=float)
+    a = float(np.linalg.norm(w))
+    W = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if a < 1e-12:
+        return np.eye(3) + W
+    return np.eye(3) + math.sin(a) / a * W + (1.0 - math.cos(a)) / a**2 * (W @ W)
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """Everything a forward simulation of a logged run needs, as the model believes it.
+
+    ``params``/``effects``: the robot and its switchable effects (the transmission effects in
+    ``effects.actuator``). ``tip_rotvec_rad``/``tip_translation_mm``: the tracker-alignment
+    error, a rigid map applied to the model's tip: p_measured = R(rotvec) p_model + t (base
+    frame, mm). ``coupling_gain``: weight of the distal-cable load on proximal segments (eq.
+    11-15); the forward model knows only 0 (``effects.coupling`` off) and 1 (on), so a value in
+    between is evaluated as the blend of the two solutions (see :class:`SegmentCoupling`).
+    """
+
+    params: RobotParams
+    effects: Effects
+    tip_rotvec_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    tip_translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    coupling_gain: float | None = None
+
+    def tip_map(self, tip_mm: np.ndarray) -> np.ndarray:
+        """Model tips (..., 3) -> what the tracker reports in the base frame (mm)."""
+        R = rotation_from_rotvec(self.tip_rotvec_rad)
+        return np.asarray(tip_mm, dtype=float) @ R.T + np.asarray(self.tip_translation_mm)
+
+
+@dataclass(frozen=True)
+class EffectParam:
+    """One parameter of an effect term: name, unit, finite-difference / typical step, bounds."""
+
+    name: str
+    unit: str
+    step: float
+    lower: float = -math.inf
+    upper: float = math.inf
+
+
+@dataclass(frozen=True)
+class FittedValue:
+    """A physical quantity a fitted term implies, e.g. the new ``mu_disk`` of cable c1."""
+
+    what: str  # e.g. "cable", "pulley", "segment", "drive", "tracker", "model_effects"
+    item: str  # name of the cable / pulley / segment, or "" for global quantities
+    key: str  # config-like key, e.g. "mu_disk", "E_scale", "backlash_mm"
+    value: float | list[float] | bool
+
+
+class EffectTerm(ABC):
+    """A candidate physical effect: parameters, how it changes the model, and its signature.
+
+    ``kind``: ``"model"`` (needs a forward simulation per evaluation), ``"measurement"`` (a map
+    of the model's outputs; no simulation), ``"blend"`` (a linear blend of the model with the
+    effect switched on, see :class:`SegmentCoupling`). ``needs_tensions``: the term can only be
+    identified with measured tensions (skipped, with a note, for logs without them).
+    """
+
+    name: ClassVar[str]
+    title: ClassVar[str]
+    signature: ClassVar[str]
+    reference: ClassVar[str]
+    kind: ClassVar[str] = "model"
+    needs_tensions: ClassVar[bool] = False
+
+    def not_applicable(self, base: ModelSpec) -> str | None:
+        """Why this term cannot act on ``base`` (None when it can)."""
+        return None
+
+    @abstractmethod
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        """The term's parameters for this model (zero = the model unchanged)."""
+
+    @abstractmethod
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        """The model with the term's correction ``values`` (one per parameter) applied."""
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        """Physical quantities implied by ``values`` (for the config fragment)."""
+        return []
+
+
+def _cables(params: RobotParams, **changes_per_cable: list) -> RobotParams:
+    cables = list(params.cables)
+    for key, vals in changes_per_cable.items():
+        cables = [replace(c, **{key: v}) for c, v in zip(cables, vals, strict=True)]
+    return replace(params, cables=tuple(cables))
+
+
+class CableElongation(EffectTerm):
+    """Elastic cable stretch (Hooke, eq. 33-36) with a corrected compliance.
+
+    Parameter ``d_compliance`` (dimensionless): 1/EA_k = (kappa0 + d) / EA_cfg_k, kappa0 = 1 when
+    the model already has elastic cables, 0 when it has rigid ones (then the term switches
+    elongation on). Signature: the tip error grows with tension (stretch = integral of T - T0
+    along the cable), loops of lost motion at reversals when friction moves the tension.
+    """
+
+    name = "cable_elongation"
+    title = "cable elongation"
+    signature = "error grows with cable tension; lost motion proportional to tension changes"
+    reference = "Qi et al. 2023 eq. 33-36"
+
+    def _kappa0(self, base: ModelSpec) -> float:
+        rigid = (not base.effects.elongation) or all(math.isinf(c.EA_N) for c in base.params.cables)
+        return 0.0 if rigid else 1.0
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        k0 = self._kappa0(base)
+        return (EffectParam("d_compliance", "1 (x nominal 1/EA)", 0.5, -0.95 * k0, 10.0),)
+
+    def _ea_ref(self, c: CableParams) -> float:
+        return REFERENCE_EA_N if math.isinf(c.EA_N) else c.EA_N
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        kappa = self._kappa0(base) + float(values[0])
+        if kappa <= 1e-9:
+            return replace(base, effects=replace(base.effects, elongation=False))
+        EA = [self._ea_ref(c) / kappa for c in base.params.cables]
+        return replace(
+            base,
+            params=_cables(base.params, EA_N=EA),
+            effects=replace(base.effects, elongation=True),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        kappa = self._kappa0(base) + float(values[0])
+        out = [
+            FittedValue("cable", c.name, "EA_N", self._ea_ref(c) / max(kappa, 1e-9))
+            for c in base.params.cables
+        ]
+        if not base.effects.elongation:
+            out.append(FittedValue("model_effects", "", "elongation", True))
+        return out
+
+
+class DiskFriction(EffectTerm):
+    """Capstan friction of the cables in the disk holes (eq. 16-24) with a corrected mu.
+
+    Parameter ``d_mu`` (dimensionless, common to all cables): mu_k = mu0_k + d_mu, mu0 = 0 when
+    the model has disk friction off. Signature: direction-dependent (hysteresis), growing with
+    the bend (the wrap angles add up to about theta), stick at reversals.
+    """
+
+    name = "disk_friction"
+    title = "capstan friction in the disks"
+    signature = "direction-dependent error (hysteresis) that grows with the bend angle"
+    reference = "Qi et al. 2023 eq. 16-24"
+
+    def _mu0(self, base: ModelSpec) -> np.ndarray:
+        on = base.effects.disk_friction
+        return np.array([c.mu_disk if on else 0.0 for c in base.params.cables])
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return (EffectParam("d_mu", "1", 0.1, -float(self._mu0(base).min()), 2.0),)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        mu = np.maximum(self._mu0(base) + float(values[0]), 0.0)
+        return replace(
+            base,
+            params=_cables(base.params, mu_disk=mu.tolist()),
+            effects=replace(base.effects, disk_friction=True),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        mu = np.maximum(self._mu0(base) + float(values[0]), 0.0)
+        out = [
+            FittedValue("cable", c.name, "mu_disk", float(m))
+            for c, m in zip(base.params.cables, mu, strict=True)
+        ]
+        if not base.effects.disk_friction:
+            out.append(FittedValue("model_effects", "", "disk_friction", True))
+        return out
+
+
+class ReversalBacklash(EffectTerm):
+    """Backlash (play) between drive and cable, one width for all drives (:class:`BacklashPlay`).
+
+    Parameter ``backlash_mm`` (mm, >= 0). Signature: a dead zone at every reversal whose width
+    is independent of speed and tension; the error keeps the sign of the last motion.
+    """
+
+    name = "backlash"
+    title = "backlash / dead zone at reversals"
+    signature = "dead zone after each reversal, width independent of speed and tension"
+    reference = "Yang et al. 2022 eq. 13-17 (dead zone at reversal)"
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return (EffectParam("backlash_mm", "mm", 0.2, 0.0, 20.0),)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        b = max(float(values[0]), 0.0)
+        if b == 0.0:
+            return base
+        act = (*base.effects.actuator, BacklashPlay(b))
+        return replace(base, effects=replace(base.effects, actuator=act))
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        return [FittedValue("drives", "", "backlash_mm", max(float(values[0]), 0.0))]
+
+
+class SegmentCoupling(EffectTerm):
+    """Load of the distal cables on the proximal segments they cross (eq. 11-15).
+
+    Parameter ``d_gain``: coupling gain lambda = lambda0 + d, lambda0 = 1 when the model has
+    coupling on, 0 when off. The forward model switches the term on or off; a gain in between is
+    the linear blend y = (1 - lambda) y_off + lambda y_on. Needs two or more segments.
+    Signature: the proximal segments' error follows the distal segments' bend.
+    """
+
+    name = "coupling"
+    title = "coupling between segments"
+    signature = "proximal error follows the distal segments' bend and tensions"
+    reference = "Qi et al. 2023 eq. 11-15"
+    kind = "blend"
+
+    def not_applicable(self, base: ModelSpec) -> str | None:
+        if base.params.n_segments < 2:
+            return "one segment: no distal cables cross another segment"
+        return None
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        lam0 = 1.0 if base.effects.coupling else 0.0
+        return (EffectParam("d_gain", "1", 1.0 - 2.0 * lam0, -lam0, 2.0 - lam0),)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        lam0 = 1.0 if base.effects.coupling else 0.0
+        lam = lam0 + float(values[0])
+        return replace(base, coupling_gain=lam)
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        lam0 = 1.0 if base.effects.coupling else 0.0
+        lam = lam0 + float(values[0])
+        return [
+            FittedValue("model_effects", "", "coupling", bool(lam >= 0.5)),
+            FittedValue("model", "", "coupling_gain", lam),
+        ]
+
+
+class GravitySag(EffectTerm):
+    """Weight of the disks (generalised forces of the statics) with a corrected mass.
+
+    Parameter ``d_mass_scale``: disk masses m_i = (a0 + d) m_ref_i, a0 = 1 when the model has
+    gravity on with nonzero masses, else 0 (m_ref = the config masses, or
+    :data:`REFERENCE_DISK_MASS_G`; gravity vector from the config, standard gravity along -z if
+    the config's is zero). Signature: depends on the pose relative to gravity (largest when the
+    robot bends sideways, sign set by the bending direction).
+    """
+
+    name = "gravity_sag"
+    title = "gravity sag"
+    signature = "error depends on the pose relative to gravity (bending direction vs g)"
+    reference = "Qi et al. 2023 eq. 7-9 (external load W_e); statics.gravity_force"
+
+    def _a0(self, base: ModelSpec) -> float:
+        p = base.params
+        on = base.effects.gravity and any(s.disk_mass_g > 0 for s in p.segments)
+        return 1.0 if on and np.linalg.norm(p.gravity_mm_s2) > 0 else 0.0
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        a0 = self._a0(base)
+        return (EffectParam("d_mass_scale", "1 (x disk mass)", 1.0, -a0, 50.0),)
+
+    def _refs(self, base: ModelSpec) -> list[float]:
+        return [
+            s.disk_mass_g if s.disk_mass_g > 0 else REFERENCE_DISK_MASS_G
+            for s in base.params.segments
+        ]
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        a = max(self._a0(base) + float(values[0]), 0.0)
+        p = base.params
+        g = p.gravity_mm_s2 if np.linalg.norm(p.gravity_mm_s2) > 0 else STANDARD_GRAVITY_MM_S2
+        segs = tuple(
+            replace(s, disk_mass_g=a * m) for s, m in zip(p.segments, self._refs(base), strict=True)
+        )
+        return replace(
+            base,
+            params=replace(p, segments=segs, gravity_mm_s2=tuple(g)),
+            effects=replace(base.effects, gravity=a > 0),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        a = max(self._a0(base) + float(values[0]), 0.0)
+        out = [
+            FittedValue("segment", s.name, "disk_mass_g", a * m)
+            for s, m in zip(base.params.segments, self._refs(base), strict=True)
+        ]
+        if not base.effects.gravity:
+            out.append(FittedValue("model_effects", "", "gravity", True))
+        return out
+
+
+class PulleyLosses(EffectTerm):
+    """Friction on the guide pulleys (improved capstan, eq. 25-32) with a corrected alpha.
+
+    Parameter ``d_alpha`` (common to all pulleys): alpha_p = alpha0_p + d, alpha0 = 0 when the
+    model has pulley friction off. Signature: the tension between actuator and robot base
+    differs by a direction-dependent factor; lost motion from the extra stretch of the free
+    cable. Identified from the tensions: skipped for logs without them.
+    """
+
+    name = "pulley_losses"
+    title = "pulley losses"
+    signature = "direction-dependent tension loss between actuator and robot base"
+    reference = "Qi et al. 2023 eq. 25-32"
+    needs_tensions = True
+
+    def not_applicable(self, base: ModelSpec) -> str | None:
+        if not any(c.pulleys for c in base.params.cables):
+            return "the config routes no cable over a pulley"
+        return None
+
+    def _alpha0(self, base: ModelSpec) -> dict[str, float]:
+        on = base.effects.pulley_friction
+        return {p.name: (p.alpha if on else 0.0) for c in base.params.cables for p in c.pulleys}
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return (EffectParam("d_alpha", "1", 0.1, -min(self._alpha0(base).values()), 2.0),)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        a0 = self._alpha0(base)
+        d = float(values[0])
+        cables = tuple(
+            replace(
+                c,
+                pulleys=tuple(replace(p, alpha=max(a0[p.name] + d, 0.0)) for p in c.pulleys),
+            )
+            for c in base.params.cables
+        )
+        return replace(
+            base,
+            params=replace(base.params, cables=cables),
+            effects=replace(base.effects, pulley_friction=True),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        d = float(values[0])
+        out = [
+            FittedValue("pulley", name, "alpha", max(a + d, 0.0))
+            for name, a in sorted(self._alpha0(base).items())
+        ]
+        if not base.effects.pulley_friction:
+            out.append(FittedValue("model_effects", "", "pulley_friction", True))
+        return out
+
+
+class ActuatorScale(EffectTerm):
+    """Counts-per-mm / lead error of each drive (:class:`TransmissionScale`).
+
+    Parameters ``d_scale_<cable>``: the cable moves (1 + d) mm per reported mm. Signature: the
+    error grows with each cable's displacement from home, independent of tension and direction.
+    The corrected counts_per_mm is counts_per_mm / (1 + d).
+    """
+
+    name = "actuator_scale"
+    title = "actuator scale error (lead / counts per mm)"
+    signature = "error proportional to each cable's displacement, no hysteresis"
+    reference = "Yang et al. 2022 eq. 3 / fuel-tank arm eq. 9 (pulses per mm)"
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return tuple(
+            EffectParam(f"d_scale_{c.name}", "1", 0.02, -0.5, 0.5) for c in base.params.cables
+        )
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        f = tuple(1.0 + float(v) for v in values)
+        act = (TransmissionScale(f), *base.effects.actuator)
+        return replace(base, effects=replace(base.effects, actuator=act))
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        return [
+            FittedValue("drive_of_cable", c.name, "counts_per_mm_factor", 1.0 / (1.0 + float(v)))
+            for c, v in zip(base.params.cables, values, strict=True)
+        ]
+
+
+class TrackerFrameOffset(EffectTerm):
+    """A constant rigid error of the tracker alignment (base_from_tracker).
+
+    Parameters: rotation vector (rad) and translation (mm) of p_measured = R p_model + t.
+    Signature: a constant rigid transform of the whole tip path (offset constant in time,
+    rotation error growing with the distance from the base origin). No simulation needed.
+    """
+
+    name = "tracker_offset"
+    title = "tracker frame offset"
+    signature = "constant rigid transform between model and measured tip paths"
+    reference = "rigid registration (tracker alignment)"
+    kind = "measurement"
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        rot = tuple(EffectParam(f"rot_{a}", "rad", 0.01) for a in "xyz")
+        return rot + tuple(EffectParam(f"t_{a}", "mm", 1.0) for a in "xyz")
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        v = [float(x) for x in values]
+        R0 = rotation_from_rotvec(base.tip_rotvec_rad)
+        R = rotation_from_rotvec(v[:3]) @ R0
+        t = rotation_from_rotvec(v[:3]) @ np.asarray(base.tip_translation_mm) + np.asarray(v[3:])
+        return replace(
+            base,
+            tip_rotvec_rad=tuple(rotvec_from_rotation(R).tolist()),
+            tip_translation_mm=tuple(float(x) for x in t),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        s = self.apply(base, values)
+        return [
+            FittedValue("tracker", "", "model_to_measured_rotvec_rad", list(s.tip_rotvec_rad)),
+            FittedValue(
+                "tracker", "", "model_to_measured_translation_mm", list(s.tip_translation_mm)
+            ),
+        ]
+
+
+def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rotation_from_rotvec` for angles below pi (rad)."""
+    c = max(-1.0, min(1.0, (float(np.trace(R)) - 1.0) / 2.0))
+    a = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if a < 1e-9:
+        return 0.5 * v
+    return a / (2.0 * math.sin(a)) * v
+
+
+#: The candidate library, in report order. Extend by appending an instance of a new subclass.
+CANDIDATES: tuple[EffectTerm, ...] = (
+    CableElongation(),
+    DiskFriction(),
+    ReversalBacklash(),
+    SegmentCoupling(),
+    GravitySag(),
+    PulleyLosses(),
+    ActuatorScale(),
+    TrackerFrameOffset(),
+)
+
+
+def candidate(name: str) -> EffectTerm:
+    """The library term called ``name`` (KeyError listing the names otherwise)."""
+    for c in CANDIDATES:
+        if c.name == name:
+            return c
+    raise KeyError(f"no effect {name!r}; known: {', '.join(c.name for c in CANDIDATES)}")
