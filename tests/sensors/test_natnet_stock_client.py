@@ -74,9 +74,15 @@ def test_stock_natnet_client_reads_the_simulated_server(version: NatNetVersion) 
             assert info.nat_net_protocol_version.components == (*version[:2], 0, 0)
             client.run_async()
             assert wait_until(lambda: len(frames) >= 10)
-            server.occlude(True)  # fault hook: the stock client must see the body lost
             n = len(frames)
-            assert wait_until(lambda: len(frames) >= n + 5)
+            server.occlude(True)  # fault hook: the stock client must see the body lost
+
+            def lost() -> bool:
+                return any(not f.rigid_bodies[0].tracking_valid for f in frames[n:])
+
+            # Frames sampled before the occlusion may still be on their way (latency, a busy
+            # machine): wait for the first one that shows the body lost.
+            assert wait_until(lost)
         finally:
             client.shutdown()
 
@@ -90,4 +96,6 @@ def test_stock_natnet_client_reads_the_simulated_server(version: NatNetVersion) 
     assert len(good.labeled_markers) == 3
     numbers = [f.prefix.frame_number for f in frames]
     assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
-    assert frames[-1].rigid_bodies[0].tracking_valid is False
+    valid = [f.rigid_bodies[0].tracking_valid for f in frames]
+    first_lost = valid.index(False)
+    assert first_lost >= n and not any(valid[first_lost:])
