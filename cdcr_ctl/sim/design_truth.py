@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,8 +22,9 @@ import numpy as np
 
 from cdcr_ctl.config.loader import merge_tree, validate_mapping
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.errors import ConfigError, ModelError
+from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.sim.simconfig import LoadedSim
+from cdcr_ctl.sim.truth import SteppedTruth
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ def truth_rig_config(loaded: LoadedSim) -> RigConfig:
         ) from exc
 
 
-class DesignTruth:
+class DesignTruth(SteppedTruth):
     """Thread-safe base: counts -> cable mm through the TRUE transmission, failure handling,
     locking and the sensor getters. Subclasses implement :meth:`_solve` (q_act_mm -> state)."""
 
@@ -100,28 +100,6 @@ class DesignTruth:
 
     def _solve(self, q_act_mm: np.ndarray) -> DesignTruthState:
         raise NotImplementedError
-
-    def step(self, counts: Sequence[int]) -> DesignTruthState:
-        """Advance the world to the drives' present positions (counts, cable order)."""
-        q_act = np.asarray(counts, dtype=float) / self.counts_per_mm
-        try:
-            state = self._solve(q_act)
-        except ModelError as exc:
-            # A pose the world cannot take (slack cables, out of reach): keep the last pose; the
-            # controller sees the tip and the sensors stop following.
-            self.failures += 1
-            log.warning("truth solve failed at q=%s: %s", np.round(q_act, 3), exc)
-            return self.state
-        with self._lock:
-            self._state = state
-            self.steps += 1
-        return state
-
-    @property
-    def state(self) -> DesignTruthState:
-        with self._lock:
-            assert self._state is not None
-            return self._state
 
     def cell_tensions(self) -> list[float]:
         """True tension of each load cell's cable, in the config's cell order (N)."""

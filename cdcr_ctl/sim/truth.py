@@ -13,6 +13,7 @@ import logging
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,44 @@ class TruthState:
     tension_actuator_N: np.ndarray  # (K,)
 
 
-class TruthModel:
+class SteppedTruth:
+    """What every truth does with the drives' positions: counts -> cable mm through the TRUE
+    transmission (``counts_per_mm``), one solve (``_solve``), the last solved state kept under a
+    lock. A pose the world cannot take keeps the last one and is counted in ``failures``."""
+
+    counts_per_mm: np.ndarray
+    failures: int
+    steps: int
+    _lock: threading.Lock
+    _state: Any
+
+    def _solve(self, q_act_mm: np.ndarray) -> Any:
+        raise NotImplementedError
+
+    def step(self, counts: Sequence[int]) -> Any:
+        """Advance the world to the drives' present positions (counts, cable order)."""
+        q_act = np.asarray(counts, dtype=float) / self.counts_per_mm
+        try:
+            state = self._solve(q_act)
+        except ModelError as exc:
+            # A pose the world cannot hold (slack cables, out of reach): keep the last pose; the
+            # controller's supervisor sees the tensions and the tip stop following.
+            self.failures += 1
+            log.warning("truth solve failed at q=%s: %s", np.round(q_act, 3), exc)
+            return self.state
+        with self._lock:
+            self._state = state
+            self.steps += 1
+        return state
+
+    @property
+    def state(self) -> Any:
+        with self._lock:
+            assert self._state is not None
+            return self._state
+
+
+class TruthModel(SteppedTruth):
     """Thread-safe truth: :meth:`step` from drive counts, getters for the simulated sensors."""
 
     def __init__(self, loaded: LoadedSim) -> None:
@@ -91,27 +129,6 @@ class TruthModel:
             tension_base_N=np.array(r.tension_base_N, dtype=float),
             tension_actuator_N=np.array(r.tension_actuator_N, dtype=float),
         )
-
-    def step(self, counts: Sequence[int]) -> TruthState:
-        """Advance the world to the drives' present positions (counts, cable order)."""
-        q_act = np.asarray(counts, dtype=float) / self.counts_per_mm
-        try:
-            state = self._solve(q_act)
-        except ModelError as exc:
-            # A pose the statics cannot hold (all cables of a segment slack): keep the last pose;
-            # the controller's supervisor sees the tensions and the tip stop following.
-            self.failures += 1
-            log.warning("truth solve failed at q=%s: %s", np.round(q_act, 3), exc)
-            return self.state
-        with self._lock:
-            self._state = state
-            self.steps += 1
-        return state
-
-    @property
-    def state(self) -> TruthState:
-        with self._lock:
-            return self._state
 
     def cell_tensions(self) -> list[float]:
         """True tension at each load cell, in the config's cell order (N)."""
