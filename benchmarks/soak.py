@@ -190,9 +190,14 @@ def soak(minutes: float, seed: int, keep: bool) -> dict:
                         fc.inject(undo, **args)
                     time.sleep(0.7)  # spikes, garbage and dropouts end
                     pending_recovery = key
-                wait_for(lambda: status(work)["run"] is None, duration + 30, "run end")
-                st = status(work)
-                done = next(r for r in st["runs"] if r["log_dir"] == res["log_dir"])
+
+                # Ended = in the daemon's run history (a run posted but not yet picked up by the
+                # loop's next cycle is neither current nor in the history).
+                def ended(res=res):
+                    runs = status(work)["runs"]
+                    return next((r for r in runs if r["log_dir"] == res["log_dir"]), None)
+
+                done = wait_for(ended, duration + 30, "run end")
                 if done["state"] == "completed":
                     out["runs_completed"] += 1
                 else:
