@@ -16,15 +16,21 @@ paper's [0, 6, 0, 6] deg, i.e. tilt 6 deg at phi = 0), uniform rate ``--rate-deg
 Printed: mean / max tip error with the ideal geometric model (mode off) and with section 3's
 algorithm (mode model) and the reduction of the mean; the go/return mismatch at the same
 commanded 4.8 deg (the paper's samples at 100 s and 140 s); the dead zone at the reversal (how
-far the command travels back before the distal segment's true angle moves back).
+far the command travels back before the distal segment's true angle moves back). ``--bench``
+also prints what each control cycle and physics step cost: the CPU time of this thread
+(time.thread_time, so other processes on the PC count little) per call of the model port's
+q_nominal, q_command and tip (what the daemon's loop calls every cycle) and of the truth's
+step (what the simulator's physics thread calls), median and 95th percentile over the run.
 
     nice .venv/bin/python scripts/ujoint_go_and_return.py [--sim-config ...] [--rate-deg-s 1]
+        [--bench]
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -55,15 +61,25 @@ def run(sim_config: Path, mode: str, theta_deg: float, rate_deg_s: float) -> dic
         "theta": [],
         "q": [],
         "q_out": [],
+        "cpu_s": [],  # per cycle: q_nominal, q_command, tip, truth step
     }
+    clock = time.thread_time
     for t in ts:
         psi = traj.sample(min(t, traj.duration_s))
-        q = model.q_command(psi, model.q_nominal(psi), state, mode, None)
+        c0 = clock()
+        q_nom = model.q_nominal(psi)
+        c1 = clock()
+        q = model.q_command(psi, q_nom, state, mode, None)
+        c2 = clock()
+        tip_cmd = model.tip(psi)
+        c3 = clock()
         s = truth.step(np.rint(q * cpm).astype(np.int64))
+        c4 = clock()
+        out["cpu_s"].append((c1 - c0, c2 - c1, c3 - c2, c4 - c3))
         out["t"].append(t)
         out["cmd"].append(joint_angles_from_psi(psi))
         out["tip"].append(s.tip_mm)
-        out["tip_cmd"].append(model.tip(psi))
+        out["tip_cmd"].append(tip_cmd)
         out["theta"].append(truth.theta.copy())
         out["q"].append(np.rint(q * cpm) / truth.counts_per_mm)
         out["q_out"].append(truth._memory.q_out_mm.copy())
@@ -81,6 +97,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--theta-deg", type=float, default=6.0)
     ap.add_argument("--rate-deg-s", type=float, default=1.0)
     ap.add_argument("--probe-deg", type=float, default=4.8, help="go/return comparison angle")
+    ap.add_argument("--bench", action="store_true", help="print the CPU time per call")
     a = ap.parse_args(argv)
     print(f"sim config {a.sim_config}; 0 -> {a.theta_deg} -> 0 deg at {a.rate_deg_s} deg/s")
     res = {m: run(a.sim_config, m, a.theta_deg, a.rate_deg_s) for m in ("off", "model")}
@@ -118,6 +135,19 @@ def main(argv: list[str] | None = None) -> None:
             f"  mode {m:5s}: dead zone at the reversal (input travel before the output moves) "
             f"per cable {np.round(sticks, 3).tolist()} mm"
         )
+    if a.bench:
+        for m, r in res.items():
+            cpu = 1e3 * r["cpu_s"]
+            parts = ", ".join(
+                f"{name} {np.median(cpu[:, j]):.3f} / {np.percentile(cpu[:, j], 95):.3f} ms"
+                for j, name in enumerate(("q_nominal", "q_command", "tip", "truth step"))
+            )
+            loop = cpu[:, :3].sum(axis=1)
+            total = f"{np.median(loop):.3f} / {np.percentile(loop, 95):.3f} ms"
+            print(
+                f"  mode {m:5s}: CPU per call (median / 95th percentile, {len(cpu)} cycles): "
+                f"{parts}; the loop's three calls together {total}"
+            )
 
 
 if __name__ == "__main__":

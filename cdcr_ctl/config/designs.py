@@ -60,6 +60,7 @@ from cdcr_ctl.model.vertebra import (
     VertebraJoint,
     rotvec_matrix,
 )
+from cdcr_ctl.model.vertebra_follow import SPEED_FRACTION
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 KeyPath = tuple[str | int, ...]
@@ -192,12 +193,16 @@ class LinearModuleConfig(Section):
 
 class FollowConfig(Section):
     """Joystick end-following (section 2.2): ``step_rad`` per synchronised step (0.05 in the
-    paper), distal target increments per joystick tick at full deflection, bend limit."""
+    paper), distal target increments per joystick tick at full deflection, bend limit.
+    ``speed_fraction``: share of each linear module's ``v_max_mm_s`` the planned steps use
+    (:class:`cdcr_ctl.model.vertebra_follow.EndFollowSource`; 1 is the paper's synchronisation
+    at the limits); the rest is left for the compensation (``compensation_max_rate_mm_s``)."""
 
     step_rad: PositiveFloat = 0.05
     theta_increment_rad: NonNegativeFloat = 0.02
     phi_increment_rad: NonNegativeFloat = 0.05
     theta_max_rad: Annotated[float, Field(gt=0, le=math.pi)] = math.pi / 2
+    speed_fraction: Annotated[float, Field(gt=0, le=1)] = SPEED_FRACTION
 
 
 class AttitudeDecodeConfig(Section):
@@ -224,13 +229,23 @@ class AttitudeDecodeConfig(Section):
 
 
 class VertebraConfig(Section):
-    """The vertebra design's own parameters (the rest is in ``robot:``, module docstring)."""
+    """The vertebra design's own parameters (the rest is in ``robot:``, module docstring).
+
+    ``compensation_max_rate_mm_s``: rate limit of the compensation offset q_cmd - q_nominal of
+    every cable in modes ``model`` (sag compensation) and ``measured`` (attitude loop), mm/s
+    (:class:`cdcr_ctl.model.vertebra.VertebraModel`). The planned motion runs at
+    ``follow.speed_fraction`` of each module's speed; :func:`check_design` requires
+    speed_fraction * v_max_mm_s + this <= ``limits.cable_velocity_mm_s`` for every cable, so
+    plan plus compensation never trips the velocity limit. The default leaves 1 mm/s of the
+    prototype's 10 mm/s for the trajectory's interpolation.
+    """
 
     tip_mass_g: NonNegativeFloat = 0.0
     linear_module: LinearModuleConfig
     module_overrides: dict[str, LinearModuleConfig] = Field(default_factory=dict)
     follow: FollowConfig = Field(default_factory=FollowConfig)
     attitude: AttitudeDecodeConfig = Field(default_factory=AttitudeDecodeConfig)
+    compensation_max_rate_mm_s: PositiveFloat = 1.0
 
 
 # =========================================================================== checks
@@ -313,11 +328,23 @@ def check_design(cfg: Any) -> list[tuple[KeyPath, str, Any]]:
                     len(att.sensors),
                 )
             )
+        v_limit = cfg.limits.cable_velocity_mm_s
         for k, c in enumerate(robot.cables):
             m = _module_for(vt, c.name)
             problems += _check_counts(
                 cfg, m.steps_per_rev / m.lead_mm, "vertebra.linear_module", only=c.name, index=k
             )
+            planned = vt.follow.speed_fraction * m.v_max_mm_s
+            if planned + vt.compensation_max_rate_mm_s > v_limit * (1.0 + 1e-12):
+                problems.append(
+                    (
+                        ("vertebra", "compensation_max_rate_mm_s"),
+                        f"cable {c.name}: follow.speed_fraction * v_max_mm_s = {planned:g} mm/s"
+                        f" plus this exceeds limits.cable_velocity_mm_s = {v_limit:g} mm/s",
+                        vt.compensation_max_rate_mm_s,
+                    )
+                )
+                break
     return problems
 
 
@@ -480,9 +507,10 @@ def sensor_mounts(cfg: Any) -> list[np.ndarray] | None:
 
 
 def attitude_loop_params(cfg: Any) -> AttitudeLoopParams:
-    """The attitude closed loop's parameters of a vertebra rig config: the gain per control
-    cycle (``closed_loop_gain_per_s / control.rate_hz``, at most 1), the sensors' staleness and
-    the decode settings."""
+    """The compensating modes' parameters of a vertebra rig config: the attitude loop's gain per
+    control cycle (``closed_loop_gain_per_s / control.rate_hz``, at most 1), the sensors'
+    staleness and the decode settings, and the compensation offset's largest step per cycle
+    (``compensation_max_rate_mm_s / control.rate_hz``)."""
     att = cfg.vertebra.attitude
     sensors = cfg.sensors.attitude
     mounts = sensor_mounts(cfg)
@@ -494,4 +522,5 @@ def attitude_loop_params(cfg: Any) -> AttitudeLoopParams:
         base_up=(att.base_up[0], att.base_up[1], att.base_up[2]),
         mounts=None if mounts is None else tuple(mounts),
         singular_tol=att.singular_tol,
+        max_offset_step_mm=cfg.vertebra.compensation_max_rate_mm_s / cfg.control.rate_hz,
     )

@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 
 #: How long shutdown waits for the loop thread to finish its last cycle (s).
 LOOP_JOIN_TIMEOUT_S = 2.0
+#: The lead-in move before a trajectory keeps its fastest cable within this fraction of
+#: ``limits.cable_velocity_mm_s`` (the rest is room for the compensation's own motion).
+LEAD_IN_CABLE_FRACTION = 0.5
 
 
 @dataclass
@@ -263,6 +266,33 @@ class Daemon:
         self.loop.jog_cable(args.cable - 1, args.delta_mm)
         return {"cable": args.cable, "delta_mm": args.delta_mm}
 
+    def _with_lead_in(self, traj: Any) -> Any:
+        """``traj`` after a lead-in move from the commanded pose, slow enough for the cables.
+
+        The default lead-in speed (rad/s of bend) means very different cable speeds on different
+        designs (a universal-joint arm's cables move ~20x more per radian than a disk arm's), so
+        the move is checked through the model's nominal kinematics: if its fastest cable would
+        exceed ``LEAD_IN_CABLE_FRACTION`` of ``limits.cable_velocity_mm_s``, the speed is scaled
+        down to meet it (the cable speed of the move is proportional to its speed).
+        """
+        tj = self.new_trajectory
+        psi_now = np.array(self.loop.psi_cmd, dtype=float)
+        lead = tj.with_lead_in(psi_now, traj)
+        if lead is traj:
+            return traj
+        m = tj.move(psi_now, traj.psi[0])
+        q = np.array([self.model.q_nominal(p) for p in m.psi])
+        dt = np.diff(m.t_s)
+        v_peak = float(np.max(np.abs(np.diff(q, axis=0)) / dt[:, None])) if len(dt) else 0.0
+        v_allowed = LEAD_IN_CABLE_FRACTION * self.cfg.limits.cable_velocity_mm_s
+        if v_peak <= v_allowed:
+            return lead
+        speed = tj.LEAD_IN_SPEED_RAD_S * v_allowed / v_peak
+        log.info(
+            "lead-in slowed to %.4f rad/s (cables %.1f mm/s at the default speed)", speed, v_peak
+        )
+        return tj.with_lead_in(psi_now, traj, speed_rad_s=speed)
+
     def _cmd_trajectory(self, args: Any) -> dict[str, Any]:
         self._require_ready()
         traj = self.new_trajectory.from_samples(
@@ -271,7 +301,7 @@ class Daemon:
             bend_limit_rad=self.cfg.limits.bend_rad,
             source=f"request {args.name!r}",
         )
-        traj = self.new_trajectory.with_lead_in(self.loop.psi_cmd, traj)
+        traj = self._with_lead_in(traj)
         sink = None
         if args.log:
             sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)

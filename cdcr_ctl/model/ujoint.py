@@ -64,8 +64,6 @@ MOTION_EPS_RAD = 1e-9
 #: A change of a cable output smaller than this (mm) keeps the cable's last direction: above the
 #: statics' round-off (~1e-8 mm of cable), far below an encoder count (~1e-4 mm).
 CABLE_MOTION_EPS_MM = 1e-6
-#: Central-difference step for the geometric stiffness of the pretension (rad).
-FD_STEP_RAD = 1e-6
 #: Iterations of the statics and of its inverse, and their tolerance (rad), which sits above the
 #: round-off of the finite-difference gravity moment.
 STATICS_MAX_ITER = 60
@@ -355,6 +353,75 @@ class UJointArm:
         ]
         return np.array([p for p, _ in pr]), np.array([r for _, r in pr])
 
+    @cached_property
+    def hole_sets(self) -> tuple[SegmentHoles, ...]:
+        """Per segment, the holes of the cables that cross its joints, built once (constant
+        geometry) for the vectorised eq. 4-5 of the control loop and the simulator's truth."""
+        out = []
+        for i, seg in enumerate(self.segments):
+            sets = [
+                HoleSet.of(np.nonzero(sel)[0], self.betas, self.rhos, seg)
+                for sel in (self.anchor == i, self.anchor > i, self.anchor >= i)
+            ]
+            out.append(SegmentHoles(*sets))
+        return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class HoleSet:
+    """The holes of some cables in the disks of one segment, for eq. 4 in matrix form.
+
+    ``index`` (K,): the cables (indices into ``UJointArm.cables``). With u the hole in disk D2's
+    own frame, (rho cos beta, rho sin beta, d), and l the hole in disk D1 seen from the joint
+    centre, (rho cos beta, rho sin beta, -d) (mm), eq. 4's chord of a sub-joint is
+    v = R u - l, R = Rx(a) Ry(b), and
+
+        f_i^2 = |u|^2 + |l|^2 - 2 l^T R u = ``norms`` - 2 ``outer`` . vec(R)
+
+    with ``outer`` (K, 9) the rows vec(l u^T) and ``norms`` (K,) = |u|^2 + |l|^2 = 2 (rho^2 + d^2):
+    one matrix product gives every cable's chord and, with the derivatives of R, its derivatives
+    (:func:`_hole_terms`; stored transposed, (9, K)). ``m``: sub-joints (eq. 5).
+    """
+
+    index: np.ndarray
+    outer: np.ndarray
+    norms: np.ndarray
+    m: int
+
+    @classmethod
+    def of(
+        cls, index: np.ndarray, betas: np.ndarray, rhos: np.ndarray, seg: UJointSegment
+    ) -> HoleSet:
+        return cls.from_holes(index, betas[index], rhos[index], seg.half_gap_mm, seg.n_subjoints)
+
+    @classmethod
+    def from_holes(
+        cls,
+        index: np.ndarray,
+        beta: np.ndarray | float,
+        rho: np.ndarray | float,
+        d: float,
+        m: int,
+    ) -> HoleSet:
+        """Holes at angle ``beta`` (rad) and radius ``rho`` (mm), half gap ``d`` (mm)."""
+        b, r = np.broadcast_arrays(np.atleast_1d(beta), np.atleast_1d(rho))
+        x, y = r * np.cos(b), r * np.sin(b)
+        dz = np.full(x.shape, float(d))
+        upper, lower = np.array([x, y, dz]).T, np.array([x, y, -dz]).T  # (K, 3)
+        outer = (lower[:, :, None] * upper[:, None, :]).reshape(-1, 9)
+        norms = (upper * upper).sum(axis=1) + (lower * lower).sum(axis=1)
+        return cls(np.asarray(index), np.ascontiguousarray(outer.T), norms, int(m))
+
+
+@dataclass(frozen=True)
+class SegmentHoles:
+    """One segment's :class:`HoleSet` s: ``own`` cables (anchored in it), ``through`` cables
+    (anchored further out) and ``passing`` (both, cable order)."""
+
+    own: HoleSet
+    through: HoleSet
+    passing: HoleSet
+
 
 @dataclass(frozen=True)
 class UJointEffects:
@@ -399,6 +466,55 @@ def _trans_z(z: float) -> np.ndarray:
     T = np.eye(4)
     T[2, 3] = z
     return T
+
+
+def _rotation_rows(a: float, b: float, order: int) -> np.ndarray:
+    """Rx(a) Ry(b) (eq. 4's sub-joint rotation) and its partial derivatives, each flattened row by
+    row, (1, 3 or 6, 9): R; with order >= 1 also R_a, R_b; with order 2 also R_aa, R_ab, R_bb
+    (a, b in rad)."""
+    ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+    rows = [[cb, 0.0, sb, sa * sb, ca, -sa * cb, -ca * sb, sa, ca * cb]]
+    if order >= 1:
+        rows.append([0.0, 0.0, 0.0, ca * sb, -sa, -ca * cb, sa * sb, ca, -sa * cb])
+        rows.append([-sb, 0.0, cb, sa * cb, 0.0, sa * sb, -ca * cb, 0.0, -ca * sb])
+    if order >= 2:
+        rows.append([0.0, 0.0, 0.0, -sa * sb, -ca, sa * cb, ca * sb, -sa, -ca * cb])
+        rows.append([0.0, 0.0, 0.0, ca * cb, 0.0, ca * sb, sa * cb, 0.0, sa * sb])
+        rows.append([-cb, 0.0, -sb, -sa * sb, 0.0, sa * cb, ca * sb, 0.0, -ca * cb])
+    return np.array(rows)
+
+
+def _hole_lengths(holes: HoleSet, a: float, b: float) -> np.ndarray:
+    """Eq. 5 for the cables of ``holes``, every sub-joint at the physical angles (a, b): the
+    lengths (K,) across the segment, m f_i (mm); see :func:`_hole_terms`."""
+    S = _rotation_rows(a, b, 0) @ holes.outer
+    return holes.m * np.sqrt(holes.norms - 2.0 * S[0])
+
+
+def _hole_terms(
+    holes: HoleSet, a: float, b: float, second: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. 5 for the cables of ``holes`` with every sub-joint at the physical angles (a, b):
+    (f (K,), g (2, K), h (3, K)), f = m f_i the length across the segment (mm), g its
+    derivatives along a and b (mm/rad, eq. 9) and, with ``second``, h the second derivatives
+    aa, ab, bb (mm/rad^2; else h is empty, (0, K)).
+
+    Eq. 4 as the bilinear form of :class:`HoleSet`: with s = l^T R u and its derivatives
+    s_x = l^T R_x u (one product ``outer @ vec(R_x)``), f_i^2 = ``norms`` - 2 s, so
+    f_x = -s_x / f_i and f_xy = -(s_xy + f_x f_y) / f_i. f_i >= 2 d cos(angle) - 2 rho > 0 for a
+    real joint, so nothing divides by 0.
+    """
+    S = _rotation_rows(a, b, 2 if second else 1) @ holes.outer  # s, s_a, s_b(, s_aa, s_ab, s_bb)
+    f = np.sqrt(holes.norms - 2.0 * S[0])
+    g = -S[1:3] / f  # (2, K)
+    h = -(S[3:6] + g[_HESS_I] * g[_HESS_J]) / f if second else S[3:]  # aa, ab, bb
+    m = holes.m
+    return m * f, m * g, m * h
+
+
+#: Rows of the (aa, ab, bb) second derivatives: index pairs into the first derivatives (a, b).
+_HESS_I = np.array([0, 0, 1])
+_HESS_J = np.array([0, 1, 1])
 
 
 # =========================================================================== eq. 4-6
@@ -484,7 +600,8 @@ def segment_cable_lengths(
     All m sub-joints then turn alike (equal-angle linkage): the sum is m times the first term.
     """
     a, b = _physical_angles(theta_a, theta_b, m)[0]
-    return np.atleast_1d(m * subjoint_cable_length(float(a), float(b), beta, rho, d))
+    holes = HoleSet.from_holes(np.zeros(0, dtype=int), beta, rho, d, m)
+    return _hole_lengths(holes, float(a), float(b))
 
 
 def segment_cable_jacobian(
@@ -502,8 +619,9 @@ def segment_cable_jacobian(
     sign_i^2 = 1, so J_d is the eq. 4 gradient summed over the m sub-joints.
     """
     a, b = _physical_angles(theta_a, theta_b, m)[0]
-    f, ga, gb = subjoint_cable_length_grad(float(a), float(b), beta, rho, d)
-    return np.atleast_1d(m * f), m * np.column_stack((np.atleast_1d(ga), np.atleast_1d(gb)))
+    holes = HoleSet.from_holes(np.zeros(0, dtype=int), beta, rho, d, m)
+    f, g, _ = _hole_terms(holes, float(a), float(b))
+    return f, g.T
 
 
 # =========================================================================== eq. 7-12
@@ -519,19 +637,14 @@ def cable_path_lengths(arm: UJointArm, theta: np.ndarray) -> np.ndarray:
 
     Cable k anchored in segment n_k: sum over i <= n_k of f_{i,k}(theta_{2i-1}, theta_{2i}).
     The rigid link tubes and the drive box add constant lengths and are left out.
+    Every sub-joint of segment i turns by the physical angles (theta_{2i-1}, theta_{2i}) (eq. 6,
+    :func:`segment_cable_lengths`), so eq. 5 is evaluated once per segment on its
+    :attr:`UJointArm.hole_sets`.
     """
     t = _as_theta(arm, theta)
     L = np.zeros(arm.n_cables)
-    for i, seg in enumerate(arm.segments):
-        through = arm.anchor >= i
-        L[through] += segment_cable_lengths(
-            t[i, 0],
-            t[i, 1],
-            arm.betas[through],
-            arm.rhos[through],
-            seg.half_gap_mm,
-            seg.n_subjoints,
-        )
+    for i, holes in enumerate(arm.hole_sets):
+        L[holes.passing.index] += _hole_lengths(holes.passing, t[i, 0], t[i, 1])
     return L
 
 
@@ -550,18 +663,32 @@ def cable_jacobian(arm: UJointArm, theta: np.ndarray) -> np.ndarray:
     """
     t = _as_theta(arm, theta)
     J = np.zeros((arm.n_cables, 2 * arm.n_segments))
-    for i, seg in enumerate(arm.segments):
-        through = np.nonzero(arm.anchor >= i)[0]
-        _, Ji = segment_cable_jacobian(
-            t[i, 0],
-            t[i, 1],
-            arm.betas[through],
-            arm.rhos[through],
-            seg.half_gap_mm,
-            seg.n_subjoints,
-        )
-        J[np.ix_(through, [2 * i, 2 * i + 1])] = Ji
+    for i, holes in enumerate(arm.hole_sets):
+        hs = holes.passing
+        _, g, _ = _hole_terms(hs, t[i, 0], t[i, 1])
+        J[hs.index, 2 * i] = g[0]
+        J[hs.index, 2 * i + 1] = g[1]
     return J
+
+
+def cable_jacobian_hessian(arm: UJointArm, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J, H): :func:`cable_jacobian` and d^2 (path length) / d theta^2 per cable
+    (C x 2N x 2N, mm/rad^2; block diagonal: a segment's angles only change the cable's chords in
+    that segment), analytically from eq. 4 (:func:`_hole_terms`)."""
+    t = _as_theta(arm, theta)
+    C, n = arm.n_cables, 2 * arm.n_segments
+    J = np.zeros((C, n))
+    H = np.zeros((C, n, n))
+    for i, holes in enumerate(arm.hole_sets):
+        hs = holes.passing
+        _, g, h = _hole_terms(hs, t[i, 0], t[i, 1], second=True)
+        J[hs.index, 2 * i] = g[0]
+        J[hs.index, 2 * i + 1] = g[1]
+        H[hs.index, 2 * i, 2 * i] = h[0]
+        H[hs.index, 2 * i, 2 * i + 1] = h[1]
+        H[hs.index, 2 * i + 1, 2 * i] = h[1]
+        H[hs.index, 2 * i + 1, 2 * i + 1] = h[2]
+    return J, H
 
 
 def solve_segment_angles(
@@ -579,21 +706,37 @@ def solve_segment_angles(
     unknowns, inconsistent lengths (stretched cables) give the least-squares angles.
     Raises :class:`ModelError` when the iteration does not converge (lengths out of reach).
     """
-    ld = np.asarray(lengths_mm, dtype=float)
-    th = np.zeros(2) if guess is None else np.array(guess, dtype=float)
+    holes = HoleSet.from_holes(np.zeros(0, dtype=int), beta, rho, d, m)
+    return _solve_holes(holes, np.asarray(lengths_mm, dtype=float), guess)
+
+
+def _solve_holes(holes: HoleSet, ld: np.ndarray, guess: np.ndarray | None) -> np.ndarray:
+    """:func:`solve_segment_angles` on prepared holes. The step J_d^+ (l_d - f) is solved from
+    the 2 x 2 normal equations (J_d^T J_d) step = J_d^T (l_d - f), which is the pseudo-inverse
+    for a J_d of full column rank (holes not collinear with the centre, checked by
+    :class:`UJointArm`); a numerically singular J_d falls back to :func:`numpy.linalg.pinv`."""
+    a, b = (0.0, 0.0) if guess is None else (float(guess[0]), float(guess[1]))
     for _ in range(NEWTON_MAX_ITER):
-        f, J = segment_cable_jacobian(th[0], th[1], beta, rho, d, m)
-        step = np.linalg.pinv(J) @ (ld - f)
+        f, g, _ = _hole_terms(holes, a, b)
+        r = ld - f
+        (A00, A01), (A10, A11) = (g @ g.T).tolist()
+        y0, y1 = (g @ r).tolist()
+        det = A00 * A11 - A01 * A10
+        if det > 1e-12 * A00 * A11:
+            da = (A11 * y0 - A01 * y1) / det
+            db = (A00 * y1 - A10 * y0) / det
+        else:
+            da, db = (float(x) for x in np.linalg.pinv(g.T) @ r)
         # the equal-angle joints reach at most ~pi/2 per sub-joint; damp wild first steps
-        big = float(np.max(np.abs(step)))
+        big = max(abs(da), abs(db))
         if big > 0.3:
-            step *= 0.3 / big
-        th = th + step
-        if float(np.max(np.abs(step))) < NEWTON_STEP_TOL_RAD:
-            return th
+            da, db = da * 0.3 / big, db * 0.3 / big
+            big = 0.3
+        a, b = a + da, b + db
+        if big < NEWTON_STEP_TOL_RAD:
+            return np.array([a, b])
     raise ModelError(
-        f"eq. 10 iteration did not converge for lengths {ld.tolist()} mm "
-        f"(last angles {th.tolist()} rad)"
+        f"eq. 10 iteration did not converge for lengths {ld.tolist()} mm (last angles {[a, b]} rad)"
     )
 
 
@@ -616,28 +759,14 @@ def angles_from_path_lengths(
     kin = np.zeros((N, 2))
     out = np.zeros((N, 2))
     used = np.zeros(arm.n_cables)  # coupling length consumed in proximal segments
-    for n, seg in enumerate(arm.segments):
-        own = arm.own_cables[n]
+    for n, holes in enumerate(arm.hole_sets):
+        own = holes.own.index
         g = None if guess is None else np.asarray(guess, dtype=float)[n]
-        kin[n] = solve_segment_angles(
-            L[own] - used[own],
-            arm.betas[own],
-            arm.rhos[own],
-            seg.half_gap_mm,
-            seg.n_subjoints,
-            g,
-        )
+        kin[n] = _solve_holes(holes.own, L[own] - used[own], g)
         out[n] = kin[n] + (0.0 if offsets_rad is None else np.asarray(offsets_rad)[n])
-        distal = arm.anchor > n
-        if distal.any():
-            used[distal] += segment_cable_lengths(
-                out[n, 0],
-                out[n, 1],
-                arm.betas[distal],
-                arm.rhos[distal],
-                seg.half_gap_mm,
-                seg.n_subjoints,
-            )
+        distal = holes.through
+        if distal.index.size:
+            used[distal.index] += _hole_lengths(distal, out[n, 0], out[n, 1])
     return kin, out
 
 
@@ -673,15 +802,24 @@ def linearised_angle_error(
 
 # =========================================================================== eq. 1-2
 def subjoint_transform(theta_a: float, theta_b: float, seg: UJointSegment) -> np.ndarray:
-    """D1 of a sub-joint -> D1 of the next (4x4): Trans(z,d) Rx Ry Trans(z,d) Trans(z,link)."""
-    R = rot_x(theta_a) @ rot_y(theta_b)
+    """D1 of a sub-joint -> D1 of the next (4x4): Trans(z,d) Rx Ry Trans(z,d) Trans(z,link),
+    i.e. rotation R = Rx Ry and translation d e_z + (d + link) R e_z."""
+    R = _rotation_rows(theta_a, theta_b, 0).reshape(3, 3)
     d = seg.half_gap_mm
-    return _trans_z(d) @ _homog(R, (0.0, 0.0, 0.0)) @ _trans_z(d + seg.link_mm)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = (d + seg.link_mm) * R[:, 2]
+    T[2, 3] += d
+    return T
 
 
 def segment_transform(theta_a: float, theta_b: float, seg: UJointSegment) -> np.ndarray:
     """T_sn of eq. 2: segment base (first D1) -> segment tip (D1 after the last link), 4x4."""
-    return np.linalg.matrix_power(subjoint_transform(theta_a, theta_b, seg), seg.n_subjoints)
+    S = subjoint_transform(theta_a, theta_b, seg)
+    T = S
+    for _ in range(seg.n_subjoints - 1):
+        T = T @ S
+    return T
 
 
 def tip_transform(arm: UJointArm, theta: np.ndarray) -> np.ndarray:
@@ -917,13 +1055,12 @@ def segment_friction_direction(arm: UJointArm, theta: np.ndarray, sigma: np.ndar
     """
     t = np.asarray(theta, dtype=float)
     out = np.zeros((arm.n_segments, 2))
-    for n, seg in enumerate(arm.segments):
-        own = arm.own_cables[n]
-        _, J = segment_cable_jacobian(
-            t[n, 0], t[n, 1], arm.betas[own], arm.rhos[own], seg.half_gap_mm, seg.n_subjoints
+    for n, holes in enumerate(arm.hole_sets):
+        _, g, _ = _hole_terms(holes.own, t[n, 0], t[n, 1])  # g = J^T (2, K)
+        norm = np.abs(g).sum(axis=1)
+        out[n] = np.where(
+            norm > 0, -(g @ sigma[holes.own.index]) / np.where(norm > 0, norm, 1.0), 0.0
         )
-        norm = np.abs(J).sum(axis=0)
-        out[n] = np.where(norm > 0, -(J.T @ sigma[own]) / np.where(norm > 0, norm, 1.0), 0.0)
     return np.clip(out, -1.0, 1.0)
 
 
@@ -970,13 +1107,13 @@ def gravity_potential_Nmm(arm: UJointArm, theta: np.ndarray) -> float:
 
 
 def _has_gravity(arm: UJointArm) -> bool:
-    return bool(np.any(np.asarray(arm.gravity_mm_s2) != 0.0))
+    return any(g != 0.0 for g in arm.gravity_mm_s2)
 
 
 def gravity_torque(arm: UJointArm, theta: np.ndarray) -> np.ndarray:
     """Generalised gravity force Q = -dV/dtheta (2N,), N*mm per rad of sub-joint angle.
 
-    Central differences of the potential (step :data:`FD_STEP_RAD`).
+    Central differences of the potential (step :data:`GRAVITY_FD_STEP_RAD`).
     """
     t = _as_theta(arm, theta).ravel()
     n = t.size
@@ -1023,7 +1160,8 @@ def statics_angles(arm: UJointArm, theta_pre: np.ndarray) -> tuple[np.ndarray, n
     V = sum_k [T0_k L_k(theta) + k_k/2 (L_k(theta) - L_k(theta_pre))^2] + V_gravity(theta):
 
         (J^T diag(k) J + K_g) dtheta = Q(theta_pre + dtheta) - J^T T0,
-        K_g = sum_k T0_k d^2 L_k / dtheta^2   (geometric stiffness of the pretension)
+        K_g = sum_k T0_k d^2 L_k / dtheta^2   (geometric stiffness of the pretension,
+                                               :func:`cable_jacobian_hessian`)
 
     with the cable lengths linearised at theta_pre and the gravity moment Q (:func:`gravity_torque`)
     taken at the sagged pose (quasi-Newton with the gravity stiffness of
@@ -1033,16 +1171,8 @@ def statics_angles(arm: UJointArm, theta_pre: np.ndarray) -> tuple[np.ndarray, n
     Returns (theta, tensions_N).
     """
     t0 = _as_theta(arm, theta_pre).ravel()
-    J = cable_jacobian(arm, t0.reshape(-1, 2))
+    J, L_hess = cable_jacobian_hessian(arm, t0.reshape(-1, 2))  # d^2 L_k / dtheta^2 per cable
     n = t0.size
-    L_hess = np.zeros((arm.n_cables, n, n))  # d^2 L_k / dtheta^2 per cable
-    for j in range(n):
-        tp, tm = t0.copy(), t0.copy()
-        tp[j] += FD_STEP_RAD
-        tm[j] -= FD_STEP_RAD
-        dJ = cable_jacobian(arm, tp.reshape(-1, 2)) - cable_jacobian(arm, tm.reshape(-1, 2))
-        L_hess[:, :, j] = dJ / (2.0 * FD_STEP_RAD)
-    L_hess = 0.5 * (L_hess + L_hess.transpose(0, 2, 1))
     if _has_gravity(arm):
         H = gravity_hessian(arm, t0.reshape(-1, 2))
 
@@ -1089,22 +1219,29 @@ def small_deflection(
     """
     active = np.ones(T0.shape, dtype=bool)  # every cable taut (a zero pretension too)
     dx = np.zeros_like(x0)
+    n = x0.size
+    # K, (K + H)^-1 and the pretension moment depend on the active set only: built (and the
+    # stability checked) once per active set met
+    built: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for _ in range(STATICS_MAX_ITER):
-        Ja = J[active]
-        Kg = np.tensordot(T0[active], L_hess[active], axes=1)
-        K = Ja.T @ (k[active, None] * Ja) + Kg + K_rest
-        A = K + H
-        if np.linalg.eigvalsh(0.5 * (A + A.T)).min() <= 0.0:
-            raise ModelError(
-                "statics: no stable equilibrium (slack cables, or pretension or "
-                "gravity buckling the arm)"
-            )
-        F = K @ dx + Ja.T @ T0[active] + f_rest - Q(x0 + dx)  # type: ignore[operator]
-        dx_new = dx - np.linalg.solve(A, F)
-        new_active = (T0 + k * (J @ dx_new)) >= 0.0
-        change = float(np.max(np.abs(dx_new - dx)))
-        dx = dx_new
-        if np.array_equal(new_active, active) and change < STATICS_TOL_RAD:
+        key = active.tobytes()
+        if key not in built:
+            Ja, Ta, ka, La = J[active], T0[active], k[active], L_hess[active]
+            Kg = (Ta @ La.reshape(Ta.size, n * n)).reshape(n, n)
+            K = Ja.T @ (ka[:, None] * Ja) + Kg + K_rest
+            A = K + H
+            if np.linalg.eigvalsh(0.5 * (A + A.T)).min() <= 0.0:
+                raise ModelError(
+                    "statics: no stable equilibrium (slack cables, or pretension or "
+                    "gravity buckling the arm)"
+                )
+            built[key] = (K, np.linalg.inv(A), Ja.T @ Ta + f_rest)
+        K, A_inv, f0 = built[key]
+        F = K @ dx + f0 - Q(x0 + dx)  # type: ignore[operator]
+        step = A_inv @ F
+        dx = dx - step
+        new_active = (T0 + k * (J @ dx)) >= 0.0
+        if (new_active == active).all() and float(np.abs(step).max()) < STATICS_TOL_RAD:
             break
         active = new_active
     else:
@@ -1145,11 +1282,14 @@ def statics_inverse(
 @dataclass(frozen=True)
 class UJointTruthState:
     """Memory of :func:`truth_angles`: cable outputs after the dead zone, the last kinematic
-    angles (for sgn(theta_dot), eq. 17) and the last motion sign of every segment coordinate."""
+    angles (for sgn(theta_dot), eq. 17) and the last motion sign of every segment coordinate;
+    ``theta_coupled``: the last deformation pass's solution of each segment's own cables (N, 2,
+    rad; a warm start, None before the first pass)."""
 
     q_out_mm: np.ndarray
     theta_kin: np.ndarray | None
     direction: np.ndarray
+    theta_coupled: np.ndarray | None = None
 
     @classmethod
     def initial(cls, arm: UJointArm) -> UJointTruthState:
@@ -1200,33 +1340,31 @@ def truth_angles(
         N = arm.n_segments
         offsets = np.zeros((N, 2))
         used = np.zeros(arm.n_cables)
-        for n, seg in enumerate(arm.segments):
-            own = arm.own_cables[n]
-            kn = solve_segment_angles(
-                L[own] - used[own],
-                arm.betas[own],
-                arm.rhos[own],
-                seg.half_gap_mm,
-                seg.n_subjoints,
-                kin[n],
-            )
+        coupled = kin.copy()
+        # warm start: this pass moves each solution away from the kinematic one by about as much
+        # as it did last time
+        shift = (
+            st.theta_coupled - st.theta_kin
+            if st.theta_coupled is not None and st.theta_kin is not None
+            else np.zeros_like(kin)
+        )
+        for n, holes in enumerate(arm.hole_sets):
+            own = holes.own.index
+            if n > 0:  # segment 1 has no proximal coupling: the first pass solved it already
+                coupled[n] = _solve_holes(holes.own, L[own] - used[own], kin[n] + shift[n])
+            kn = coupled[n]
             full = np.zeros((N, 2))
             full[n] = kn
             offsets[n] = deformation_rad(arm, full, direction)[n]
             theta[n] = kn + offsets[n]
-            distal = arm.anchor > n
-            if distal.any():
-                used[distal] += segment_cable_lengths(
-                    theta[n, 0],
-                    theta[n, 1],
-                    arm.betas[distal],
-                    arm.rhos[distal],
-                    seg.half_gap_mm,
-                    seg.n_subjoints,
-                )
+            distal = holes.through
+            if distal.index.size:
+                used[distal.index] += _hole_lengths(distal, theta[n, 0], theta[n, 1])
+    else:
+        coupled = None
     if eff.statics:
         theta = statics_angles(arm, theta)[0]
-    return theta, UJointTruthState(q_out, kin, direction)
+    return theta, UJointTruthState(q_out, kin, direction, coupled)
 
 
 # =========================================================================== compensation
@@ -1266,7 +1404,7 @@ def compensate(
 
     1. statics: theta_pre = :func:`statics_inverse` (theta_d), warm-started from the last offset;
        ``statics_evals`` None converges fully, an integer caps the statics evaluations per call
-       (the loop adapter uses 1: ~2 ms instead of ~6 ms, error ~1e-9 rad at 1 kHz steps);
+       (the loop adapter uses 1: a third of the cost, error ~1e-9 rad at 1 kHz steps);
     2. deformation (eq. 14/16-17): sgn(theta_dot_m) from the change of the desired angles; the
        cables of segment n must produce theta_kin,n = :func:`undeform` (theta_pre), while distal
        cables run through the deformed (= desired) proximal segments;
@@ -1295,20 +1433,10 @@ def compensate(
     else:
         kin = pre
     L = np.zeros(arm.n_cables)
-    for i, seg in enumerate(arm.segments):
-        through = arm.anchor > i
-        L[through] += segment_cable_lengths(
-            pre[i, 0],
-            pre[i, 1],
-            arm.betas[through],
-            arm.rhos[through],
-            seg.half_gap_mm,
-            seg.n_subjoints,
-        )
-        own = arm.own_cables[i]
-        L[own] += segment_cable_lengths(
-            kin[i, 0], kin[i, 1], arm.betas[own], arm.rhos[own], seg.half_gap_mm, seg.n_subjoints
-        )
+    for i, holes in enumerate(arm.hole_sets):
+        if holes.through.index.size:
+            L[holes.through.index] += _hole_lengths(holes.through, pre[i, 0], pre[i, 1])
+        L[holes.own.index] += _hole_lengths(holes.own, kin[i, 0], kin[i, 1])
     q_out = arm.straight_path_mm - L
     cable_dir = motion_direction(q_out, st.q_out_mm, st.cable_direction, True, CABLE_MOTION_EPS_MM)
     if eff.dead_zone:

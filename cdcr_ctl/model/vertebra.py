@@ -45,7 +45,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -53,13 +53,13 @@ from cdcr_ctl.errors import ModelError
 
 #: Below this |u| the ratios sin(u)/u etc. use their Taylor series.
 SERIES_BELOW = 0.05
+#: Below this |u| :func:`d2` uses its series (its closed form loses ~1e-16/u^5 to cancellation).
+D2_SERIES_BELOW = 0.3
 #: Gauss-Newton (cable lengths -> joint) stops when the step is below this (rad).
 SOLVE_STEP_TOL_RAD = 1e-13
 SOLVE_MAX_ITER = 60
 #: Attitude decode: sin(theta) (or a tilt difference) below this counts as singular.
 SINGULAR_TOL = 1e-9
-#: Central-difference step for the geometric stiffness of the pretension (rad).
-FD_STEP_RAD = 1e-6
 #: Iterations of the statics and of its inverse, and their tolerance (rad), which sits above the
 #: round-off of the finite-difference gravity moment.
 STATICS_MAX_ITER = 60
@@ -67,6 +67,9 @@ STATICS_MAX_ITER = 60
 #: potential (~1e-16 V / h) stays below the statics tolerance, small enough for O(h^2) accuracy.
 GRAVITY_FD_STEP_RAD = 1e-4
 STATICS_TOL_RAD = 1e-10
+#: Statics steps below this (rad) keep the last gravity Hessian (quasi-Newton): the linear rate
+#: |dH| / |A| is then ~1e-3 or better, and a gravity moment alone costs half a Hessian batch.
+STATICS_NEWTON_BELOW_RAD = 1e-3
 #: The paper's end-following step (rad), section 2.2.
 FOLLOW_STEP_RAD = 0.05
 
@@ -220,6 +223,54 @@ class VertebraArm:
     def max_pulse_rate_hz(self) -> np.ndarray:
         return np.array([m.max_pulse_rate_hz for m in self.modules])
 
+    @cached_property
+    def cable_stiffness(self) -> np.ndarray:
+        """EA / L_total per cable (N/mm)."""
+        return np.array([c.stiffness_N_per_mm for c in self.cables])
+
+    @cached_property
+    def pretensions(self) -> np.ndarray:
+        return np.array([c.pretension_N for c in self.cables])
+
+    @cached_property
+    def rod_stiffness(self) -> np.ndarray:
+        """K_rod (2N x 2N): EI / L_joint per joint on both bending-vector components
+        (N*mm/rad)."""
+        return np.diag(np.repeat([j.rod_EI_Nmm2 / j.length_mm for j in self.joints], 2))
+
+    @cached_property
+    def through(self) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], ...]:
+        """Per joint i: (indices of the cables through it (anchor >= i), their hole directions
+        e = (cos beta, sin beta) (K, 2), their hole radii r (K,) mm)."""
+        out = []
+        for i in range(self.n_joints):
+            idx = np.nonzero(self.anchor >= i)[0]
+            b = self.betas[idx]
+            out.append((idx, np.column_stack((np.cos(b), np.sin(b))), self.radii[idx]))
+        return tuple(out)
+
+    @cached_property
+    def potential_constants(self) -> tuple[np.ndarray, ...]:
+        """Per joint, for :func:`_potential_batch`: n, l0/2, l0/2 + H, the disk centre's z below
+        the top face -H/2 (mm), disk mass (g), and the rotation-sum weights (N, n_max + 1, 3)
+        (zero beyond a joint's own n)."""
+        n = np.array([j.n_gaps for j in self.joints], dtype=float)
+        half = np.array([0.5 * j.gap_mm for j in self.joints])
+        ell = half + np.array([j.hole_length_mm for j in self.joints])
+        zc = np.array([-0.5 * j.hole_length_mm for j in self.joints])
+        mass = np.array([j.disk_mass_g for j in self.joints])
+        n_max = max(j.n_gaps for j in self.joints)
+        W = np.zeros((self.n_joints, n_max + 1, 3))
+        for i, j in enumerate(self.joints):
+            W[i, : j.n_gaps + 1] = _unit_sum_weights(j.n_gaps)
+        return n, half, ell, zc, mass, W
+
+    @cached_property
+    def straight_path(self) -> np.ndarray:
+        """Per cable, its path length at the straight pose (mm), :func:`straight_path_mm`."""
+        lengths = np.array([j.length_mm for j in self.joints])
+        return np.array([lengths[: c.joint + 1].sum() for c in self.cables])
+
 
 # =========================================================================== series
 def s1(u: float) -> float:
@@ -236,6 +287,15 @@ def d1(u: float) -> float:
         u2 = u * u
         return -1.0 / 3.0 + u2 / 30.0 - u2 * u2 / 840.0 + u2**3 / 45360.0
     return (u * math.cos(u) - math.sin(u)) / u**3
+
+
+def d2(u: float) -> float:
+    """d1'(u)/u = (3 sin u - 3 u cos u - u^2 sin u)/u^5 (-> 1/15). Its closed form cancels to
+    O(u^5), so the series (next term 1.9e-8 u^8) is used up to :data:`D2_SERIES_BELOW`."""
+    if abs(u) < D2_SERIES_BELOW:
+        u2 = u * u
+        return 1.0 / 15.0 - u2 / 210.0 + u2 * u2 / 7560.0 - u2**3 / 498960.0
+    return (3.0 * math.sin(u) - 3.0 * u * math.cos(u) - u * u * math.sin(u)) / u**5
 
 
 def c2(u: float) -> float:
@@ -323,9 +383,28 @@ def joint_transform(theta: float, phi: float, joint: VertebraJoint) -> np.ndarra
     """Joint base -> joint end (top face of its last disk), the exact vertebra chain (4x4, mm).
 
     Its rotation is eq. 1's; its position is the polygon of n units, which tends to eq. 1's arc
-    as n grows (:func:`arc_transform`).
+    as n grows (:func:`arc_transform`). In closed form (the product of the n units of
+    :func:`_unit_transform`): with a = theta/n, k = (-sin phi, cos phi, 0) and a unit's
+    translation t = (l0/2) e_z + (l0/2 + H) Rot(k, a) e_z (in the bending plane, k . t = 0), the
+    end is sum_{l<n} Rot(k, l a) t = C t + S (k x t), C = sum_{l<n} cos(l a),
+    S = sum_{l<n} sin(l a) (see :func:`_potential_batch`).
     """
-    return np.linalg.matrix_power(_unit_transform(theta, phi, joint), joint.n_gaps)
+    n = joint.n_gaps
+    a = theta / n
+    cp, sp = math.cos(phi), math.sin(phi)
+    half = 0.5 * joint.gap_mm
+    arm_mm = half + joint.hole_length_mm
+    sa = math.sin(a)
+    t0, t1, t2 = arm_mm * sa * cp, arm_mm * sa * sp, arm_mm * math.cos(a) + half
+    C = S = 0.0
+    for m in range(n):
+        C += math.cos(m * a)
+        S += math.sin(m * a)
+    T = np.eye(4)
+    T[:3, :3] = joint_rotation(theta, phi)
+    # k x t = (cp t2, sp t2, -cp t0 - sp t1)
+    T[:3, 3] = (C * t0 + S * cp * t2, C * t1 + S * sp * t2, C * t2 - S * (cp * t0 + sp * t1))
+    return T
 
 
 def tip_transform(arm: VertebraArm, psi: np.ndarray) -> np.ndarray:
@@ -436,14 +515,13 @@ def cable_path_lengths(arm: VertebraArm, psi: np.ndarray) -> np.ndarray:
 
 def straight_path_mm(arm: VertebraArm) -> np.ndarray:
     """Per cable, its path length at the straight pose, sum of n (l0 + H) over its joints (mm)."""
-    lengths = np.array([j.length_mm for j in arm.joints])
-    return np.array([lengths[: c.joint + 1].sum() for c in arm.cables])
+    return arm.straight_path.copy()
 
 
 def cable_displacements(arm: VertebraArm, psi: np.ndarray) -> np.ndarray:
     """Eq. 5: each cable's total shortening, the sum of eq. 4 over the joints it passes (mm pulled
     in). A distal joint's cables change with every proximal joint's pose (the coupling)."""
-    return straight_path_mm(arm) - cable_path_lengths(arm, psi)
+    return arm.straight_path - cable_path_lengths(arm, psi)
 
 
 def cable_jacobian_x(arm: VertebraArm, x: np.ndarray) -> np.ndarray:
@@ -457,12 +535,97 @@ def cable_jacobian_x(arm: VertebraArm, x: np.ndarray) -> np.ndarray:
     return J
 
 
+def _joint_length_hess_x(
+    x: np.ndarray, beta: np.ndarray, r: np.ndarray, joint: VertebraJoint
+) -> np.ndarray:
+    """d^2 L / dx^2 (K, 2, 2) of eq. 3 in the bending vector (mm/rad^2), the derivative of
+    :func:`_joint_length_x`'s dL/dx. With ds1/dx = d1(u) x / 4n^2 and dd1/dx = d2(u) x / 4n^2:
+
+        -(l0/4n) s1 I - (l0 d1/16n^3) x x^T - (r d1 x_beta/4n^2) I
+        - (r d1/4n^2) (x e^T + e x^T) - (r x_beta d2/16n^4) x x^T,   e = (cos beta, sin beta).
+    """
+    n = joint.n_gaps
+    xv = np.asarray(x, dtype=float)
+    theta = math.hypot(float(xv[0]), float(xv[1]))
+    u = theta / (2.0 * n)
+    su, du, ddu = s1(u), d1(u), d2(u)
+    e = np.column_stack((np.cos(beta), np.sin(beta)))
+    xb = e @ xv
+    r = np.asarray(r, dtype=float)
+    xx = np.outer(xv, xv)
+    eye = np.eye(2)
+    l0 = joint.gap_mm
+    common = -(l0 / (4.0 * n)) * su * eye - (l0 * du / (16.0 * n**3)) * xx
+    xe = xv[None, :, None] * e[:, None, :]  # x e^T per cable
+    return (
+        common[None]
+        - (r * du * xb / (4.0 * n * n))[:, None, None] * eye[None]
+        - (r * du / (4.0 * n * n))[:, None, None] * (xe + xe.transpose(0, 2, 1))
+        - (r * xb * ddu / (16.0 * n**4))[:, None, None] * xx[None]
+    )
+
+
+def cable_hessian_x(arm: VertebraArm, x: np.ndarray) -> np.ndarray:
+    """d^2(path length)/d(bending vectors)^2 (C, 2N, 2N, mm/rad^2), analytic
+    (:func:`_joint_length_hess_x`); block diagonal per joint (a joint's share of a cable's length
+    depends on that joint's bending vector only)."""
+    xs = np.asarray(x, dtype=float).reshape(arm.n_joints, 2)
+    Hs = np.zeros((arm.n_cables, 2 * arm.n_joints, 2 * arm.n_joints))
+    for i, j in enumerate(arm.joints):
+        through = np.nonzero(arm.anchor >= i)[0]
+        Hs[through, 2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = _joint_length_hess_x(
+            xs[i], arm.betas[through], arm.radii[through], j
+        )
+    return Hs
+
+
+def _cable_jacobian_and_hessian(arm: VertebraArm, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`cable_jacobian_x`, :func:`cable_hessian_x`) at ``x`` in one pass over the joints
+    (the formulas of :func:`_joint_length_x` and :func:`_joint_length_hess_x`, entry by entry)."""
+    xs = np.asarray(x, dtype=float).reshape(arm.n_joints, 2)
+    n2 = 2 * arm.n_joints
+    J = np.zeros((arm.n_cables, n2))
+    Hs = np.zeros((arm.n_cables, n2, n2))
+    for i, j in enumerate(arm.joints):
+        idx, e, r = arm.through[i]
+        n = j.n_gaps
+        x0, x1 = float(xs[i, 0]), float(xs[i, 1])
+        u = math.hypot(x0, x1) / (2.0 * n)
+        su, du, ddu = s1(u), d1(u), d2(u)
+        e0, e1 = e[:, 0], e[:, 1]
+        xb = e0 * x0 + e1 * x1
+        g = -(j.gap_mm / (4.0 * n)) * su
+        a = r * du * xb / (4.0 * n * n)
+        rs = r * su
+        J[idx, 2 * i] = (g - a) * x0 - rs * e0
+        J[idx, 2 * i + 1] = (g - a) * x1 - rs * e1
+        # g I - (l0 d1/16n^3) x x^T - a I - b (x e^T + e x^T) - c x x^T
+        b = r * du / (4.0 * n * n)
+        cxx = (j.gap_mm * du / (16.0 * n**3)) + r * xb * ddu / (16.0 * n**4)
+        diag = g - a
+        Hs[idx, 2 * i, 2 * i] = diag - 2.0 * b * x0 * e0 - cxx * x0 * x0
+        Hs[idx, 2 * i + 1, 2 * i + 1] = diag - 2.0 * b * x1 * e1 - cxx * x1 * x1
+        off = -b * (x0 * e1 + x1 * e0) - cxx * x0 * x1
+        Hs[idx, 2 * i, 2 * i + 1] = off
+        Hs[idx, 2 * i + 1, 2 * i] = off
+    return J, Hs
+
+
 def _path_lengths_x(arm: VertebraArm, x: np.ndarray) -> np.ndarray:
+    """Per cable, its path length (mm) at the bending vectors ``x`` (eq. 3 summed as in eq. 5,
+    the L of :func:`_joint_length_x`)."""
     xs = np.asarray(x, dtype=float).reshape(arm.n_joints, 2)
     L = np.zeros(arm.n_cables)
     for i, j in enumerate(arm.joints):
-        through = arm.anchor >= i
-        L[through] += _joint_length_x(xs[i], arm.betas[through], arm.radii[through], j)[0]
+        idx, e, r = arm.through[i]
+        x0, x1 = float(xs[i, 0]), float(xs[i, 1])
+        n = j.n_gaps
+        u = math.hypot(x0, x1) / (2.0 * n)
+        L[idx] += (
+            n * j.hole_length_mm
+            + n * j.gap_mm * math.cos(u)
+            - r * s1(u) * (e[:, 0] * x0 + e[:, 1] * x1)
+        )
     return L
 
 
@@ -489,23 +652,55 @@ def solve_joint(
     joint: VertebraJoint,
     guess: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Bending vector of one joint from its cables' lengths through it (Gauss-Newton on eq. 3).
+    """Bending vector of one joint from its cables' lengths through it (Gauss-Newton on eq. 3,
+    the L and dL/dx of :func:`_joint_length_x`, in scalar arithmetic: a joint has a handful of
+    cables).
 
-    Least squares when the three lengths are inconsistent. Raises :class:`ModelError` when it
-    does not converge (lengths out of reach).
+    Least squares (2x2 normal equations) when the lengths are inconsistent. Raises
+    :class:`ModelError` when it does not converge (lengths out of reach) or the cables cannot
+    fix the bend (all collinear with the centre).
     """
-    ld = np.asarray(lengths_mm, dtype=float)
-    x = np.zeros(2) if guess is None else np.array(guess, dtype=float)
+    ld = [float(v) for v in np.asarray(lengths_mm, dtype=float)]
+    cables = [
+        (math.cos(float(b)), math.sin(float(b)), float(rr), li)
+        for b, rr, li in zip(
+            np.asarray(beta, dtype=float), np.asarray(r, dtype=float), ld, strict=True
+        )
+    ]
+    n = joint.n_gaps
+    base = n * joint.hole_length_mm
+    l0 = joint.gap_mm
+    x0, x1 = (0.0, 0.0) if guess is None else (float(guess[0]), float(guess[1]))
     for _ in range(SOLVE_MAX_ITER):
-        L, dL = _joint_length_x(x, beta, r, joint)
-        step = np.linalg.lstsq(dL, ld - L, rcond=None)[0]
-        big = float(np.max(np.abs(step)))
+        u = math.hypot(x0, x1) / (2.0 * n)
+        su, du = s1(u), d1(u)
+        common = base + n * l0 * math.cos(u)
+        ga = -(l0 / (4.0 * n)) * su
+        # normal equations: (dL^T dL) step = dL^T (ld - L)
+        a00 = a01 = a11 = b0 = b1 = 0.0
+        for ec, es, rr, li in cables:
+            xb = ec * x0 + es * x1
+            res = li - (common - rr * su * xb)
+            f = ga - rr * du * xb / (4.0 * n * n)
+            j0 = f * x0 - rr * su * ec
+            j1 = f * x1 - rr * su * es
+            a00 += j0 * j0
+            a01 += j0 * j1
+            a11 += j1 * j1
+            b0 += j0 * res
+            b1 += j1 * res
+        det = a00 * a11 - a01 * a01
+        if not det > 1e-12 * (a00 * a11 + 1e-300):
+            raise ModelError(f"joint {joint.name}: its cables do not fix the bend here")
+        s0 = (a11 * b0 - a01 * b1) / det
+        s1_ = (a00 * b1 - a01 * b0) / det
+        big = max(abs(s0), abs(s1_))
         if big > 0.5:
-            step *= 0.5 / big
-        x = x + step
+            s0, s1_ = s0 * 0.5 / big, s1_ * 0.5 / big
+        x0, x1 = x0 + s0, x1 + s1_
         if big < SOLVE_STEP_TOL_RAD:
-            return x
-    raise ModelError(f"joint {joint.name}: cable lengths {ld.tolist()} mm out of reach")
+            return np.array([x0, x1])
+    raise ModelError(f"joint {joint.name}: cable lengths {ld} mm out of reach")
 
 
 def joints_from_displacements(
@@ -516,7 +711,7 @@ def joints_from_displacements(
     Joint 1 from its own cables, then its share of every distal cable is removed and joint 2 is
     solved, and so on outwards (the coupling runs one way: distal cables pass proximal joints).
     """
-    L = straight_path_mm(arm) - np.asarray(q_mm, dtype=float)
+    L = arm.straight_path - np.asarray(q_mm, dtype=float)
     xs = np.zeros((arm.n_joints, 2))
     used = np.zeros(arm.n_cables)
     for i, j in enumerate(arm.joints):
@@ -835,6 +1030,17 @@ class EndFollowPlanner:
         self.mode = FollowMode.STEER
         return True
 
+    def set_targets(self, psi: np.ndarray) -> bool:
+        """Move every joint to ``psi`` (N, 2) (bends clamped to [0, theta_max]), e.g. back to
+        straight; False (ignored) while a follow move runs."""
+        if self.mode is FollowMode.FOLLOW:
+            return False
+        p = _psi_array(psi, self.arm.n_joints).copy()
+        p[:, 0] = np.clip(p[:, 0], 0.0, self.params.theta_max_rad)
+        self.target = p
+        self.mode = FollowMode.STEER
+        return True
+
     def advance(self) -> bool:
         """Start a follow move: target_i = psi_{i+1} (current poses) for the proximal joints, the
         distal joint's target = its current pose. False if a follow move is already running."""
@@ -892,34 +1098,85 @@ class EndFollowPlanner:
 
 
 # =========================================================================== truth
+@lru_cache(maxsize=8)
+def _unit_sum_weights(n: int) -> np.ndarray:
+    """(n + 1, 3) weights over m = 0..n of the three rotation sums of :func:`_potential_batch`:
+    n - m for m < n (the disk centres' translations), 1 for 1 <= m <= n (their offsets), 1 for
+    m < n (the joint's end)."""
+    W = np.zeros((n + 1, 3))
+    W[:n, 0] = np.arange(n, 0, -1)
+    W[1:, 1] = 1.0
+    W[:n, 2] = 1.0
+    return W
+
+
 def _potential_batch(arm: VertebraArm, xs: np.ndarray) -> np.ndarray:
-    """Gravity potential (B,) of B poses given as bending vectors (B, N, 2), the chain of
-    :func:`mass_points` with batched 4x4 products."""
+    """Gravity potential (B,) of B poses given as bending vectors (B, N, 2): the masses of
+    :func:`mass_points` in closed form (N*mm).
+
+    A joint's n units each turn by a = theta/n about k = (-sin phi, cos phi, 0), so unit m's
+    rotation is R^m = Rot(k, m a) = k k^T + cos(m a) (I - k k^T) + sin(m a) [k]x and a sum
+    sum_m w_m R^m is M(C, S, W) = W k k^T + C (I - k k^T) + S [k]x with C = sum w_m cos(m a),
+    S = sum w_m sin(m a), W = sum w_m. A unit is Trans(z, l0/2) R Trans(z, l0/2 + H), i.e. the
+    translation t = (l0/2) e_z + (l0/2 + H) R e_z, which lies in the bending plane (k . t = 0);
+    so in the joint's base frame
+
+        end of the joint            = sum_{l<n} R^l t               = M(C2, S2, n) t,
+        sum of the n disk centres   = sum_{l<n} (n - l) R^l t + sum_{m=1..n} R^m c
+                                    = M(C0, S0, n(n+1)/2) t + M(C1, S1, n) c,
+
+    c = (0, 0, -H/2) (a disk's centre below the top face of its hole; k . c = 0 too). Only
+    g . p is needed: g is carried into each joint's base frame (g_i = R_{i-1}^T g) and g . p of
+    the joint bases accumulates, so the chain costs a few element-wise operations per joint on
+    the components (no 3x3 or 4x4 products): g . M(C, S, W) v = C g . v + S (g x k) . v for v
+    perpendicular to k.
+    """
     X = np.asarray(xs, dtype=float)
     B = X.shape[0]
-    g = np.asarray(arm.gravity_mm_s2, dtype=float)
-    T = np.broadcast_to(np.eye(4), (B, 4, 4)).copy()
+    n_arr, half, ell, zc, mass, W = arm.potential_constants
+    # per joint, independent of the chain: (B, N) arrays
+    xi, yi = X[..., 0], X[..., 1]
+    theta = np.hypot(xi, yi)
+    straight = theta == 0.0  # phi = atan2(0, 0) = 0 there
+    inv = 1.0 / np.where(straight, 1.0, theta)
+    cp, sp = np.where(straight, 1.0, xi * inv), yi * inv
+    a = theta / n_arr
+    E = np.exp(1j * (a.T[..., None] * np.arange(W.shape[1]))) @ W  # (N, B, 3)
+    C, S = E.real, E.imag  # per joint (B, 3): C0, C1, C2 and S0, S1, S2
+    sa = ell * np.sin(a)
+    t2 = ell * np.cos(a) + half
+    ct, st = np.cos(theta), np.sin(theta)
+    # probe vectors per joint: t = (sa cp, sa sp, t2), k x t = (cp t2, sp t2, -sa) (k . t = 0),
+    # k x e_z = (cp, sp, 0)
+    P = np.empty((*X.shape[:2], 3, 3))
+    P[..., 0, 0], P[..., 0, 1], P[..., 0, 2] = sa * cp, sa * sp, t2
+    P[..., 1, 0], P[..., 1, 1], P[..., 1, 2] = cp * t2, sp * t2, -sa
+    P[..., 2, 0], P[..., 2, 1], P[..., 2, 2] = cp, sp, 0.0
+    # Rot(k, theta)^T (eq. 1 transposed): carries g from a joint's base into its end frame
+    c1 = cp * sp * (ct - 1.0)
+    RT = np.empty((*X.shape[:2], 3, 3))
+    RT[..., 0, 0], RT[..., 0, 1], RT[..., 0, 2] = ct * cp * cp + sp * sp, c1, -st * cp
+    RT[..., 1, 0], RT[..., 1, 1], RT[..., 1, 2] = c1, cp * cp + sp * sp * ct, -st * sp
+    RT[..., 2, 0], RT[..., 2, 1], RT[..., 2, 2] = st * cp, st * sp, ct
+    g = np.tile(np.asarray(arm.gravity_mm_s2, dtype=float), (B, 1))  # in the joint base frame
+    pg = np.zeros(B)  # g . (position of the joint base)
     V = np.zeros(B)
-    for i, j in enumerate(arm.joints):
-        theta = np.hypot(X[:, i, 0], X[:, i, 1])
-        phi = np.arctan2(X[:, i, 1], X[:, i, 0])
-        t = theta / j.n_gaps
-        ct, st, cp, sp = np.cos(t), np.sin(t), np.cos(phi), np.sin(phi)
-        U = np.zeros((B, 4, 4))
-        U[:, 0, 0], U[:, 0, 1], U[:, 0, 2] = ct * cp * cp + sp * sp, cp * sp * (ct - 1.0), st * cp
-        U[:, 1, 0], U[:, 1, 1], U[:, 1, 2] = cp * sp * (ct - 1.0), cp * cp + sp * sp * ct, st * sp
-        U[:, 2, 0], U[:, 2, 1], U[:, 2, 2] = -st * cp, -st * sp, ct
-        U[:, 3, 3] = 1.0
-        a = 0.5 * j.gap_mm
-        U[:, :3, 3] = (a + j.hole_length_mm) * U[:, :3, 2]
-        U[:, 2, 3] += a
-        for _ in range(j.n_gaps):
-            T = T @ U
-            if j.disk_mass_g > 0:
-                p = T[:, :3, 3] - 0.5 * j.hole_length_mm * T[:, :3, 2]
-                V -= j.disk_mass_g * 1e-6 * (p @ g)
+    for i in range(arm.n_joints):
+        d = np.einsum("bpk,bk->bp", P[:, i], g)  # g . t, g . (k x t), g . (k x e_z)
+        Ci, Si = C[i], S[i]
+        if mass[i] > 0:
+            # g . M(C1, S1, n) c = (C1 g_z + S1 g . (k x e_z)) c_z
+            centres = (
+                n_arr[i] * pg
+                + Ci[:, 0] * d[:, 0]
+                + Si[:, 0] * d[:, 1]
+                + (Ci[:, 1] * g[:, 2] + Si[:, 1] * d[:, 2]) * zc[i]
+            )
+            V -= mass[i] * 1e-6 * centres
+        pg = pg + Ci[:, 2] * d[:, 0] + Si[:, 2] * d[:, 1]
+        g = np.einsum("bkl,bl->bk", RT[:, i], g)
     if arm.tip_mass_g > 0:
-        V -= arm.tip_mass_g * 1e-6 * (T[:, :3, 3] @ g)
+        V -= arm.tip_mass_g * 1e-6 * pg
     return V
 
 
@@ -943,82 +1200,202 @@ def gravity_torque_x(arm: VertebraArm, x: np.ndarray) -> np.ndarray:
     return -(V[:n] - V[n:]) / (2.0 * GRAVITY_FD_STEP_RAD)
 
 
+@lru_cache(maxsize=8)
+def _hessian_stencil(n: int, h: float) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """Offsets (4 P, n) of the four-point stencil of every pair j <= k (P pairs), and the pairs."""
+    pairs = [(j, k) for j in range(n) for k in range(j, n)]
+    D = np.zeros((4 * len(pairs), n))
+    for p, (j, k) in enumerate(pairs):
+        for q, (sj, sk) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+            D[4 * p + q, j] += sj * h
+            D[4 * p + q, k] += sk * h
+    return D, pairs
+
+
+def _hessian_from_stencil(V: np.ndarray, pairs: list[tuple[int, int]], n: int, h: float):
+    v = V.reshape(-1, 4)
+    vals = (v[:, 0] - v[:, 1] - v[:, 2] + v[:, 3]) / (4.0 * h * h)
+    H = np.zeros((n, n))
+    jj, kk = np.array(pairs).T
+    H[jj, kk] = vals
+    H[kk, jj] = vals
+    return H
+
+
 def gravity_hessian_x(arm: VertebraArm, x: np.ndarray, h: float = 1e-4) -> np.ndarray:
     """d^2 V / dx^2 (2N x 2N, N*mm/rad^2), four-point stencil."""
     xs = np.asarray(x, dtype=float).ravel()
     n = xs.size
-    pairs = [(j, k) for j in range(n) for k in range(j, n)]
-    Y = []
-    for j, k in pairs:
-        for sj, sk in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-            y = xs.copy()
-            y[j] += sj * h
-            y[k] += sk * h
-            Y.append(y)
-    V = _potential_batch(arm, np.array(Y).reshape(len(Y), -1, 2))
-    H = np.zeros((n, n))
-    for p, (j, k) in enumerate(pairs):
-        v = V[4 * p : 4 * p + 4]
-        H[j, k] = H[k, j] = (v[0] - v[1] - v[2] + v[3]) / (4.0 * h * h)
-    return H
+    D, pairs = _hessian_stencil(n, h)
+    V = _potential_batch(arm, (xs + D).reshape(len(D), -1, 2))
+    return _hessian_from_stencil(V, pairs, n, h)
 
 
-def statics_x(arm: VertebraArm, x_kin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@lru_cache(maxsize=8)
+def _solver_stencil(n: int, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Offsets (1 + 2n + n(n-1)/2, n) for :func:`_gravity_torque_and_hessian`: 0, +-h e_j, then
+    h (e_j + e_k) for j < k; and the pair indices (j, k)."""
+    jj, kk = np.triu_indices(n, 1)
+    E = np.eye(n) * h
+    D = np.concatenate((np.zeros((1, n)), E, -E, E[jj] + E[kk]))
+    return D, jj, kk
+
+
+def _gravity_torque_and_hessian(arm: VertebraArm, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`gravity_torque_x`, an approximate gravity Hessian) at ``x`` from ONE batch of
+    1 + 2n + n(n-1)/2 potentials: the torque by the same central differences; the Hessian by
+    the three-point second difference on the diagonal and a forward mixed difference
+    (V(x + h e_j + h e_k) - V(x + h e_j) - V(x + h e_k) + V(x)) / h^2 off it (O(h), ~1e-4
+    relative at h = 1e-4): it only sets the statics' Newton matrix and stability check, never
+    the equilibrium."""
+    xs = np.asarray(x, dtype=float).ravel()
+    n = xs.size
+    h = GRAVITY_FD_STEP_RAD
+    D, jj, kk = _solver_stencil(n, h)
+    V = _potential_batch(arm, (xs + D).reshape(len(D), -1, 2))
+    v0, vp, vm, vpp = V[0], V[1 : n + 1], V[n + 1 : 2 * n + 1], V[2 * n + 1 :]
+    Q = -(vp - vm) / (2.0 * h)
+    H = np.diag((vp - 2.0 * v0 + vm) / (h * h))
+    off = (vpp - vp[jj] - vp[kk] + v0) / (h * h)
+    H[jj, kk] = off
+    H[kk, jj] = off
+    return Q, H
+
+
+def statics_x(
+    arm: VertebraArm, x_kin: np.ndarray, dx_guess: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Small-deflection equilibrium (bending vectors (N, 2), cable tensions (C,)).
 
     At the kinematic pose x_kin (from the cable displacements) every cable is at its pretension;
     the rod wants x = 0 with stiffness EI / L_joint per joint; gravity loads the disks. With
-    J = :func:`cable_jacobian_x`, k = EA / L_total, K_g = sum T0 d^2 L / dx^2 (the pretension's
-    geometric stiffness, negative: it compresses the rod like a column), stationarity of
+    J = :func:`cable_jacobian_x`, k = EA / L_total, K_g = sum T0 d^2 L / dx^2
+    (:func:`cable_hessian_x`; the pretension's geometric stiffness, negative: it compresses the
+    rod like a column), stationarity of
     sum [T0 L + k/2 (L - L(x_kin))^2] + sum EI/(2 L_i) |x_i|^2 + V_gravity gives
 
-        (J^T k J + K_g + K_rod) dx = Q(x_kin + dx) - J^T T0 - K_rod x_kin
+        F(dx) = (J^T k J + K_g + K_rod) dx + J^T T0 + K_rod x_kin - Q(x_kin + dx) = 0
 
-    with the cable lengths linearised at x_kin and the gravity moment Q at the sagged pose
-    (quasi-Newton with :func:`gravity_hessian_x`). Cables whose tension would go negative go slack
+    with the cable lengths linearised at x_kin and the gravity moment Q at the sagged pose,
+    solved by Newton (dF/ddx = J^T k J + K_g + K_rod + d^2 V/dx^2 at the iterate,
+    :func:`_gravity_torque_and_hessian`; once a step is below :data:`STATICS_NEWTON_BELOW_RAD`
+    the last Hessian is kept, which changes the convergence rate, not the solution) from
+    ``dx_guess`` (default 0, every cable taut; with a guess, e.g. the last step's sag, (2N,) or
+    (N, 2), the cables taut at the guess). Cables whose tension would go negative go slack
     (active set) - the paper's "cables not taut" error. Raises :class:`ModelError` when there is
     no stable equilibrium.
     """
     x0 = np.asarray(x_kin, dtype=float).ravel()
     n = x0.size
-    J = cable_jacobian_x(arm, x0)
-    k = np.array([c.stiffness_N_per_mm for c in arm.cables])
-    T0 = np.array([c.pretension_N for c in arm.cables])
-    L_hess = np.zeros((arm.n_cables, n, n))  # d^2 L_k / dx^2 per cable
-    for j in range(n):
-        xp, xm = x0.copy(), x0.copy()
-        xp[j] += FD_STEP_RAD
-        xm[j] -= FD_STEP_RAD
-        L_hess[:, :, j] = (cable_jacobian_x(arm, xp) - cable_jacobian_x(arm, xm)) / (
-            2 * FD_STEP_RAD
-        )
-    L_hess = 0.5 * (L_hess + L_hess.transpose(0, 2, 1))
-    K_rod = np.diag(np.repeat([j.rod_EI_Nmm2 / j.length_mm for j in arm.joints], 2))
-    H = gravity_hessian_x(arm, x0) if _has_gravity(arm) else np.zeros((n, n))
-    active = np.ones(T0.shape, dtype=bool)  # every cable taut (a zero pretension too)
-    dx = np.zeros(n)
+    J, L_hess = _cable_jacobian_and_hessian(arm, x0)  # dL/dx, d^2 L_k / dx^2 per cable
+    k = arm.cable_stiffness
+    T0 = arm.pretensions
+    K_rod = arm.rod_stiffness
+    gravity = _has_gravity(arm)
+    Q, H = np.zeros(n), np.zeros((n, n))
+    if dx_guess is None:
+        dx = np.zeros(n)
+        active = np.ones(T0.shape, dtype=bool)  # every cable taut (a zero pretension too)
+    else:  # the cables the guess leaves taut
+        dx = np.asarray(dx_guess, dtype=float).ravel().copy()
+        active = (T0 + k * (J @ dx)) >= 0.0
+    K = Ja = None
+    far = True
+    last_change = math.inf  # the previous step with the same active set
+    seen = {active.tobytes()}
     for _ in range(STATICS_MAX_ITER):
-        Ja = J[active]
-        Kg = np.tensordot(T0[active], L_hess[active], axes=1)  # slack cables drop out
-        K = Ja.T @ (k[active, None] * Ja) + Kg + K_rod
+        new_matrix = far or K is None
+        if K is None:
+            Ja = J[active]
+            Kg = np.tensordot(T0[active], L_hess[active], axes=1)  # slack cables drop out
+            K = Ja.T @ (k[active, None] * Ja) + Kg + K_rod
+            JT0 = Ja.T @ T0[active]
+        if gravity:
+            if far:
+                Q, H = _gravity_torque_and_hessian(arm, x0 + dx)
+            else:  # near the solution: the last Hessian (same fixed point, fewer potentials)
+                Q = gravity_torque_x(arm, x0 + dx)
         A = K + H
-        if np.linalg.eigvalsh(0.5 * (A + A.T)).min() <= 0.0:
+        if new_matrix and np.linalg.eigvalsh(0.5 * (A + A.T)).min() <= 0.0:
             raise ModelError(
                 "statics: no stable equilibrium (slack cables, or pretension or "
                 "gravity buckling the rod)"
             )
-        F = K @ dx + Ja.T @ T0[active] + K_rod @ x0 - gravity_torque_x(arm, x0 + dx)
+        F = K @ dx + JT0 + K_rod @ x0 - Q
         dx_new = dx - np.linalg.solve(A, F)
         new_active = (T0 + k * (J @ dx_new)) >= 0.0
         change = float(np.max(np.abs(dx_new - dx)))
+        far = change > STATICS_NEWTON_BELOW_RAD
         dx = dx_new
-        if np.array_equal(new_active, active) and change < STATICS_TOL_RAD:
-            break
-        active = new_active
+        if np.array_equal(new_active, active):
+            # converged: this step was below the tolerance, or two steps on the same active
+            # set show a contraction (rate = change / last_change < 1/2) so fast that the
+            # remaining error, about change * rate, is
+            rate = change / last_change if math.isfinite(last_change) else 1.0
+            if change < STATICS_TOL_RAD or (rate < 0.5 and change * rate < STATICS_TOL_RAD):
+                break
+            last_change = change
+        elif new_active.tobytes() in seen:
+            # the active set cycles: the cables that flip sit on the slack threshold
+            both = active & new_active
+            dx = _statics_on_kink(arm, x0, J, L_hess, both, active ^ new_active, dx)
+            tension = np.where(both, T0 + k * (J @ dx), 0.0)
+            return (x0 + dx).reshape(-1, 2), tension
+        else:
+            seen.add(new_active.tobytes())
+            active, K, last_change = new_active, None, math.inf
     else:
         raise ModelError("statics did not converge")
     tension = np.where(active, T0 + k * (J @ dx), 0.0)
     return (x0 + dx).reshape(-1, 2), tension
+
+
+def _statics_on_kink(
+    arm: VertebraArm,
+    x0: np.ndarray,
+    J: np.ndarray,
+    L_hess: np.ndarray,
+    taut: np.ndarray,
+    edge: np.ndarray,
+    dx: np.ndarray,
+) -> np.ndarray:
+    """The equilibrium of :func:`statics_x` when its active set cycles (bool masks: ``taut``
+    cables, ``edge`` cables that flip): taut, an edge cable's tension T0 + k J dx is negative;
+    slack, it is stretched. The model switches the edge cable's force J^T T and its
+    pretension's geometric stiffness T0 d^2L/dx^2 off together, so neither set holds; the
+    equilibrium sits on the switching surface (Filippov): each edge cable exactly at zero
+    tension, T0 + k J dx = 0, its geometric stiffness entering with a weight w in [0, 1].
+    Newton on (dx, w) from the cycling iterate; returns dx. Raises :class:`ModelError` if the
+    weights leave [0, 1] (no such equilibrium)."""
+    n = x0.size
+    k, T0, K_rod = arm.cable_stiffness, arm.pretensions, arm.rod_stiffness
+    Jb = J[taut]
+    K_base = Jb.T @ (k[taut, None] * Jb) + np.tensordot(T0[taut], L_hess[taut], axes=1) + K_rod
+    JT0 = Jb.T @ T0[taut]
+    idx = np.nonzero(edge)[0]
+    m = idx.size
+    Ge = T0[idx, None, None] * L_hess[idx]  # (m, n, n) geometric stiffness of each edge cable
+    w = np.full(m, 0.5)
+    gravity = _has_gravity(arm)
+    Q, H = np.zeros(n), np.zeros((n, n))
+    for _ in range(STATICS_MAX_ITER):
+        if gravity:
+            Q, H = _gravity_torque_and_hessian(arm, x0 + dx)
+        Kw = K_base + np.tensordot(w, Ge, axes=1)
+        R = np.concatenate((Kw @ dx + JT0 + K_rod @ x0 - Q, T0[idx] + k[idx] * (J[idx] @ dx)))
+        A = np.zeros((n + m, n + m))
+        A[:n, :n] = Kw + H
+        A[:n, n:] = (Ge @ dx).T
+        A[n:, :n] = k[idx, None] * J[idx]
+        step = np.linalg.solve(A, -R)
+        dx, w = dx + step[:n], w + step[n:]
+        if float(np.max(np.abs(step[:n]))) < STATICS_TOL_RAD:
+            break
+    else:
+        raise ModelError("statics did not converge (cables on the slack threshold)")
+    if np.any(w < -1e-9) or np.any(w > 1.0 + 1e-9):
+        raise ModelError("statics: no equilibrium with the cables on the slack threshold")
+    return dx
 
 
 def truth_pose(
@@ -1046,8 +1423,11 @@ def statics_inverse_x(arm: VertebraArm, x_target: np.ndarray) -> np.ndarray:
     sag: command the cables of x_kin to end at x_target)."""
     target = np.asarray(x_target, dtype=float).reshape(-1, 2)
     pre = target.copy()
+    sag = None
     for _ in range(STATICS_MAX_ITER):
-        err = target - statics_x(arm, pre)[0]
+        x = statics_x(arm, pre, sag)[0]
+        sag = x - pre
+        err = target - x
         pre = pre + err
         if float(np.max(np.abs(err))) < STATICS_TOL_RAD:
             return pre
@@ -1086,6 +1466,12 @@ class AttitudeLoopParams:
     ``max_correction_rad``, ``min_observability``, ``max_error_rad``: see the constants;
     ``stale_after_s``: older readings are not used (the correction is held); ``base_up``,
     ``mounts``, ``singular_tol``: :func:`decode_joint_attitudes`.
+
+    ``max_offset_step_mm``: applies to modes ``model`` AND ``measured``: the largest change per
+    control cycle of the compensation offset q_cmd - q_nominal of each cable (mm; the
+    compensation's rate limit in mm/s times the period, ``vertebra.compensation_max_rate_mm_s``).
+    The planned motion uses a share of each axis' speed limit; the offset adds its rate on top,
+    so bounding it keeps the sum within the limit. Infinite: no bound.
     """
 
     gain_per_tick: float = ATTITUDE_GAIN_PER_S / 100.0
@@ -1096,19 +1482,26 @@ class AttitudeLoopParams:
     base_up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     mounts: tuple[np.ndarray, ...] | None = None
     singular_tol: float = SINGULAR_TOL
+    max_offset_step_mm: float = math.inf
 
     def __post_init__(self) -> None:
         if not (0.0 < self.gain_per_tick <= 1.0 and self.max_correction_rad > 0):
             raise ModelError("attitude loop: 0 < gain_per_tick <= 1 and max_correction_rad > 0")
+        if not self.max_offset_step_mm > 0:
+            raise ModelError("compensation: max_offset_step_mm must be > 0")
 
 
 @dataclass
 class VertebraLoopState:
     """Memory of :class:`VertebraModel` between cycles: the statics offset (warm start, x_kin -
-    x_target), the attitude loop's integral correction (N, 2 bending vectors), the last decoded
-    directions (continuity through singular poses) and the last measured joint poses."""
+    x_target) and the sag at the last x_kin (the statics' warm start), the attitude loop's
+    integral correction (N, 2 bending vectors), the last decoded directions (continuity through
+    singular poses), the last measured joint poses and the cable offset q_cmd - q_nominal last
+    commanded (mm, rate-limited; None: zero, as in mode off)."""
 
     sag_offset: np.ndarray | None = None
+    sag: np.ndarray | None = None
+    offset_mm: np.ndarray | None = None
     correction: np.ndarray | None = None
     prev_phi: np.ndarray | None = None
     measured_psi: np.ndarray | None = None
@@ -1130,6 +1523,11 @@ class VertebraModel:
     per joint while its reading is fresh and observable (else c is held). The sensors reach the
     model through :meth:`attach_attitude` (an :class:`~cdcr_ctl.control.ports.AttitudePort`:
     latest roll, pitch and age per joint, never blocking); without one, ``measured`` raises.
+
+    In both compensating modes the cable offset q_cmd - q_nominal moves towards its target by
+    at most ``attitude_loop.max_offset_step_mm`` per cycle: entering a compensating mode ramps
+    the compensation in from zero (mode off commands no offset), and the offset's rate never adds
+    more than that to the planned cable speed.
     """
 
     def __init__(self, arm: VertebraArm, attitude_loop: AttitudeLoopParams | None = None) -> None:
@@ -1192,18 +1590,23 @@ class VertebraModel:
     ) -> np.ndarray:
         if not isinstance(state, VertebraLoopState):
             raise ModelError("q_command needs the state made by new_state()")
+        q_nom = np.asarray(q_nominal, dtype=float)
         if mode == "off":
-            return np.asarray(q_nominal, dtype=float)
+            state.offset_mm = None
+            return q_nom
         p_cmd = _psi_array(psi, self.arm.n_joints)
         x_cmd = x_from_psi(p_cmd)
         if mode == "model":
+            # one fixed-point step of statics_inverse_x (statics_inverse_step), the statics
+            # itself warm-started from the last cycle's sag
             guess = x_cmd if state.sag_offset is None else x_cmd + state.sag_offset
-            x_kin = statics_inverse_step(self.arm, x_cmd, guess)
+            x_sagged = statics_x(self.arm, guess, state.sag)[0]
+            state.sag = x_sagged - guess
+            x_kin = guess + (x_cmd - x_sagged)
             state.sag_offset = x_kin - x_cmd
-            return np.asarray(q_nominal, dtype=float) + (
-                cable_displacements(self.arm, psi_from_xs(x_kin, p_cmd[:, 1]))
-                - cable_displacements(self.arm, p_cmd)
-            )
+            # eq. 5 at x_kin minus eq. 5 at x_cmd = L(x_cmd) - L(x_kin)
+            target = _path_lengths_x(self.arm, x_cmd) - _path_lengths_x(self.arm, x_kin)
+            return q_nom + self._ramp_offset(state, target)
         if mode != "measured":
             raise ModelError(
                 f"the vertebra model compensates in mode off, model or measured, not {mode!r}"
@@ -1222,10 +1625,17 @@ class VertebraModel:
         c = c * np.minimum(1.0, p.max_correction_rad / np.maximum(norm, 1e-300))[:, None]
         state.correction = c
         state.updates += int(usable.any())
-        return np.asarray(q_nominal, dtype=float) + (
-            cable_displacements(self.arm, psi_from_xs(x_cmd + c, p_cmd[:, 1]))
-            - cable_displacements(self.arm, p_cmd)
-        )
+        target = _path_lengths_x(self.arm, x_cmd) - _path_lengths_x(self.arm, x_cmd + c)
+        return q_nom + self._ramp_offset(state, target)
+
+    def _ramp_offset(self, state: VertebraLoopState, target_mm: np.ndarray) -> np.ndarray:
+        """The cable offset of this cycle: ``target_mm`` approached from the last one by at most
+        ``max_offset_step_mm`` per cable (mm)."""
+        prev = np.zeros_like(target_mm) if state.offset_mm is None else state.offset_mm
+        step = self.attitude_loop.max_offset_step_mm
+        offset = prev + np.clip(target_mm - prev, -step, step)
+        state.offset_mm = offset
+        return offset
 
     def tip(self, psi: np.ndarray) -> np.ndarray:
         return tip_position(self.arm, psi)

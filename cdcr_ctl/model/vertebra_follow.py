@@ -224,11 +224,18 @@ def plan_session(
     dt_s: float,
     advance_button: str = "BTN_SOUTH",
     max_s: float = 600.0,
+    speed_fraction: float = SPEED_FRACTION,
 ) -> tuple[np.ndarray, np.ndarray, EndFollowSource]:
-    """Run a scripted session offline: sample an :class:`EndFollowSource` every ``dt_s`` until the
-    script is over and the planner is idle. Returns (t_s (M,), psi (M, N, 2), the source)."""
+    """Run a scripted session offline: sample an :class:`EndFollowSource` (steps at
+    ``speed_fraction`` of each axis' speed limit) every ``dt_s`` until the script is over and the
+    planner is idle. Returns (t_s (M,), psi (M, N, 2), the source)."""
     now = [0.0]
-    source = EndFollowSource(planner, scripted_stick(script, lambda: now[0]), advance_button)
+    source = EndFollowSource(
+        planner,
+        scripted_stick(script, lambda: now[0]),
+        advance_button,
+        speed_fraction=speed_fraction,
+    )
     t_script = max((f.t_s for f in script), default=0.0)
     ts, ps = [], []
     t = 0.0

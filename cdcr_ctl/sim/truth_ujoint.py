@@ -43,14 +43,15 @@ class UJointTruth(DesignTruth):
             # zone (UJointEffects docstring), not at the first backward twitch of the angle
             friction_driven_deformation=True,
         )
+        # the statics runs apart from the kinematics below, so that it also gives the tensions
+        self._kin_effects = replace(self.effects, statics=False)
         self._memory: uj.UJointTruthState | None = None
         #: Sub-joint angles (theta_{2n-1}, theta_{2n}) of the last solved step (rad).
         self.theta = np.zeros((arm.n_segments, 2))
         self._start()
 
     def _solve(self, q_act_mm: np.ndarray) -> DesignTruthState:
-        kin_effects = replace(self.effects, statics=False)
-        theta, memory = uj.truth_angles(self.arm, q_act_mm, self._memory, kin_effects)
+        theta, memory = uj.truth_angles(self.arm, q_act_mm, self._memory, self._kin_effects)
         tension = np.full(self.arm.n_cables, np.nan)
         if self.effects.statics:
             theta, tension = uj.statics_angles(self.arm, theta)

@@ -58,15 +58,20 @@ class VertebraTruth(DesignTruth):
         mounts = sensor_mounts(self.world)
         self.mounts = mounts or [np.eye(3)] * arm.n_joints
         self._x = np.zeros((arm.n_joints, 2))
+        #: The last kinematic pose and sag (warm starts of the next step's solvers).
+        self._x_kin = np.zeros((arm.n_joints, 2))
+        self._dx: np.ndarray | None = None
         self._phi = np.zeros(arm.n_joints)
         self._R_ends: list[np.ndarray] = [np.eye(3)] * arm.n_joints
         self._start()
 
     def _solve(self, q_act_mm: np.ndarray) -> DesignTruthState:
-        x = vt.joints_from_displacements(self.arm, q_act_mm, self._x)
-        tension = np.array([c.pretension_N for c in self.arm.cables])
+        x_kin = vt.joints_from_displacements(self.arm, q_act_mm, self._x_kin)
+        x, tension = x_kin, self.arm.pretensions.copy()
         if self.statics:
-            x, tension = vt.statics_x(self.arm, x)
+            x, tension = vt.statics_x(self.arm, x_kin, self._dx)
+            self._dx = x - x_kin
+        self._x_kin = x_kin
         psi = vt.psi_from_xs(x, self._phi)
         T = np.eye(4)
         ends = []

@@ -148,6 +148,33 @@ def test_eq9_pulses_and_rate(arm):
     assert m.max_pulse_rate_hz == pytest.approx(6400.0)
 
 
+def test_cable_hessian_is_the_derivative_of_the_jacobian(arm):
+    h = 1e-6
+    for x in (np.zeros(6), np.array([0.3, -0.2, 1e-9, 0.0, 1.1, 0.7]), np.full(6, 0.9)):
+        Hs = vt.cable_hessian_x(arm, x)
+        for j in range(6):
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            xm[j] -= h
+            fd = (vt.cable_jacobian_x(arm, xp) - vt.cable_jacobian_x(arm, xm)) / (2 * h)
+            np.testing.assert_allclose(Hs[:, :, j], fd, atol=2e-7)
+        np.testing.assert_allclose(Hs, Hs.transpose(0, 2, 1), atol=1e-12)
+    # at the straight pose only the gap term remains: -(l0/4n) I - r d1(0) x_beta I = -(l0/4n) I
+    j = arm.joints[0]
+    H0 = vt.cable_hessian_x(arm, np.zeros(6))
+    np.testing.assert_allclose(H0[0, :2, :2], -(j.gap_mm / (4 * j.n_gaps)) * np.eye(2), atol=1e-15)
+
+
+def test_series_functions_are_continuous_at_their_switch_points():
+    for f, u0 in ((vt.s1, vt.SERIES_BELOW), (vt.d1, vt.SERIES_BELOW), (vt.d2, vt.D2_SERIES_BELOW)):
+        below, above = f(u0 * (1 - 1e-12)), f(u0 * (1 + 1e-12))
+        assert below == pytest.approx(above, rel=1e-10, abs=1e-14)
+    assert vt.d2(0.0) == pytest.approx(1.0 / 15.0)
+    for u in (0.02, 0.2, 0.7):  # d2 = d1'/u
+        h = 1e-5
+        assert vt.d2(u) == pytest.approx((vt.d1(u + h) - vt.d1(u - h)) / (2 * h) / u, rel=1e-6)
+
+
 # --------------------------------------------------------------------------- eq. 6-8
 def test_eq6_is_the_sensors_zyx_euler(arm):
     rng = np.random.default_rng(11)
@@ -399,11 +426,84 @@ def test_truth_statics_balance_rod_and_slack(arm):
     np.testing.assert_allclose(vt.statics_x(arm, x_pre)[0], x_target, atol=1e-9)
 
 
+def test_statics_on_the_slack_threshold_of_a_cable(arm):
+    """A pose where cable c32 is neither taut nor slack: taut, its tension comes out negative;
+    slack (its pretension's geometric stiffness gone too), it is stretched. The equilibrium
+    holds it at zero tension with part of that stiffness (the active set used to cycle here)."""
+    x = np.array([0.3857, 0.2932, 0.2137, 0.1624, 0.2566, 0.195])
+    xs, T = vt.statics_x(arm, x)
+    edge = 7  # c32
+    assert T[edge] == 0.0 and T[3] == 0.0 and np.all(np.delete(T, [3, edge]) > 5.0)
+    dx = xs.ravel() - x
+    J = vt.cable_jacobian_x(arm, x)
+    Lh = vt.cable_hessian_x(arm, x)
+    T0 = np.array([c.pretension_N for c in arm.cables])
+    k = np.array([c.stiffness_N_per_mm for c in arm.cables])
+    assert abs(T0[edge] + k[edge] * (J[edge] @ dx)) < 1e-8  # exactly at the threshold
+    taut = T > 0.0
+    K_rod = np.repeat([j.rod_EI_Nmm2 / j.length_mm for j in arm.joints], 2)
+    F = (
+        J[taut].T @ T[taut]
+        + np.tensordot(T0[taut], Lh[taut], axes=1) @ dx
+        + K_rod * xs.ravel()
+        - vt.gravity_torque_x(arm, xs.ravel())
+    )
+    g = T0[edge] * Lh[edge] @ dx  # the edge cable's geometric force
+    w = -(g @ F) / (g @ g)
+    assert 0.0 <= w <= 1.0
+    np.testing.assert_allclose(F + w * g, 0.0, atol=1e-6)
+
+
 def test_gravity_potential_batch_matches_mass_points(arm):
     psi = np.array([[0.6, 0.3], [0.4, -1.0], [0.3, 2.0]])
     pts, ms = vt.mass_points(arm, psi)
     expected = -np.sum(ms * 1e-6 * (pts @ np.array(arm.gravity_mm_s2)))
     assert vt.gravity_potential_Nmm(arm, psi) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "psi",
+    [
+        np.zeros((3, 2)),
+        np.array([[1e-9, 0.4], [0.0, 0.0], [0.2, -2.0]]),
+        np.array([[1.2, 2.5], [0.9, -0.4], [1.5, 1.0]]),
+    ],
+)
+def test_closed_form_potential_matches_the_disk_chain_off_axis_gravity_too(arm, psi):
+    for a in (arm, replace(arm, gravity_mm_s2=(3000.0, -2000.0, -9000.0))):
+        pts, ms = vt.mass_points(a, psi)
+        expected = -np.sum(ms * 1e-6 * (pts @ np.array(a.gravity_mm_s2)))
+        assert vt.gravity_potential_Nmm(a, psi) == pytest.approx(expected, rel=1e-12, abs=1e-12)
+
+
+def test_one_batch_gravity_torque_and_hessian_match_the_separate_ones(arm):
+    x = np.array([0.3, -0.2, 0.5, 0.1, -0.7, 0.4])
+    Q, H = vt._gravity_torque_and_hessian(arm, x)
+    np.testing.assert_allclose(Q, vt.gravity_torque_x(arm, x), rtol=1e-12, atol=1e-12)
+    # the solver's Hessian: forward mixed differences, O(h) = 1e-4 relative
+    H4 = vt.gravity_hessian_x(arm, x)
+    np.testing.assert_allclose(H, H4, atol=1e-3 * np.abs(H4).max())
+    np.testing.assert_array_equal(H, H.T)
+    # the torque is minus the gradient of the potential (larger step: independent check)
+    h = 1e-3
+    for j in range(6):
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        dV = (
+            vt.gravity_potential_Nmm(arm, vt.psi_from_xs(xp))
+            - vt.gravity_potential_Nmm(arm, vt.psi_from_xs(xm))
+        ) / (2 * h)
+        assert Q[j] == pytest.approx(-dV, rel=1e-5, abs=1e-6)
+
+
+def test_statics_warm_start_reaches_the_same_equilibrium(arm):
+    x_kin = vt.x_from_psi(np.array([[0.9, 0.3], [0.6, 1.2], [1.1, -0.8]])).ravel()
+    cold, t_cold = vt.statics_x(arm, x_kin)
+    for guess in (cold.ravel() - x_kin, np.full(6, 0.05), -0.1 * np.ones(6)):
+        warm, t_warm = vt.statics_x(arm, x_kin, guess)
+        np.testing.assert_allclose(warm, cold, atol=1e-11)
+        np.testing.assert_allclose(t_warm, t_cold, atol=1e-7)
 
 
 def test_loop_adapter(arm):
@@ -419,6 +519,43 @@ def test_loop_adapter(arm):
         model.q_command(psi, q, None, "measured", None)
     with pytest.raises(ModelError, match="attitude"):
         model.q_command(psi, q, model.new_state(), "measured", None)
+
+
+def test_compensation_offset_is_rate_limited_and_ramps_in_from_off(arm):
+    step = 0.01  # mm per cycle
+    model = vt.VertebraModel(arm, vt.AttitudeLoopParams(max_offset_step_mm=step))
+    free = vt.VertebraModel(arm)
+    psi = np.array([[0.8, 0.3], [0.6, 1.0], [0.9, -0.5]])
+    q = model.q_nominal(psi)
+    state, free_state = model.new_state(), free.new_state()
+    for _ in range(200):  # one fixed-point step per cycle: converged
+        target = free.q_command(psi, q, free_state, "model", None)
+    assert np.abs(target - q).max() > 0.5  # a sag offset worth limiting
+    # from mode off (no offset) the compensation ramps in at the bound, never jumps
+    prev = model.q_command(psi, q, state, "off", None)
+    np.testing.assert_array_equal(prev, q)
+    n = 0
+    while n < 1000:
+        q_cmd = model.q_command(psi, q, state, "model", None)
+        assert np.abs(q_cmd - prev).max() <= step * (1 + 1e-9)
+        prev, n = q_cmd, n + 1
+        if np.abs(q_cmd - target).max() < 1e-9:
+            break
+    expected = np.abs(target - q).max() / step
+    assert expected <= n <= expected + 25  # limited by the rate, then the fixed point converges
+    # a moving command: plan + offset never moves faster than the plan's step + the bound
+    prev_q, prev_cmd = q, q_cmd
+    for k in range(1, 60):
+        p = psi * (1.0 + 0.002 * k)
+        qn = model.q_nominal(p)
+        q_cmd = model.q_command(p, qn, state, "model", None)
+        assert np.abs((q_cmd - qn) - (prev_cmd - prev_q)).max() <= step * (1 + 1e-9)
+        prev_q, prev_cmd = qn, q_cmd
+    # back to off: the offset is gone at once (the loop ramps mode changes out itself)
+    np.testing.assert_array_equal(model.q_command(psi, q, state, "off", None), q)
+    assert state.offset_mm is None
+    with pytest.raises(ModelError):
+        vt.AttitudeLoopParams(max_offset_step_mm=0.0)
 
 
 def test_attitude_closed_loop_removes_the_sag(arm):
@@ -475,3 +612,22 @@ def test_vertebra_config_builds_the_papers_arm(cfg, arm):
         "attitude",
         "sensors",
     )
+
+
+def test_compensation_rate_fits_beside_the_planned_speed(cfg):
+    from cdcr_ctl.config.designs import attitude_loop_params
+
+    p = attitude_loop_params(cfg)
+    assert p.max_offset_step_mm == pytest.approx(
+        cfg.vertebra.compensation_max_rate_mm_s / cfg.control.rate_hz
+    )
+    data = cfg.model_dump()
+    v_limit = cfg.limits.cable_velocity_mm_s
+    planned = cfg.vertebra.follow.speed_fraction * cfg.vertebra.linear_module.v_max_mm_s
+    headroom = v_limit - planned
+    assert headroom > 0
+    for rate, ok in ((headroom, True), (headroom * 1.01, False)):
+        bad = dict(data, vertebra={**data["vertebra"], "compensation_max_rate_mm_s": rate})
+        problems = check_design(RigConfig.model_validate(bad))
+        keys = [k for k, _, _ in problems]
+        assert (("vertebra", "compensation_max_rate_mm_s") not in keys) == ok, problems

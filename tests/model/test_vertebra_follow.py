@@ -71,3 +71,20 @@ def test_stick_is_ignored_while_following():
     follow = [r for r in source.log if r.mode == "follow"]
     assert follow and follow[-1].t_start_s + follow[-1].duration_s > 1.04
     np.testing.assert_allclose(source.planner.target, plain.planner.target, atol=1e-12)
+
+
+def test_planned_return_to_straight_within_the_planned_speed(session):
+    arm, _, psi, _, source, dt = session
+    planner = EndFollowPlanner(arm, source.planner.params, psi=psi[-1])
+    assert np.abs(psi[-1][:, 0]).max() > 0.3
+    fraction = 0.6
+    assert planner.set_targets(np.zeros_like(psi[-1]))
+    _, back, ret = plan_session(planner, [], dt, speed_fraction=fraction)
+    np.testing.assert_allclose(back[0], psi[-1], atol=1e-12)
+    np.testing.assert_allclose(back[-1][:, 0], 0.0, atol=1e-12)
+    q = np.array([cable_displacements(arm, p) for p in back])
+    v_max = np.array([m.v_max_mm_s for m in arm.modules])
+    speed = np.abs(np.diff(q, axis=0)) / dt
+    assert np.all(speed <= fraction * v_max * (1 + 1e-3))
+    assert speed.max() > 0.95 * fraction * v_max.max()  # at the planned speed, not slower
+    assert all(r.mode == "steer" for r in ret.log)
