@@ -1,29 +1,39 @@
 """Benchmark: the real-time loop at the rate the bus allows, compensation on, for N seconds.
 
 What runs: the control loop (ControlLoop) with the Qi rig's model (compensation "model", all
-effects on, chord geometry), three simulated EPOS4 on a python-can virtual bus in this process,
-the DriveGroup sending RPDO targets + SYNC each cycle and reading TPDOs, a planar bend and circle
-repeated as the setpoint. Printed: cycles, overruns, lateness p50/p99/max, the loop thread's
-CPU time per cycle, the process CPU use, and the bus load of the PDO set.
+effects on, chord geometry), three simulated EPOS4, the DriveGroup sending RPDO targets + SYNC
+each cycle and reading TPDOs, a planar bend and circle repeated as the setpoint (each with its
+lead-in from where the previous run ends, made before the timed window; ``--lead-in-in-window``
+makes them in the window, as the daemon would). Printed, for the timed window only (start-up and
+enabling excluded): cycles, overruns, lateness p50/p99/p99.9/max and histogram, the loop's work
+per cycle (wall time per stage, CPU time), garbage-collector passes, this process's CPU use, the
+simulated drives' process's CPU use and the SYNC intervals the drives saw, the bus load.
 
     .venv/bin/python benchmarks/bench_loop.py [--seconds 60] [--rate 1000] [--rt-priority 80]
-        [--transport virtual|slcan|udp_multicast]
+        [--transport virtual|slcan|slcan-tcp|udp_multicast] [--lead-in-in-window]
+    .venv/bin/python benchmarks/bench_loop.py --floor 250 [--seconds 60] [--rt-priority 80]
 
 ``--transport virtual`` (default): the simulated drives share this process and its interpreter
 lock with the loop (python-can ``virtual`` bus). ``slcan``: the simulated drives run in their own
 process (``python -m cdcr_ctl.sim.epos``) behind the slcan adapter emulator on a pseudo-terminal,
-as a USB-CAN adapter and real drives would be. ``udp_multicast`` (needs root for ``ip netns``): the
-simulated drives in their own process on python-can's ``udp_multicast`` bus inside a network
-namespace made for the run with loopback only (``ip netns add``, ``lo`` up with multicast,
-224.0.0.0/4 routed on ``lo``); nothing leaves the namespace, which is deleted afterwards.
-With ``--rt-priority P`` the loop asks for SCHED_FIFO P and mlockall and the simulated drives'
-process (standing in for drives with their own processors) for P - 1.
+as a USB-CAN adapter and real drives would be. ``slcan-tcp``: the same, the emulator on a loopback
+TCP port (``--tcp``): bytes written to a pty reach the other process through a kernel worker
+thread that a busy machine can delay by tens of ms, loopback TCP hands them over in the writer's
+system call. ``udp_multicast`` (needs root for ``ip netns``): the simulated drives in their own
+process on python-can's ``udp_multicast`` bus inside a network namespace made for the run with
+loopback only (``ip netns add``, ``lo`` up with multicast, 224.0.0.0/4 routed on ``lo``); nothing
+leaves the namespace, which is deleted afterwards. With ``--rt-priority P`` the loop asks for
+SCHED_FIFO P and mlockall and the simulated drives' process (standing in for drives with their
+own processors) for P - 1. ``--floor WORK_US`` runs no loop at all: the loop's ticker with that
+much busy work per cycle in one thread, what the machine allows any Python loop.
 """
 
 from __future__ import annotations
 
 import argparse
 import atexit
+import gc
+import json
 import os
 import resource
 import shutil
@@ -44,7 +54,7 @@ from cdcr_ctl.control.io import DriveGroupPort
 from cdcr_ctl.control.loop import ControlLoop, LoopConfig
 from cdcr_ctl.control.ports import NoTension, NoTip
 from cdcr_ctl.control.supervisor import Supervisor
-from cdcr_ctl.control.timing import try_realtime
+from cdcr_ctl.control.timing import Ticker, try_realtime
 from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import open_drive_group
 from cdcr_ctl.sim.epos.rig import SimDriveBus
@@ -94,6 +104,91 @@ def in_namespace(argv: list[str]) -> int:
         subprocess.run(["ip", "netns", "del", name], check=False)
 
 
+class GcPauses:
+    """Collector passes while the benchmark runs (any thread): count and longest, per
+    generation, timed with ``time.perf_counter`` from gc.callbacks."""
+
+    def __init__(self) -> None:
+        self.count = [0, 0, 0]
+        self.max_us = [0.0, 0.0, 0.0]
+        self._t0 = 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._t0 = time.perf_counter()
+            return
+        g = info["generation"]
+        self.count[g] += 1
+        self.max_us[g] = max(self.max_us[g], (time.perf_counter() - self._t0) * 1e6)
+
+    def text(self) -> str:
+        return ", ".join(
+            f"gen{g} {n} (max {m:.0f} us)"
+            for g, (n, m) in enumerate(zip(self.count, self.max_us, strict=True))
+        )
+
+
+def proc_cpu_s(pid: int) -> float:
+    """User + system CPU time (s) of process ``pid`` so far, all its threads (/proc/PID/stat)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return float("nan")
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def steal_s() -> float:
+    """CPU time the hypervisor gave to others while this VM wanted it, all CPUs (s; the 8th
+    field of the ``cpu`` line of /proc/stat). It stalls any thread, real-time or not."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return float("nan")
+
+
+def ask_child(child: subprocess.Popen, line: str) -> str:
+    """One command to the simulated drives' stdin channel (slcan child), its answer line."""
+    assert child.stdin is not None and child.stdout is not None
+    child.stdin.write(line + "\n")
+    child.stdin.flush()
+    return child.stdout.readline().strip()
+
+
+def floor(args: argparse.Namespace) -> None:
+    """What this machine allows a Python loop: the loop's Ticker (same sleep and spin) in one
+    thread with ``--floor`` us of busy work per cycle, no bus, no model, no other thread."""
+    notes = try_realtime(args.rt_priority, lock_memory=args.rt_priority > 0)
+    period = 1.0 / args.rate
+    ticker = Ticker(period)
+    work_s = args.floor * 1e-6
+    steal0 = steal_s()
+    end = time.monotonic() + args.seconds
+    longest = 0.0
+    cycles = 0
+    while time.monotonic() < end:
+        ticker.wait()
+        w0 = time.perf_counter()
+        while time.perf_counter() - w0 < work_s:
+            pass
+        longest = max(longest, time.perf_counter() - w0)
+        ticker.done()
+        cycles += 1
+    s = ticker.stats.summary()
+    print(
+        f"floor: {args.seconds:.0f} s at {args.rate:.0f} Hz, {args.floor:.0f} us of busy work a "
+        f"cycle, one thread, no bus; realtime: {'; '.join(notes) or 'not requested'}"
+    )
+    print(f"overruns: {s['overruns']}, skipped deadlines: {s['skipped_deadlines']}")
+    print(
+        f"lateness: p50 {s['lateness_p50_us']} us, p99 {s['lateness_p99_us']} us, "
+        f"p99.9 {s['lateness_p99.9_us']} us, max {s['lateness_max_us']} us over {cycles} cycles; "
+        f"longest work {longest * 1e6:.0f} us"
+    )
+    print(f"lateness histogram: {s['lateness_histogram']}")
+    print(f"hypervisor steal time meanwhile: {1e3 * (steal_s() - steal0):.0f} ms (/proc/stat)")
+
+
 def _end_child(child: subprocess.Popen) -> None:
     if child.poll() is None:
         child.terminate()
@@ -108,9 +203,29 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--rt-priority", type=int, default=0)
-    ap.add_argument("--transport", choices=("virtual", "slcan", "udp_multicast"), default="virtual")
+    ap.add_argument(
+        "--transport",
+        choices=("virtual", "slcan", "slcan-tcp", "udp_multicast"),
+        default="virtual",
+    )
+    ap.add_argument(
+        "--lead-in-in-window",
+        action="store_true",
+        help="make each run's lead-in trajectory in the timed window, as the daemon would",
+    )
+    ap.add_argument(
+        "--floor",
+        type=float,
+        default=None,
+        metavar="WORK_US",
+        help="no bus and no loop: the same ticker with WORK_US of busy work a cycle in one "
+        "thread (what the machine allows a Python loop)",
+    )
     ap.add_argument("--sim-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.floor is not None:
+        floor(args)
+        return
     if args.sim_child:
         sim_child(args.sim_child, args.rt_priority)
         return
@@ -132,7 +247,8 @@ def main() -> None:
     else:
         interface, channel = "slcan", str(Path(work.name) / "can")
         nodes = [f"--node={d.node_id}:{d.type}" for d in cfg.drives]
-        cmd = [sys.executable, "-m", "cdcr_ctl.sim.epos", "--link", channel, *nodes]
+        where_to = ["--tcp"] if args.transport == "slcan-tcp" else ["--link", channel]
+        cmd = [sys.executable, "-m", "cdcr_ctl.sim.epos", *where_to, *nodes]
         if args.rt_priority > 0 and shutil.which("chrt"):
             cmd = ["chrt", "-f", str(args.rt_priority - 1), *cmd]
         child = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -143,18 +259,23 @@ def main() -> None:
         first = child.stdout.readline().strip()
         if not first:
             sys.exit(f"the simulated drives did not start ({' '.join(cmd)})")
+        if args.transport == "slcan-tcp":
+            channel = first  # socket://127.0.0.1:PORT
     can_cfg = cfg.can.model_copy(
         update={
             "interface": interface,
             "channel": channel,
             "sync_period_s": period,
-            # Another process behind a pty or a socket: the same latency allowance as the
-            # simulated rig's config (config/qi2023-sim.yaml).
-            "feedback_timeout_s": None if args.transport == "virtual" else 0.25,
+            # The same latency allowance as the simulated rig's config (config/qi2023-sim.yaml):
+            # simulated drives in another process behind a pty or a socket, or in this one
+            # sharing its interpreter lock with the loop, answer later than real ones.
+            "feedback_timeout_s": 0.25,
         }
     )
     cfg = cfg.model_copy(update={"can": can_cfg})
     if args.transport == "virtual":
+        # Made before the loop asks for real-time priority: the simulated drives' threads stay
+        # time-shared (they share this interpreter's lock with the loop).
         sim = SimDriveBus(cfg, "virtual", "bench").start()
     by = {d.cable: d for d in cfg.drives}
     drives = [by[c.name] for c in cfg.robot.cables]
@@ -176,19 +297,50 @@ def main() -> None:
     group.enable()
     bend = tj.planar_bend(theta_max_rad=1.2, back=True)
     circle = tj.spatial_circle(theta_rad=0.6)
+    # Each run with its lead-in from where the previous one ends, made before the timed window
+    # (a trajectory is made in the caller's thread; see readme-6 for what making one costs the
+    # loop when it happens while the loop runs).
+    first = tj.with_lead_in(loop.psi_cmd, bend)
+    to_circle = tj.with_lead_in(bend.psi[-1], circle)
+    to_bend = tj.with_lead_in(circle.psi[-1], bend)
+    plan = [first, to_circle] if not args.lead_in_in_window else [bend, circle]
+    if args.transport.startswith("slcan") and child is not None:
+        ask_child(child, "reset-stats")
+    gc_pauses = GcPauses()
+    gc.callbacks.append(gc_pauses)
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    child_cpu0 = proc_cpu_s(child.pid) if child is not None else 0.0
+    steal0 = steal_s()
     t0 = time.monotonic()
     c0 = loop.counters.cycles
-    stats0 = loop.ticker.stats.cycles
+    # Timing statistics of the timed window only (start-up and enabling excluded).
+    loop.ticker.reset_stats()
+    loop.counters.reset_timing()
+    assert loop._thread is not None and loop._thread.ident is not None
+    loop_clock = time.pthread_getcpuclockid(loop._thread.ident)
+    loop_cpu0 = time.clock_gettime(loop_clock)
     while time.monotonic() - t0 < args.seconds:
-        for traj in (bend, circle):
-            run = loop.follow(tj.with_lead_in(loop.psi_cmd, traj), "bench", "model")
+        for traj in plan:
+            if args.lead_in_in_window:
+                traj = tj.with_lead_in(loop.psi_cmd, traj)
+            run = loop.follow(traj, "bench", "model")
             while run.state == "running" and time.monotonic() - t0 < args.seconds:
                 time.sleep(0.05)
             if time.monotonic() - t0 >= args.seconds:
                 break
+        if not args.lead_in_in_window:
+            plan = [to_bend, to_circle]
     wall = time.monotonic() - t0
+    stolen = steal_s() - steal0
+    loop_cpu = time.clock_gettime(loop_clock) - loop_cpu0
+    gc.callbacks.remove(gc_pauses)
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    child_cpu = proc_cpu_s(child.pid) - child_cpu0 if child is not None else float("nan")
+    drive_stats = (
+        json.loads(ask_child(child, "stats").removeprefix("ok "))
+        if args.transport.startswith("slcan") and child is not None
+        else None
+    )
     cycles = loop.counters.cycles - c0
     loop.stop()
     s = loop.ticker.stats.summary()
@@ -204,6 +356,7 @@ def main() -> None:
     where = {
         "virtual": "in this process on a python-can virtual bus",
         "slcan": "in another process behind the slcan adapter emulator on a pty",
+        "slcan-tcp": "in another process behind the slcan adapter emulator on loopback TCP",
         "udp_multicast": "in another process on udp_multicast in a loopback-only network namespace",
     }[args.transport]
     print(
@@ -218,15 +371,41 @@ def main() -> None:
         f"lateness (cycle start after its absolute deadline, time.monotonic): "
         f"p50 {s['lateness_p50_us']} us, p99 {s['lateness_p99_us']} us, "
         f"p99.9 {s['lateness_p99.9_us']} us, max {s['lateness_max_us']} us "
-        f"(over the last {min(s['cycles'] - stats0, 65536)} cycles)"
+        f"(percentiles over the last {min(s['cycles'], 65536)} cycles, max over all)"
     )
     print(f"lateness histogram: {s['lateness_histogram']}")
     print(
-        f"loop cycle work: max {loop.counters.max_cycle_us:.0f} us; "
-        f"loop thread CPU {1e6 * loop.counters.cpu_s / max(cycles, 1):.0f} us per cycle"
+        f"loop cycle work: max {loop.counters.max_cycle_us:.0f} us (wall); CPU "
+        f"{loop.counters.work_cpu_us():.0f} us per cycle in the work (time.thread_time), "
+        f"{1e6 * loop_cpu / max(cycles, 1):.0f} us per cycle with waiting and spinning "
+        "(the thread's CPU clock)"
     )
+    print(
+        "loop stages (wall time, time.perf_counter marks in the loop): mean "
+        + ", ".join(f"{k} {v:.0f}" for k, v in loop.counters.stage_mean_us().items())
+        + " us; max "
+        + ", ".join(f"{k} {v:.0f}" for k, v in loop.counters.stage_max_us.items())
+        + " us"
+    )
+    print(f"garbage collector passes: {gc_pauses.text()}")
     print(f"process CPU use: {100 * cpu / wall:.0f} % of one core (this process only)")
+    if child is not None:
+        print(
+            f"simulated drives' process CPU use: {100 * child_cpu / wall:.0f} % of one core "
+            "(/proc/PID/stat)"
+        )
+    if drive_stats:
+        for st in drive_stats:
+            iv = {
+                k: None if v is None else round(v * 1e6) for k, v in st["sync_interval_s"].items()
+            }
+            print(
+                f"node {st['node']}: {st['syncs']} SYNCs seen, {st['missed_setpoints']} set-points "
+                f"missed, SYNC interval at the drive p50/p99/p99.9/max {iv['p50']}/{iv['p99']}/"
+                f"{iv['p99.9']}/{iv['max']} us"
+            )
     print(f"bus load of the PDO set: {load}")
+    print(f"hypervisor steal time meanwhile: {1e3 * stolen:.0f} ms (/proc/stat, both CPUs)")
     print(f"drive faults: {fault}")
 
 

@@ -9,10 +9,12 @@ Per cycle:
    eq. 37, mode off/model/measured);
 4. the safety supervisor checks commands and measurements; a trip applies its reaction;
 5. targets in counts (``home + q_cmd * counts_per_mm``) go out as RPDOs followed by SYNC;
-6. one row goes to the run log (queued; the writer thread does the disk I/O).
+6. one row goes to the run log (queued; the loop keeps the cycle's numbers in one array, the
+   writer thread makes the columns and does the disk I/O: :class:`CycleRow`).
 
 Commands from the daemon's socket threads are posted under a lock and picked up at the start of a
-cycle; nothing on the loop's path blocks on them.
+cycle (the lock is looked at only when something was posted); nothing on the loop's path blocks
+on them. :class:`LoopCounters` times each stage of the cycle (:data:`STAGES`) and its CPU time.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import math
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +50,9 @@ log = logging.getLogger(__name__)
 OFFSET_RAMP_FRACTION = 0.5
 #: Python's GIL switch interval while the loop runs (s); see :meth:`ControlLoop.start`.
 GIL_SWITCH_INTERVAL_S = 5e-5
+#: Tracker-vs-model divergence: how much longer than the tracker sample's age the world may lag
+#: the command (drive following delay, the tracker's own exposure-to-send latency), s.
+DIVERGENCE_LAG_S = 0.05
 #: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
 OPERATOR_STOP = "operator_stop"
 
@@ -91,7 +96,76 @@ class LoopConfig:
     cable_velocity_mm_s: float = 50.0
 
 
-RowSink = Callable[[dict[str, float | str]], None]
+class RowLayout:
+    """The columns of a loop row (run-log names) and, per column, where its value sits in the
+    cycle's flat array ``[psi (S x 2), q_nominal, q_cmd, q_act, tension (K each), tip (3)]``."""
+
+    def __init__(self, n_segments: int, n_cables: int) -> None:
+        S, K = n_segments, n_cables
+        per_cable = ("q_nominal_mm", "q_cmd_mm", "q_act_mm", "tension_N")
+        self.keys = (
+            [f"seg{i}_{a}_cmd_rad" for i in range(1, S + 1) for a in ("theta", "phi")]
+            + [f"cable{k}_{c}" for k in range(1, K + 1) for c in per_cable]
+            + ["tip_x_mm", "tip_y_mm", "tip_z_mm"]
+        )
+        order = list(range(2 * S))
+        order += [2 * S + c * K + k for k in range(K) for c in range(len(per_cable))]
+        order += [2 * S + len(per_cable) * K + j for j in range(3)]
+        self.order = np.array(order, dtype=np.intp)
+
+
+class CycleRow(Mapping[str, Any]):
+    """One cycle's log row: ``t_s``, ``cycle``, the :class:`RowLayout` columns, ``lateness_us``,
+    ``event``. The loop thread only keeps the cycle's numbers (one array); the mapping is made
+    on first use, by the run-log writer's thread or a status request, off the loop's path."""
+
+    __slots__ = ("_cycle", "_dict", "_event", "_lateness_s", "_layout", "_t_s", "_values")
+
+    def __init__(
+        self,
+        layout: RowLayout,
+        t_s: float,
+        cycle: int,
+        values: np.ndarray,
+        lateness_s: float,
+        event: str,
+    ) -> None:
+        self._layout, self._t_s, self._cycle = layout, t_s, cycle
+        self._values, self._lateness_s, self._event = values, lateness_s, event
+        self._dict: dict[str, Any] | None = None
+
+    def columns(self) -> dict[str, Any]:
+        """The row as a plain dict (made once)."""
+        d = self._dict
+        if d is None:
+            values = self._values[self._layout.order].tolist()
+            d = {"t_s": round(self._t_s, 6), "cycle": self._cycle}
+            d.update(zip(self._layout.keys, values, strict=True))
+            d["lateness_us"] = round(self._lateness_s * 1e6, 1)
+            d["event"] = self._event
+            self._dict = d
+        return d
+
+    def __getitem__(self, key: str) -> Any:
+        return self.columns()[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.columns().get(key, default)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.columns()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.columns())
+
+    def __len__(self) -> int:
+        return len(self.columns())
+
+    def __repr__(self) -> str:
+        return f"CycleRow({self.columns()!r})"
+
+
+RowSink = Callable[[Mapping[str, float | str]], None]
 
 
 @dataclass
@@ -108,8 +182,19 @@ class _Pending:
     new_sink: Any = None
 
 
+#: Stages of a cycle timed by :class:`LoopCounters` (``time.perf_counter`` marks): read inputs
+#: and pending commands, sample the setpoint; inverse kinematics and compensation; limits and
+#: faults; RPDOs + SYNC out; the log row.
+STAGES = ("inputs", "model", "checks", "send", "log")
+
+
 @dataclass
 class LoopCounters:
+    """Loop statistics (written by the loop thread only). ``stage_s``: wall time spent per
+    stage (:data:`STAGES`) summed over all cycles; ``stage_max_us``: the longest of each;
+    ``work_cpu_s``: the loop thread's CPU time in the cycles' work (``time.thread_time``);
+    ``cpu_s``: the loop thread's CPU time when it stopped (waiting and spinning included)."""
+
     cycles: int = 0
     rows_logged: int = 0
     rows_dropped: int = 0
@@ -117,6 +202,71 @@ class LoopCounters:
     last_cycle_us: float = 0.0
     max_cycle_us: float = 0.0
     cpu_s: float = 0.0
+    work_cpu_s: float = 0.0
+    stage_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    stage_max_us: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    _timed_from: int = 0
+
+    def stage_mean_us(self) -> dict[str, float]:
+        """Mean wall time per cycle of each stage (us) since the last :meth:`reset_timing`."""
+        n = max(self.cycles - self._timed_from, 1)
+        return {k: round(v / n * 1e6, 1) for k, v in self.stage_s.items()}
+
+    def work_cpu_us(self) -> float:
+        """Mean CPU time of a cycle's work (us) since the last :meth:`reset_timing`."""
+        return self.work_cpu_s / max(self.cycles - self._timed_from, 1) * 1e6
+
+    def reset_timing(self) -> None:
+        """Start the stage times and the longest cycle afresh (e.g. after start-up)."""
+        self._timed_from = self.cycles
+        self.max_cycle_us = 0.0
+        self.work_cpu_s = 0.0
+        for k in STAGES:
+            self.stage_s[k] = 0.0
+            self.stage_max_us[k] = 0.0
+
+    def _stages(self, marks: Sequence[float]) -> None:
+        """Add one cycle's stage times from its ``len(STAGES) + 1`` perf_counter marks."""
+        total, worst = self.stage_s, self.stage_max_us
+        for name, t0, t1 in zip(STAGES, marks, marks[1:], strict=False):
+            dt = t1 - t0
+            total[name] += dt
+            if dt * 1e6 > worst[name]:
+                worst[name] = dt * 1e6
+
+
+class TipHistory:
+    """The model's tip over the last fraction of a second, to compare a tracker sample with the
+    command of the time it shows (robot base frame, mm; loop clock, s).
+
+    A tracker sample ``age`` s old shows the world as it was then, and the world lags the command
+    by the drives' following delay: comparing it with the current command's tip would count the
+    distance the tip travelled meanwhile as divergence (at 100 mm/s and 50 ms, 5 mm).
+    :meth:`distance` is the smallest distance from the sample to the model tips commanded between
+    ``age + lag_s`` and ``age - period`` s ago.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self._t = np.full(capacity, -np.inf)
+        self._tip = np.full((capacity, 3), np.nan)
+        self._i = 0
+
+    def add(self, t_s: float, tip_mm: np.ndarray) -> None:
+        i = self._i % len(self._t)
+        self._t[i] = t_s
+        self._tip[i] = tip_mm
+        self._i += 1
+
+    def distance(
+        self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
+    ) -> float:
+        """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
+        [now - age - lag, now - age + period]; the newest model tip when none is in the window."""
+        t_sample = now_s - age_s
+        sel = (self._t >= t_sample - lag_s) & (self._t <= t_sample + period_s)
+        if not sel.any():
+            sel = self._t == self._t.max()
+        return float(np.min(np.linalg.norm(self._tip[sel] - tip_mm, axis=1)))
 
 
 class ControlLoop:
@@ -148,6 +298,8 @@ class ControlLoop:
         self.counters = LoopCounters()
         self._lock = threading.Lock()
         self._pending = _Pending()
+        #: Set (under the lock) with every posted command: the cycle looks at the lock only then.
+        self._has_pending = False
         self._stop_evt = threading.Event()
         self._thread: threading.Thread | None = None
         self._run_ids = itertools.count(1)
@@ -163,8 +315,8 @@ class ControlLoop:
         self._q_offset = np.zeros(K)
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
-        self._last_row: dict[str, Any] = {}
-        self._row_keys: list[str] | None = None
+        self._last_row: Mapping[str, Any] = {}
+        self._row_layout: RowLayout | None = None
         self._stopped_drives = False
         self._paused = False
         self._manual_sink: Any = None
@@ -175,6 +327,13 @@ class ControlLoop:
         self._mode = cfg.compensation
         self._mode_applied = cfg.compensation
         self.history: list[RunInfo] = []
+        self._tips = TipHistory(
+            max(
+                4,
+                math.ceil((supervisor.limits.sensor_timeout_s + DIVERGENCE_LAG_S) / cfg.period_s)
+                + 2,
+            )
+        )
 
     # ---------------------------------------------------------------- commands (any thread)
     def start(self) -> None:
@@ -210,6 +369,7 @@ class ControlLoop:
             self._pending.source = source
             self._pending.run = run
             self._pending.sink = sink
+            self._has_pending = True
         return run
 
     def jog_cable(self, cable: int, delta_mm: float) -> None:
@@ -222,6 +382,7 @@ class ControlLoop:
             )
             target[cable] += delta_mm
             self._pending.cable_offset_target = target
+            self._has_pending = True
 
     def pause(self, paused: bool) -> None:
         """While paused the loop keeps reading feedback and logging but sends no RPDO or SYNC
@@ -232,21 +393,25 @@ class ControlLoop:
         """New home positions (counts at q = 0): the robot is straight there."""
         with self._lock:
             self._pending.home = np.array(home_counts, dtype=np.int64)
+            self._has_pending = True
 
     def attach_sink(self, sink: Any) -> None:
         """Log every cycle to ``sink`` (a manual log) or stop doing so (``None``)."""
         with self._lock:
             self._pending.sink_change = True
             self._pending.new_sink = sink
+            self._has_pending = True
 
     def set_compensation(self, mode: str) -> None:
         """Compensation mode for holding and for runs that do not name one."""
         with self._lock:
             self._pending.mode = mode
+            self._has_pending = True
 
     def request_stop(self, reaction: Reaction) -> None:
         with self._lock:
             self._pending.stop = reaction
+            self._has_pending = True
 
     @property
     def psi_cmd(self) -> np.ndarray:
@@ -281,13 +446,13 @@ class ControlLoop:
         while not self._stop_evt.is_set():
             deadline, lateness = self.ticker.wait()
             t0 = time.perf_counter()
+            c0 = time.thread_time()
             try:
                 self._cycle(deadline - t_start, deadline, lateness)
             except Exception as exc:  # a bug must not leave the drives running unattended
                 log.exception("control loop cycle failed")
-                self._trip(
-                    Trip("loop_exception", Reaction.QUICK_STOP, f"{type(exc).__name__}: {exc}", 0.0)
-                )
+                self._cycle_failed(exc, deadline - t_start)
+            self.counters.work_cpu_s += time.thread_time() - c0
             dt_us = (time.perf_counter() - t0) * 1e6
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
@@ -296,10 +461,22 @@ class ControlLoop:
         self.counters.cpu_s = time.thread_time() - cpu0
         self._finish_run("stopped", "loop stopped")
 
+    def _cycle_failed(self, exc: Exception, t_s: float) -> None:
+        """A cycle raised (a bug): latch it and quick-stop the drives; the loop goes on."""
+        trip = Trip("loop_exception", Reaction.QUICK_STOP, f"{type(exc).__name__}: {exc}", t_s)
+        try:
+            self.supervisor.external(trip.cause, trip.reaction, trip.detail, t_s)
+            self._react(trip)
+        except Exception:
+            log.exception("reacting to a failed cycle failed")
+
     def _take_pending(self, now: float) -> None:
+        if not self._has_pending:
+            return
         with self._lock:
             p = self._pending
             self._pending = _Pending()
+            self._has_pending = False
         if p.stop is not None:
             self._react(Trip(OPERATOR_STOP, p.stop, "stop requested", now))
         if p.source is not None:
@@ -335,6 +512,8 @@ class ControlLoop:
             self._manual_sink = p.new_sink
 
     def _cycle(self, t_s: float, now: float, lateness_s: float) -> None:
+        clock = time.perf_counter
+        m0 = clock()
         self._take_pending(now)
         fb = self.drives.feedback()
         force_N, force_age = self.tensions.latest()
@@ -347,8 +526,11 @@ class ControlLoop:
         if run is not None:
             run.elapsed_s = min(t_run, run.duration_s)
         # Offsets ramp at half the velocity limit, leaving the other half to the trajectory.
-        step = OFFSET_RAMP_FRACTION * self.cfg.cable_velocity_mm_s * self.cfg.period_s
-        self._q_offset += np.clip(self._q_offset_target - self._q_offset, -step, step)
+        gap = self._q_offset_target - self._q_offset
+        if gap.any():
+            step = OFFSET_RAMP_FRACTION * self.cfg.cable_velocity_mm_s * self.cfg.period_s
+            self._q_offset += np.clip(gap, -step, step)
+        m1 = clock()
 
         # Inverse kinematics and compensation
         q_nom = self.model.q_nominal(psi)
@@ -371,12 +553,15 @@ class ControlLoop:
             self._q_offset = self._q_cmd - q_cmd
             self._q_offset_target = np.zeros_like(self._q_offset)
         q_cmd = q_cmd + self._q_offset
+        m2 = clock()
 
         # Limits
-        tip_model = self.model.tip(psi)
-        tip_err = (
-            float(np.linalg.norm(tip_mm - tip_model)) if np.all(np.isfinite(tip_mm)) else math.nan
-        )
+        if self.supervisor.use_tracker:
+            self._tips.add(now, self.model.tip(psi))
+        if self.supervisor.use_tracker and np.isfinite(tip_mm).all():
+            tip_err = self._tips.distance(now, tip_mm, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s)
+        else:
+            tip_err = math.nan  # no tracker sample: nothing to compare the model tip with
         moving = run is not None and run.state == "running"
         trip = self.supervisor.check(
             CycleCheck(
@@ -406,6 +591,7 @@ class ControlLoop:
             psi = self._psi_cmd
         if run is not None and run.state == "running" and t_run >= run.duration_s:
             self._end_after_cycle = ("completed", "trajectory completed")
+        m3 = clock()
 
         # Targets out: RPDOs then SYNC
         if self._paused:
@@ -420,8 +606,9 @@ class ControlLoop:
             self.drives.send_cycle(targets)
         self._q_prev, self._q_cmd, self._psi_cmd = self._q_cmd, q_cmd, psi
         self._t_last_cmd = now
+        m4 = clock()
 
-        # Log
+        # Log: the row keeps this cycle's numbers; the writer thread makes the columns.
         q_act = (
             np.array([f.position_counts for f in fb]) - self.home_counts
         ) / self.cfg.counts_per_mm
@@ -445,27 +632,15 @@ class ControlLoop:
         if self._end_after_cycle is not None:
             self._finish_run(*self._end_after_cycle)
             self._end_after_cycle = None
+        self.counters._stages((m0, m1, m2, m3, m4, clock()))
 
-    def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event):
-        keys = self._row_keys
-        if keys is None:
-            S, K = len(psi), len(q_nom)
-            keys = self._row_keys = (
-                [f"seg{i}_{a}_cmd_rad" for i in range(1, S + 1) for a in ("theta", "phi")]
-                + [
-                    f"cable{k}_{c}"
-                    for k in range(1, K + 1)
-                    for c in ("q_nominal_mm", "q_cmd_mm", "q_act_mm", "tension_N")
-                ]
-                + ["tip_x_mm", "tip_y_mm", "tip_z_mm"]
-            )
-        per_cable = np.column_stack((q_nom, q_cmd, q_act, force_N)).ravel()
-        values = np.concatenate((np.ravel(psi), per_cable, tip_mm)).tolist()
-        row: dict[str, float | str] = {"t_s": round(t_s, 6), "cycle": self.counters.cycles}
-        row.update(zip(keys, values, strict=True))
-        row["lateness_us"] = round(lateness_s * 1e6, 1)
-        row["event"] = event
-        return row
+    def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event) -> CycleRow:
+        layout = self._row_layout
+        if layout is None:
+            layout = self._row_layout = RowLayout(len(psi), len(q_nom))
+        # One fresh array: later cycles may reuse the arrays they were given.
+        values = np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N, tip_mm))
+        return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)
 
     def _react(self, trip: Trip) -> None:
         self.counters.trips += 1
@@ -498,6 +673,7 @@ class ControlLoop:
         """Called by the daemon after re-enabling drives: resume sending computed targets."""
         with self._lock:
             self._pending.reenabled = True
+            self._has_pending = True
 
     def _resume_after_enable(self) -> None:
         # Absorb the difference between where the drives are and where the command is into the
@@ -514,4 +690,13 @@ class ControlLoop:
         self._stopped_drives = False
 
 
-__all__ = ["ControlLoop", "Hold", "LoopConfig", "RunInfo", "field"]
+__all__ = [
+    "STAGES",
+    "ControlLoop",
+    "CycleRow",
+    "Hold",
+    "LoopConfig",
+    "RowLayout",
+    "RunInfo",
+    "field",
+]

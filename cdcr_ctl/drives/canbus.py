@@ -2,7 +2,8 @@
 
 ``virtual`` (one process: tests, the in-process simulator), ``slcan`` (USB-CAN adapters speaking
 the Lawicel ASCII protocol, and the simulated rig's pseudo-terminal; python-can sends the bit rate
-as ``S0``-``S8``), ``socketcan`` (``can0`` on a Linux rig PC; the interface must be up with the
+as ``S0``-``S8``; frames go through :class:`~cdcr_ctl.drives.slcan.SlcanBus`, a line at a time),
+``socketcan`` (``can0`` on a Linux rig PC; the interface must be up with the
 right bit rate, e.g. ``ip link set can0 up type can bitrate 1000000`` or systemd-networkd), and
 any other interface python-can knows (``pcan``, ``kvaser``, ``udp_multicast`` inside a
 loopback-only network namespace, ...), which get ``bitrate`` as a keyword.
@@ -15,6 +16,7 @@ import socket
 import can
 
 from cdcr_ctl.config.drives import CanBusConfig
+from cdcr_ctl.drives.slcan import SlcanBus
 from cdcr_ctl.errors import CommError
 
 #: Pause after opening an slcan serial port before the first command (s). Adapters that reset
@@ -39,8 +41,13 @@ def bus_kwargs(cfg: CanBusConfig) -> dict[str, object]:
 
 def open_bus(cfg: CanBusConfig) -> can.BusABC:
     """A python-can bus for ``cfg``; :class:`CommError` naming interface and channel on failure."""
+    kwargs = bus_kwargs(cfg)
     try:
-        return can.Bus(**bus_kwargs(cfg))
+        if cfg.interface == "slcan":
+            # python-can's slcan set-up, with a frame path that keeps up with a 1 kHz cycle.
+            del kwargs["interface"]
+            return SlcanBus(**kwargs)
+        return can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         raise CommError(f"CAN {cfg.interface}:{cfg.channel}: cannot open ({exc})") from exc
 

@@ -97,6 +97,19 @@ class Compensator:
         self._lengths = [s.length_mm for s in params.segments]
         self._T0 = [c.pretension_N for c in params.cables]
         self._B = cable_matrix_x(params)
+        # The loop converts one pose three times a cycle (ideal displacements, compensation,
+        # tip): the last conversion is kept, keyed by the pose's bytes.
+        self._flat_key = b""
+        self._flat_xs: list[float] = []
+
+    def _flat(self, psi: np.ndarray | Sequence[Sequence[float]]) -> list[float]:
+        """:func:`psi_to_flat_x` of ``psi``, the last one kept (do not mutate the list)."""
+        a = np.asarray(psi, dtype=float)
+        key = a.tobytes()
+        if key != self._flat_key or not self._flat_xs:
+            self._flat_xs = psi_to_flat_x(a)
+            self._flat_key = key
+        return self._flat_xs
 
     @property
     def n_segments(self) -> int:
@@ -109,7 +122,7 @@ class Compensator:
     # ------------------------------------------------------------------ stateless
     def q_geometric(self, psi: np.ndarray) -> np.ndarray:
         """Ideal inverse kinematics q_geom (K,), mm: eq. 4 (or exact chords, per ``effects``)."""
-        xs = psi_to_flat_x(psi)
+        xs = self._flat(psi)
         if self.effects.geometry == "cc":
             return self._B @ np.asarray(xs)
         return np.asarray(self.transfer.pose(xs).q_geom)
@@ -212,7 +225,7 @@ class Compensator:
         decide the direction in every mode, so measured noise cannot chatter the state.
         """
         tr = self.transfer
-        xs = psi_to_flat_x(psi)
+        xs = self._flat(psi)
         P = tr.pose(xs)
         res = tr.evaluate(xs, state.s, pose=P)
         changed = False
@@ -294,11 +307,16 @@ class CCDiskModel(Compensator):
         if mode not in MODES:
             raise ModelError(f"compensation mode must be one of {MODES}, not {mode!r}")
         res = self.step(psi, state, "model" if mode == "off" else mode, measured_N)
-        q = np.asarray(q_nominal, dtype=float)
-        if mode != "off":
-            q = q + (np.asarray(res.q) - np.asarray(res.q_geom))
+        if mode == "off":
+            q = np.asarray(q_nominal, dtype=float)
+        else:
+            # q_nominal + (q - q_geom), element by element as numpy would (same rounding)
+            qn = np.asarray(q_nominal, dtype=float).tolist()
+            q = np.array([n + (a - b) for n, a, b in zip(qn, res.q, res.q_geom, strict=True)])
+        if not self.effects.actuator:
+            return q
         return self.actuator_command(q, state)
 
     def tip(self, psi: np.ndarray) -> np.ndarray:
         """Tip position (mm, base frame), eq. 1-3."""
-        return np.array(tip_position_fast(psi_to_flat_x(psi), self._lengths))
+        return np.array(tip_position_fast(self._flat(psi), self._lengths))

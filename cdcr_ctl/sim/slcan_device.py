@@ -4,6 +4,13 @@ The simulated rig owns the pty's master side and a python-can bus (usually ``vir
 the simulated nodes; a controller in another process opens the pty's slave side with python-can's
 ``slcan`` interface, exactly as it would open a real adapter (``/dev/ttyACM0``).
 
+``tcp=True`` serves the same protocol on a loopback TCP port instead (a networked slcan adapter,
+as ser2net or a WiFi CAN bridge offers it): the controller opens ``socket://127.0.0.1:PORT``
+(pyserial's URL, which python-can's slcan accepts as channel). Why: bytes written to a pty reach
+the other side through a kernel worker thread (the tty flip buffer), an ordinary time-shared
+thread that a busy machine can leave waiting for tens of milliseconds; loopback TCP hands them
+over in the writer's own system call. One host at a time; when it disconnects the next may.
+
 Host -> adapter, one command per ``\\r`` (``\\n`` ignored). Answers are ``\\r`` (OK) or ``\\a``
 (BEL, error), as Lawicel's CANUSB does:
 
@@ -26,6 +33,14 @@ bus as a ``t``/``T``/``r``/``R`` line, while the channel is open. If the host's 
 from the bus's, nothing passes either way and ``F`` reports bus error + error passive, as a
 real adapter on a wrong-rate bus would. Writes to the pty never block the bus: when the host does
 not read, frames are dropped and ``F`` reports a data overrun.
+
+As a USB adapter does, the device answers every command of one read from the host in one write
+(a cycle's set-points and SYNC: four ``z``). Two ways to the bus: a python-can ``bus`` (the
+answers go out, then the frames to the bus; a listener thread relays the bus's frames to the
+host), or ``deliver`` (the nodes' dispatcher, called in the reader thread; the nodes' frames come
+back through :meth:`SlcanDevice.on_message_received`, and those they send while a read is being
+delivered, the TPDOs a SYNC triggers, go to the host in the same write, after the answers: one
+USB transfer, one wake-up of the host's reader).
 """
 
 from __future__ import annotations
@@ -34,9 +49,11 @@ import contextlib
 import logging
 import os
 import select
+import socket
 import threading
 import time
 import tty
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -128,25 +145,50 @@ class SlcanDevice:
     """The adapter: pty master <-> ``bus``. ``path`` is the slave side (or ``link`` to it).
 
     ``bitrate`` is the bus's bit rate (the host must choose the same with ``Sn``); the adapter
-    starts configured for it, as if the host had set it before.
+    starts configured for it, as if the host had set it before. With ``deliver`` (and ``bus``
+    None) the host's frames go to ``deliver`` instead of a bus, and the owner passes the bus's
+    frames to :meth:`on_message_received` itself.
     """
 
     def __init__(
-        self, bus: can.BusABC, link: str | Path | None = None, bitrate: int = 1_000_000
+        self,
+        bus: can.BusABC | None,
+        link: str | Path | None = None,
+        bitrate: int = 1_000_000,
+        *,
+        deliver: Callable[[can.Message], None] | None = None,
+        tcp: bool = False,
     ) -> None:
+        if (bus is None) == (deliver is None):
+            raise ValueError("give a bus or a deliver function (one of them)")
+        if tcp and link:
+            raise ValueError("a TCP adapter has an address, not a pty to link to")
         self.bus = bus
+        self._deliver = deliver
         self.bus_bitrate = bitrate
-        self.master_fd, self.slave_fd = os.openpty()
-        tty.setraw(self.slave_fd)
-        os.set_blocking(self.master_fd, False)
-        self.pty_path = os.ttyname(self.slave_fd)
         self.link = Path(link) if link else None
-        if self.link is not None:
-            self.link.parent.mkdir(parents=True, exist_ok=True)
-            with contextlib.suppress(FileNotFoundError):
-                self.link.unlink()
-            self.link.symlink_to(self.pty_path)
-        self.path = str(self.link or self.pty_path)
+        self._listener: socket.socket | None = None
+        self._conn: socket.socket | None = None
+        if tcp:
+            self.master_fd, self.slave_fd = -1, -1  # -1: no host connected
+            listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            listener.bind(("127.0.0.1", 0))
+            listener.listen(1)
+            self._listener = listener
+            self.pty_path = ""
+            self.path = f"socket://127.0.0.1:{listener.getsockname()[1]}"
+        else:
+            self.master_fd, self.slave_fd = os.openpty()
+            tty.setraw(self.slave_fd)
+            os.set_blocking(self.master_fd, False)
+            self.pty_path = os.ttyname(self.slave_fd)
+            if self.link is not None:
+                self.link.parent.mkdir(parents=True, exist_ok=True)
+                with contextlib.suppress(FileNotFoundError):
+                    self.link.unlink()
+                self.link.symlink_to(self.pty_path)
+            self.path = str(self.link or self.pty_path)
         self.is_open = False
         self.listen_only = False
         self.timestamps = False
@@ -159,7 +201,11 @@ class SlcanDevice:
         self._t0 = time.monotonic()
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._notifier = can.Notifier(bus, [_BusTap(self)], timeout=0.1)
+        #: Lines for the host gathered while the reader delivers one read (reader thread only).
+        self._batch: list[bytes] | None = None
+        self._notifier = (
+            can.Notifier(bus, [_BusTap(self)], timeout=0.1) if bus is not None else None
+        )
         self._thread = threading.Thread(target=self._reader, name="slcan-device", daemon=True)
         self._thread.start()
 
@@ -175,17 +221,27 @@ class SlcanDevice:
             self.flags |= F_BUS_ERROR | F_ERROR_PASSIVE
             return
         stamp = int((time.monotonic() - self._t0) * 1000) if self.timestamps else None
-        if self._write(encode_frame(msg, stamp)):
-            self.tx_frames += 1
+        line = encode_frame(msg, stamp)
+        batch = self._batch
+        if batch is not None and threading.current_thread() is self._thread:
+            batch.append(line)  # an answer to what the reader is delivering: one write
+            return
+        self._count_write(self._write(line), 1)
+
+    def _count_write(self, ok: bool, frames: int) -> None:
+        if ok:
+            self.tx_frames += frames
         else:
-            self.dropped_frames += 1
+            self.dropped_frames += frames
             self.flags |= F_DATA_OVERRUN | F_RX_FIFO_FULL
 
     def _write(self, data: bytes) -> bool:
-        """Write all of ``data`` to the pty, waiting at most WRITE_STALL_S for the host."""
+        """Write all of ``data`` to the host, waiting at most WRITE_STALL_S for it to read."""
         deadline = time.monotonic() + WRITE_STALL_S
         whole = len(data)
         with self._lock:
+            if self.master_fd < 0:
+                return False  # TCP: no host connected
             while data:
                 try:
                     n = os.write(self.master_fd, data)
@@ -207,10 +263,34 @@ class SlcanDevice:
         return True
 
     # ------------------------------------------------------------------ host -> bus
+    def _accept(self) -> bool:
+        """TCP: wait (briefly) for a host to connect; True when one is connected."""
+        assert self._listener is not None
+        ready, _, _ = select.select([self._listener], [], [], 0.1)
+        if not ready:
+            return False
+        conn, _ = self._listener.accept()
+        conn.setblocking(False)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # a line is a packet
+        with self._lock:
+            self._conn, self.master_fd = conn, conn.fileno()
+        return True
+
+    def _hang_up(self) -> None:
+        """TCP: the host went away; wait for the next one (the adapter keeps its settings)."""
+        with self._lock:
+            conn, self._conn, self.master_fd = self._conn, None, -1
+        if conn is not None:
+            conn.close()
+
     def _reader(self) -> None:
         buf = b""
         while not self._stop.is_set():
             try:
+                if self.master_fd < 0:
+                    if self._listener is None or not self._accept():
+                        continue
+                    buf = b""
                 ready, _, _ = select.select([self.master_fd], [], [], 0.1)
                 if not ready:
                     continue
@@ -218,23 +298,84 @@ class SlcanDevice:
             except BlockingIOError:
                 continue
             except (OSError, ValueError):
+                if self._listener is not None and not self._stop.is_set():
+                    self._hang_up()
+                    continue
                 return
+            if not chunk and self._listener is not None:
+                self._hang_up()
+                continue
             buf += chunk.replace(b"\n", b"")
+            answers: list[bytes] = []
+            frames: list[can.Message] = []
             while b"\r" in buf:
                 line, buf = buf.split(b"\r", 1)
-                self._write(self.command(line.decode("ascii", "replace")))
+                answer, msg = self._command(line.decode("ascii", "replace"))
+                answers.append(answer)
+                if msg is not None:
+                    frames.append(msg)
             if len(buf) > MAX_LINE:
                 buf = b""
                 self.bad_commands += 1
-                self._write(ERROR)
+                answers.append(ERROR)
+            if frames and self._deliver is not None:
+                self._put_on_bus(frames, answers)
+                continue
+            if answers:
+                self._write(b"".join(answers))
+            if frames:
+                self._put_on_bus(frames)
+
+    def _put_on_bus(self, frames: list[can.Message], answers: list[bytes] | None = None) -> None:
+        """Frames the host sent (acknowledged in ``answers``, or already) onto the bus, in
+        order. With ``deliver``, the answers and what the nodes send meanwhile (the TPDOs a
+        SYNC triggers) go to the host in one write, answers first."""
+        if self._deliver is None:
+            for msg in frames:
+                self._send(msg)
+            return
+        self._batch = []
+        try:
+            stamp = time.time()
+            for msg in frames:
+                msg.timestamp = stamp
+                self._deliver(msg)
+                self.rx_frames += 1
+        finally:
+            batch, self._batch = self._batch, None
+        head = b"".join(answers) if answers else b""
+        if batch or head:
+            ok = self._write(head + b"".join(batch))
+            if batch:
+                self._count_write(ok, len(batch))
+
+    def _send(self, msg: can.Message) -> None:
+        assert self.bus is not None
+        try:
+            self.bus.send(msg)
+        except can.CanError:
+            self.flags |= F_BUS_ERROR  # acknowledged into the FIFO, lost on the bus
+            return
+        self.rx_frames += 1
 
     def command(self, line: str) -> bytes:
-        """Execute one command line (without ``\\r``); the bytes to answer."""
+        """Execute one command line (without ``\\r``); the bytes to answer. A frame goes onto
+        the bus at once."""
+        answer, msg = self._command(line)
+        if msg is not None:
+            self._put_on_bus([msg])
+        return answer
+
+    def _command(self, line: str) -> tuple[bytes, can.Message | None]:
+        """The answer to one command line, and the frame to put on the bus (or None)."""
+        if line[:1] in ("t", "T", "r", "R"):
+            return self._transmit(line)
+        return self._control(line), None
+
+    def _control(self, line: str) -> bytes:
         if not line:
             return OK
         c = line[0]
-        if c in "tTrR":
-            return self._transmit(line)
         if c in "OL" and len(line) == 1:
             if self.is_open:
                 return self._bad()
@@ -271,21 +412,15 @@ class SlcanDevice:
         self.bad_commands += 1
         return ERROR
 
-    def _transmit(self, line: str) -> bytes:
+    def _transmit(self, line: str) -> tuple[bytes, can.Message | None]:
         msg = decode_frame(line)
         if msg is None or not self.is_open or self.listen_only:
-            return self._bad()
+            return self._bad(), None
         ack = b"z\r" if line[0] in "tr" else b"Z\r"
         if not self.rate_matches:
             self.flags |= F_BUS_ERROR | F_ERROR_PASSIVE
-            return ack  # accepted into the FIFO; it never gets onto a bus at another rate
-        try:
-            self.bus.send(msg)
-        except can.CanError:
-            self.flags |= F_BUS_ERROR
-            return self._bad()
-        self.rx_frames += 1
-        return ack
+            return ack, None  # accepted into the FIFO; it never gets onto a bus at another rate
+        return ack, msg
 
     # ------------------------------------------------------------------ lifecycle
     def unplug(self) -> None:
@@ -297,8 +432,13 @@ class SlcanDevice:
         if self._stop.is_set():
             return
         self._stop.set()
-        self._notifier.stop(0.5)
+        if self._notifier is not None:
+            self._notifier.stop(0.5)
         self._thread.join(1.0)
+        if self._listener is not None:
+            self._hang_up()
+            self._listener.close()
+            return
         for fd in (self.master_fd, self.slave_fd):
             with contextlib.suppress(OSError):
                 os.close(fd)

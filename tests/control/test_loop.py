@@ -205,3 +205,104 @@ def test_hold_source():
     h = Hold(np.array([[0.1, 0.2]]))
     assert h.duration_s == float("inf")
     assert h.sample(123.0).tolist() == [[0.1, 0.2]]
+
+
+def test_a_row_is_the_run_log_columns_made_off_the_loop():
+    """The loop keeps a cycle's numbers; the mapping (run-log column names, in order) is made
+    when the writer or a status request first reads it."""
+    from cdcr_ctl.control.loop import CycleRow, RowLayout
+
+    layout = RowLayout(2, 3)
+    psi = np.array([[0.1, 0.2], [0.3, 0.4]])
+    q_nom, q_cmd, q_act = (
+        np.array([1.0, 2, 3]),
+        np.array([1.5, 2.5, 3.5]),
+        np.array([1.1, 2.1, 3.1]),
+    )
+    force, tip = np.array([4.0, 5, 6]), np.array([7.0, 8, 9])
+    values = np.concatenate((psi.ravel(), q_nom, q_cmd, q_act, force, tip))
+    row = CycleRow(layout, 1.23456789, 42, values, 12.34e-6, "ev")
+    want = {"t_s": 1.234568, "cycle": 42}
+    want.update({"seg1_theta_cmd_rad": 0.1, "seg1_phi_cmd_rad": 0.2})
+    want.update({"seg2_theta_cmd_rad": 0.3, "seg2_phi_cmd_rad": 0.4})
+    for k in range(3):
+        want[f"cable{k + 1}_q_nominal_mm"] = q_nom[k]
+        want[f"cable{k + 1}_q_cmd_mm"] = q_cmd[k]
+        want[f"cable{k + 1}_q_act_mm"] = q_act[k]
+        want[f"cable{k + 1}_tension_N"] = force[k]
+    want.update({"tip_x_mm": 7.0, "tip_y_mm": 8.0, "tip_z_mm": 9.0})
+    want.update({"lateness_us": 12.3, "event": "ev"})
+    assert list(row) == list(want) and dict(row) == want
+    assert row["cable2_q_act_mm"] == 2.1 and row.get("nope", "-") == "-" and "tip_z_mm" in row
+    assert len(row) == len(want) and all(type(v) is float for v in list(row.values())[2:-2])
+
+
+class ReusedArrayTension(FakeTension):
+    """Returns the same array object every cycle, rewritten in place (3.0, 3.001, ...)."""
+
+    def __init__(self):
+        super().__init__()
+        self.n = 0
+
+    def latest(self):
+        self.f[:] = 3.0 + 0.001 * self.n
+        self.n += 1
+        return self.f, np.zeros(K)
+
+
+def test_rows_are_snapshots_and_stages_are_timed():
+    ten = ReusedArrayTension()
+    loop, _, _, _ = make_loop(ten)
+    loop.start()
+    try:
+        sink = ListSink()
+        run = loop.follow(Ramp(0.5, 0.2), "ramp", "model", sink)
+        assert wait_until(lambda: run.state != "running")
+    finally:
+        loop.stop()
+    # Each row keeps the tension of its own cycle, though the port rewrote the array since.
+    got = [r["cable1_tension_N"] for r in sink.rows]
+    assert len(set(got)) == len(got) and got == sorted(got)
+    c = loop.counters
+    assert set(c.stage_mean_us()) == {"inputs", "model", "checks", "send", "log"}
+    assert all(v > 0 for v in c.stage_s.values()) and c.work_cpu_s > 0
+    assert all(c.stage_max_us[k] >= c.stage_mean_us()[k] for k in c.stage_s)
+    c.reset_timing()
+    assert c.stage_mean_us() == dict.fromkeys(c.stage_s, 0.0) and c.work_cpu_us() == 0.0
+
+
+class BrokenModel(FakeModel):
+    """A model with a bug: raises something that is not a ModelError after a few cycles."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def q_command(self, psi, q_nominal, state, mode, measured_N):
+        self.calls += 1
+        if self.calls > 5:
+            raise ZeroDivisionError("a bug")
+        return super().q_command(psi, q_nominal, state, mode, measured_N)
+
+
+def test_a_cycle_that_raises_quick_stops_the_drives_and_the_loop_goes_on():
+    drives = FakeDrives()
+    sup = Supervisor(LIM, use_tension=True)
+    loop = ControlLoop(
+        LoopConfig(period_s=0.002, counts_per_mm=CPM, compensation="model"),
+        BrokenModel(),
+        drives,
+        FakeTension(),
+        NoTip(),
+        sup,
+        home_counts=[100, 200, 300],
+    )
+    loop.start()
+    try:
+        assert wait_until(lambda: drives.quick_stops == 1)
+        n = loop.counters.cycles
+        assert wait_until(lambda: loop.counters.cycles > n + 5)
+        assert loop.running
+    finally:
+        loop.stop()
+    assert sup.trip.cause == "loop_exception" and sup.trip.reaction is Reaction.QUICK_STOP
+    assert "ZeroDivisionError: a bug" in sup.trip.detail

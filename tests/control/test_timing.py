@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from cdcr_ctl.control.timing import LatenessStats, Ticker
 
 
@@ -42,3 +44,28 @@ def test_stats_histogram_and_percentiles():
     }
     assert summ["lateness_max_us"] == 3000.0
     assert abs(s.percentiles_us((50,))["p50"] - 15.0) < 1e-9
+
+
+def test_histogram_bins_are_numpy_searchsorted_bins():
+    from cdcr_ctl.control.timing import LATENESS_EDGES_US
+
+    s = LatenessStats()
+    values = [0.0, 9.99, 10.0, 10.01, 199.9, 200.0, 99_999.0, 100_000.0, 5e6]
+    for us in values:
+        s.add(us * 1e-6)
+    want = np.zeros(len(LATENESS_EDGES_US) - 1, int)
+    for us in values:
+        i = int(np.searchsorted(LATENESS_EDGES_US, us * 1e-6 * 1e6, side="right")) - 1
+        want[min(max(i, 0), len(want) - 1)] += 1
+    assert s.histogram.tolist() == want.tolist()
+
+
+def test_reset_stats_starts_afresh_and_keeps_the_schedule():
+    t = Ticker(0.001)
+    for _ in range(5):
+        t.wait()
+        t.done()
+    deadline = t.next_deadline
+    old = t.reset_stats()
+    assert old.cycles == 5 and t.stats.cycles == 0 and t.stats.overruns == 0
+    assert t.next_deadline == deadline

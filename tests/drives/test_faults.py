@@ -202,3 +202,31 @@ def test_fault_reset_not_confirmed_names_the_drive():
         assert exc.value.node == 3 and exc.value.code == 0x2310
     finally:
         r.close()
+
+
+def test_silence_counts_from_the_first_sync_after_a_pause():
+    """A cycle that starts long after configure() (the daemon builds its model meanwhile) must
+    not find the drives "not answering" before their first TPDO could come back: with no SYNC
+    for longer than the feedback timeout, a drive's silence counts from the next SYNC. (Over
+    slcan to another process at 1 kHz the first TPDOs take a few ms: enabling failed.)"""
+    import time
+
+    r = make_rig(drive_cfgs(3, heartbeat_producer_ms=1000), feedback_timeout_s=0.1)
+    g = r.group
+    try:
+        time.sleep(0.15)  # no SYNC for longer than the feedback timeout
+        r.sim.node(2).go_silent()  # stands in for a TPDO that is still on its way
+        first = time.monotonic()
+        for _ in range(8):  # more than TPDO_MISSES SYNCs, well within the timeout
+            g.send_sync()
+            time.sleep(0.002)
+        assert g.fault() is None
+        # Silence beyond TPDO_MISSES SYNCs and the feedback timeout is a fault, as before.
+        while g.fault() is None and time.monotonic() - first < 2.0:
+            g.send_sync()
+            time.sleep(0.002)
+        f = g.fault()
+        assert f is not None and f.cause == "no_feedback:node2"
+        assert f.t_s - first >= 0.1
+    finally:
+        r.close()

@@ -146,3 +146,16 @@ def test_sdo_refusal_names_node_object_and_abort_code():
         r.close()
     assert exc.value.node == 1 and exc.value.code == 0x06090030
     assert "0x6060:00 (modes of operation) refused" in str(exc.value)
+
+
+def test_send_cycle_sends_exactly_what_build_cycle_builds(rig):
+    """The cyclic short path (every drive csp/pm) and the pure builder agree byte for byte."""
+    g = rig.group
+    drain(rig.spy)
+    for targets in ([5, 6, 7], [-2_000_000_000, 0, 2_000_000_000]):
+        want = g.build_cycle(targets)
+        g.send_cycle(targets)
+        sent = [m for m in collect(rig.spy, 0.05) if not is_heartbeat(m)][: len(want)]
+        assert [(m.arbitration_id, bytes(m.data)) for m in sent] == want
+    with pytest.raises(ValueError):
+        g.send_cycle([1, 2])  # one target per drive

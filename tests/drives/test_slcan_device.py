@@ -9,7 +9,7 @@ import time
 
 import can
 import pytest
-from drivesim import channel
+from drivesim import channel, wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -198,3 +198,47 @@ def test_any_command_line_gets_a_lawicel_answer(idle_device, line):
     answer = idle_device.command(line)
     allowed = (b"\r", b"\a", b"z\r", b"Z\r", b"V1013\r", b"v1013\r", b"NCDCR\r")
     assert answer in allowed or (answer.startswith(b"F") and len(answer) == 4)
+
+
+def test_deliver_mode_answers_and_the_frames_they_trigger_come_in_one_write():
+    """The nodes' dispatcher is called in the reader thread; what the nodes send meanwhile (the
+    TPDOs a SYNC triggers) goes to the host after the acknowledgements, in the same write."""
+    delivered = []
+
+    def deliver(msg: can.Message) -> None:
+        delivered.append((msg.arbitration_id, bytes(msg.data)))
+        if msg.arbitration_id == 0x080:  # SYNC: two nodes answer
+            for node in (1, 2):
+                dev.on_message_received(
+                    can.Message(arbitration_id=0x180 + node, data=b"\x37\x06", is_extended_id=False)
+                )
+
+    dev = SlcanDevice(None, deliver=deliver)
+    host = Host(dev.path)
+    try:
+        assert host.ask(b"O\r") == b"\r"
+        os.write(host.fd, b"t2014E8030000\rt0800\r")  # a set-point and SYNC in one write
+        end = time.monotonic() + 2.0
+        got = b""
+        while not got.endswith(b"t18223706\r") and time.monotonic() < end:
+            if select.select([host.fd], [], [], 0.1)[0]:
+                got += os.read(host.fd, 4096)
+        assert got == b"z\rz\rt18123706\rt18223706\r"
+        assert delivered == [(0x201, bytes.fromhex("e8030000")), (0x080, b"")]
+        assert dev.rx_frames == 2
+        assert wait_until(lambda: dev.tx_frames == 2)  # counted once the write returned
+        # A frame from another thread (a heartbeat) goes out on its own.
+        dev.on_message_received(
+            can.Message(arbitration_id=0x701, data=b"\x05", is_extended_id=False)
+        )
+        assert host.read() == b"t701105\r"
+    finally:
+        host.close()
+        dev.stop()
+
+
+def test_a_device_needs_a_bus_or_a_dispatcher_and_a_tcp_one_has_no_pty_link(tmp_path):
+    with pytest.raises(ValueError, match="one of them"):
+        SlcanDevice(None)
+    with pytest.raises(ValueError, match="address"):
+        SlcanDevice(None, tmp_path / "can", deliver=lambda m: None, tcp=True)

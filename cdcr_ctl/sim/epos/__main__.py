@@ -1,8 +1,10 @@
-"""``python -m cdcr_ctl.sim.epos [RIG.yaml] [--node ID:KIND ...] [--link PATH]``: simulated EPOS
-drives behind an slcan pseudo-terminal, in their own process.
+"""``python -m cdcr_ctl.sim.epos [RIG.yaml] [--node ID:KIND ...] [--link PATH | --tcp]``:
+simulated EPOS drives behind an slcan pseudo-terminal (or, ``--tcp``, an slcan adapter on a
+loopback TCP port), in their own process.
 
-Prints the pty path (or the ``--link`` symlink) on the first line, then serves until SIGTERM or
-SIGINT. A controller connects with python-can ``interface="slcan", channel=<that path>``.
+Prints the pty path (or the ``--link`` symlink, or ``socket://127.0.0.1:PORT``) on the first
+line, then serves until SIGTERM or SIGINT. A controller connects with python-can
+``interface="slcan", channel=<that line>``.
 
 Fault injection on stdin, one command per line, each answered by one line (``ok ...`` / ``error
 ...``): ``fault NODE CODE`` (EMCY code, e.g. ``fault 2 0x8611``), ``silent NODE``, ``recover
@@ -86,6 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         help="a drive as NODE_ID[:epos4|epos2] (instead of a rig config)",
     )
     ap.add_argument("--link", default=None, help="symlink to create to the pty")
+    ap.add_argument(
+        "--tcp",
+        action="store_true",
+        help="serve slcan on a loopback TCP port instead of a pty (prints socket://...)",
+    )
     ap.add_argument("--bitrate", type=int, default=None, help="bus bit rate (default: rig's)")
     ap.add_argument(
         "--free-run",
@@ -96,8 +103,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.rig is None and not args.node:
         ap.error("give a rig config or at least one --node")
     specs = load_rig_config(args.rig) if args.rig else args.node
+    if args.tcp and args.link:
+        ap.error("--link names a pty; a --tcp adapter has an address")
     drives = SimDriveBus(
-        specs, "slcan", link=args.link, bitrate=args.bitrate, free_run=args.free_run
+        specs, "slcan", link=args.link, bitrate=args.bitrate, free_run=args.free_run, tcp=args.tcp
     ).start()
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -122,6 +122,8 @@ class _Pdo:
     counter: int = 0
     last: bytes | None = None
     pending: bytes | None = None  # synchronous RPDO data waiting for SYNC
+    #: TPDO: per entry a function giving its bytes (live objects read straight, see _readers).
+    readers: list[Callable[[], bytes]] | None = None
 
 
 class SimEpos:
@@ -159,6 +161,7 @@ class SimEpos:
         self._csp_from = 0.0  # CSP segment: from this demand to the target over one period
         self._csp_to = 0.0
         self._csp_t = 0.0
+        self._step_period_s = 0.0  # 0x60C2 as of the running step() (s)
         self._pp_target: float | None = None
         self._setpoint_ack = False
         self._homing_phase = ""  # "", "search", "backoff", "done", "error"
@@ -451,7 +454,30 @@ class SimEpos:
                 )
 
     def _tpdo_payload(self, pdo: _Pdo) -> bytes:
-        return b"".join(self.node.get_data(i, s)[:n] for i, s, n in pdo.entries)
+        readers = pdo.readers
+        if readers is None:
+            readers = pdo.readers = self._readers(pdo)
+        return b"".join(read() for read in readers)
+
+    def _readers(self, pdo: _Pdo) -> list[Callable[[], bytes]]:
+        """Per TPDO entry, what ``node.get_data(index, sub)[:n]`` gives: for the live objects
+        (statusword, actual position, ...) the read callback's value encoded by the object
+        itself, without canopen's lookup per SYNC; for the rest canopen's get_data."""
+        out: list[Callable[[], bytes]] = []
+        for index, sub, n in pdo.entries:
+            if index in _LIVE:
+                obj = self.node._find_object(index, sub)
+
+                def read(index: int = index, sub: int = sub, n: int = n, obj=obj) -> bytes:
+                    return obj.encode_raw(self._on_read(index, sub, obj))[:n]
+
+            else:
+
+                def read(index: int = index, sub: int = sub, n: int = n) -> bytes:
+                    return self.node.get_data(index, sub)[:n]
+
+            out.append(read)
+        return out
 
     def _send_changed_tpdos(self) -> None:
         """Event-driven TPDOs (type 254/255): sent when their data changed."""
@@ -739,6 +765,7 @@ class SimEpos:
             p = self.motor.p
             n = max(1, math.ceil(dt_s / p.substep_s - 1e-9))
             h = dt_s / n
+            self._step_period_s = self.interpolation_period_s  # objects change between steps
             for _ in range(n):
                 self._substep(h)
 
@@ -768,7 +795,7 @@ class SimEpos:
                 prof.stop(self._rpm(epos.PROFILE_DECELERATION), h)
                 self._csp_from = self._csp_to = prof.x
             elif self.mode == Mode.CYCLIC_SYNC_POSITION:
-                period = self.interpolation_period_s
+                period = self._step_period_s
                 self._csp_t = min(self._csp_t + h, period)
                 v = (self._csp_to - self._csp_from) / period
                 x = self._csp_from + v * self._csp_t

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import itertools
+import logging
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import can
 import canopen
@@ -15,6 +17,8 @@ from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.sim.epos.node import SimEpos
 from cdcr_ctl.sim.epos.plant import MotorParams
 from cdcr_ctl.sim.slcan_device import SlcanDevice
+
+log = logging.getLogger(__name__)
 
 _channels = itertools.count(1)
 
@@ -28,6 +32,25 @@ FREE_RUN_AFTER_S = 0.05
 NodeSpec = tuple[int, str]  # (node id, "epos4" | "epos2")
 
 
+class _AdapterBus(can.BusABC):
+    """The nodes' side of the simulated slcan adapter: what the nodes send goes straight to the
+    adapter (and from there to the host); what the host sends the adapter delivers to the nodes'
+    network directly (:meth:`SimDriveBus._deliver`). No queue, no copy, no listener thread."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.device: SlcanDevice | None = None
+        super().__init__(channel="cdcr-sim-adapter", **kwargs)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        device = self.device
+        if device is None:
+            raise can.CanOperationError("the simulated adapter is not attached")
+        device.on_message_received(msg)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        raise can.CanOperationError("the simulated adapter delivers frames itself")
+
+
 class SimDriveBus:
     """One :class:`SimEpos` per drive, booted on :meth:`start`.
 
@@ -35,7 +58,8 @@ class SimDriveBus:
     (node id, kind) pairs. ``interface="virtual"``: the nodes sit on python-can virtual channel
     ``channel`` (the controller opens the same channel in this process). ``interface="slcan"``:
     the nodes sit on a private virtual channel bridged to an slcan pseudo-terminal
-    (:attr:`channel_path`; ``link`` symlinks to it). ``motors`` overrides the motor parameters
+    (:attr:`channel_path`; ``link`` symlinks to it; ``tcp``: on a loopback TCP port instead,
+    :attr:`channel_path` ``socket://127.0.0.1:PORT``). ``motors`` overrides the motor parameters
     per node id. ``free_run``: advance the drives on the wall clock while no SYNC comes (a master
     that never sends SYNC still sees profile moves finish); off by default, so that time moves
     only with SYNC and runs are reproducible.
@@ -51,16 +75,22 @@ class SimDriveBus:
         bitrate: int | None = None,
         motors: Mapping[int, MotorParams] | None = None,
         free_run: bool = False,
+        tcp: bool = False,
     ) -> None:
         specs, rate = _specs(drives)
         self.bitrate = bitrate or rate
         self.interface = interface
         self.device: SlcanDevice | None = None
+        self._bus: can.BusABC
         if interface == "slcan":
-            inner = f"cdcr-sim-{next(_channels)}-{id(self)}"
-            self._bus = can.Bus(interface="virtual", channel=inner, receive_own_messages=False)
-            self._dev_bus = can.Bus(interface="virtual", channel=inner, receive_own_messages=False)
-            self.device = SlcanDevice(self._dev_bus, link, bitrate=self.bitrate)
+            # The adapter hands the host's frames to the nodes in its reader thread and their
+            # answers back in the same write: as few thread switches as a 1 kHz SYNC allows.
+            adapter = _AdapterBus()
+            self._bus = adapter
+            self.device = SlcanDevice(
+                None, link, bitrate=self.bitrate, deliver=self._deliver, tcp=tcp
+            )
+            adapter.device = self.device
             self.channel_path = self.device.path
         elif interface == "virtual":
             self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
@@ -69,7 +99,8 @@ class SimDriveBus:
             raise ValueError(f"the simulated drives serve 'virtual' or 'slcan', not {interface!r}")
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
-        self.network.connect()
+        if interface == "virtual":
+            self.network.connect()
         motors = motors or {}
         self.nodes = [
             SimEpos(self.network, nid, kind, motors.get(nid, MotorParams(counts_per_rev=cpr)))
@@ -78,6 +109,16 @@ class SimDriveBus:
         self.free_run = free_run
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._background, name="sim-epos", daemon=True)
+
+    def _deliver(self, msg: can.Message) -> None:
+        """A frame from the host to every node (the adapter's reader thread), as canopen's
+        MessageListener would pass it on."""
+        if msg.is_error_frame or msg.is_remote_frame:
+            return
+        try:
+            self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
+        except Exception:  # a node's bug must not stop the adapter
+            log.exception("simulated drives: handling 0x%03X failed", msg.arbitration_id)
 
     def start(self) -> SimDriveBus:
         for n in self.nodes:
@@ -171,7 +212,6 @@ class SimDriveBus:
             n.node.nmt.stop_heartbeat()
         if self.device is not None:
             self.device.stop()
-            self._dev_bus.shutdown()
         self.network.disconnect()
 
     def __enter__(self) -> SimDriveBus:
