@@ -805,6 +805,7 @@ class DriveGroup:
         now = self.clock()
         with self._cycle_lock:
             self._send_pending_quick_stop()
+            states = None
             if self._cyclic_only:
                 # Every drive takes a synchronous target (csp, pm): one RPDO each, no stream
                 # state but the last target (what _plan gives for these modes).
@@ -813,22 +814,18 @@ class DriveGroup:
                     (cob, _pack_target(t))
                     for cob, t in zip(self._setpoint_cobs, targets, strict=True)
                 ]
-                frames.append(_SYNC_FRAME)
-                self._sync_starts(now)
-                try:
-                    self._send_burst(frames)
-                except CommError:
-                    return
+            else:
+                frames, states = self._plan(targets_counts)
+            frames.append(_SYNC_FRAME)
+            self._sync_starts(now)
+            try:
+                self._send_burst(frames)
+            except CommError:
+                return
+            if states is None:
                 for d, t in zip(self._drives, targets, strict=True):
                     d.last_target = t
             else:
-                frames, states = self._plan(targets_counts)
-                frames.append(_SYNC_FRAME)
-                self._sync_starts(now)
-                try:
-                    self._send_burst(frames)
-                except CommError:
-                    return
                 for d, (last, pending, points, active) in zip(self._drives, states, strict=True):
                     d.last_target, d.pp_pending, d.ip_points = last, pending, points
                     if active and not d.ip_active:

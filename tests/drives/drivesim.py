@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import can
+from hypothesis import strategies as st
 
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
 from cdcr_ctl.drives.group import DriveGroup
@@ -158,3 +159,20 @@ def wait_until(pred: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
 
 def frames_of(msgs: Sequence[can.Message], cob_id: int) -> list[bytes]:
     return [bytes(m.data) for m in msgs if m.arbitration_id == cob_id]
+
+
+def can_messages() -> st.SearchStrategy[can.Message]:
+    """Hypothesis strategy: any classic CAN frame (standard or extended id, data or remote)."""
+    return st.builds(
+        lambda ext, remote, data, ident: can.Message(
+            arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF),
+            is_extended_id=ext,
+            is_remote_frame=remote,
+            dlc=len(data),
+            data=b"" if remote else data,
+        ),
+        st.booleans(),
+        st.booleans(),
+        st.binary(max_size=8),
+        st.integers(0, 0x1FFFFFFF),
+    )

@@ -12,7 +12,7 @@ import tty
 
 import can
 import pytest
-from drivesim import channel, wait_until
+from drivesim import can_messages, channel, wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -53,19 +53,7 @@ def open_bus(path: str, cls: type = SlcanBus, **kw) -> can.BusABC:
     return cls(channel=path, bitrate=1_000_000, sleep_after_open=0, **kw)
 
 
-messages = st.builds(
-    lambda ext, remote, data, ident: can.Message(
-        arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF),
-        is_extended_id=ext,
-        is_remote_frame=remote,
-        dlc=len(data),
-        data=b"" if remote else data,
-    ),
-    st.booleans(),
-    st.booleans(),
-    st.binary(max_size=8),
-    st.integers(0, 0x1FFFFFFF),
-)
+messages = can_messages()
 
 
 def test_set_up_and_frames_are_the_bytes_python_can_sends(pty):

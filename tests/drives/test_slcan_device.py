@@ -9,7 +9,7 @@ import time
 
 import can
 import pytest
-from drivesim import channel, wait_until
+from drivesim import can_messages, channel, wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -153,19 +153,7 @@ def test_python_can_slcan_interface_talks_to_it():
         other.shutdown()
 
 
-messages = st.builds(
-    lambda ext, remote, data, ident: can.Message(
-        arbitration_id=ident & (0x1FFFFFFF if ext else 0x7FF),
-        is_extended_id=ext,
-        is_remote_frame=remote,
-        dlc=len(data),
-        data=b"" if remote else data,
-    ),
-    st.booleans(),
-    st.booleans(),
-    st.binary(max_size=8),
-    st.integers(0, 0x1FFFFFFF),
-)
+messages = can_messages()
 
 
 @given(messages)
