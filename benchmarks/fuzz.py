@@ -2,11 +2,12 @@
 
 Targets (``tests/fuzz/targets.py``): the rig-config loader, the trajectory loader (CSV and YAML),
 the control-socket protocol, the Modbus RTU and ASCII load-cell parsers, NatNet frames, the tracker
-line stream, WitMotion attitude frames, EMCY decoding and the emulated slcan adapter's command
-parser. Inputs come from hypothesis (random bytes/structures and mutations of valid seeds). An
-input fails when the parser raises anything but its documented error (RigError and subclasses,
-NatNetDecodeError) or takes more than ``HANG_S`` of CPU time. Prints, per target: inputs fed, wall
-time, slowest input (CPU ms), failures (with the first few inputs that failed).
+line stream, WitMotion attitude frames, EMCY decoding, the emulated slcan adapter's command parser
+and the network joystick's ``struct input_event`` records. Inputs come from hypothesis (random
+bytes/structures and mutations of valid seeds). An input fails when the parser raises anything but
+its documented error (RigError and subclasses, NatNetDecodeError) or takes more than ``HANG_S`` of
+CPU time. Prints, per target: inputs fed, wall time, slowest input (CPU ms), failures (with the
+first few inputs that failed).
 
     nice .venv/bin/python benchmarks/fuzz.py               # 10,000 per target
     nice .venv/bin/python benchmarks/fuzz.py -n 500 --only control_protocol

@@ -52,7 +52,8 @@ def make_session(sim_yaml: Path, work: Path, runs: Path) -> tuple[Path, Path]:
     """Write a rig config and a simulator config for one demo session in ``work``.
 
     The rig config extends the simulator config's rig and moves every connection point into
-    ``work`` (pty links, control socket) and onto free loopback ports, so sessions never collide.
+    ``work`` (pty links, control socket) and onto free loopback ports (tracker, a network
+    joystick), so sessions never collide.
     Returns (rig config, simulator config).
     """
     sim_doc = yaml.safe_load(sim_yaml.read_text())
@@ -82,6 +83,10 @@ def make_session(sim_yaml: Path, work: Path, runs: Path) -> tuple[Path, Path]:
                 for i, port in enumerate(attitude["sensors"])
             ]
         }
+    joystick = sensors.get("joystick") or _parent_sensors(base_rig).get("joystick") or {}
+    if str(joystick.get("device") or "").startswith("tcp://"):
+        # The simulator's network joystick, on a free loopback port of its own.
+        rig_doc["sensors"]["joystick"] = {"device": f"tcp://127.0.0.1:{free_port()}"}
     rig_path = work / "rig.yaml"
     rig_path.write_text(yaml.safe_dump(rig_doc, sort_keys=False))
     sim_doc["rig"] = str(rig_path)
@@ -230,23 +235,16 @@ def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
     if design == "vertebra":
         import numpy as np
 
-        from cdcr_ctl.config.designs import follow_params, vertebra_arm
-        from cdcr_ctl.model.vertebra import EndFollowPlanner
-        from cdcr_ctl.model.vertebra_follow import paper_session, plan_session
+        from cdcr_ctl.config.designs import plan_follow_offline
+        from cdcr_ctl.model.vertebra_follow import paper_session
 
-        arm = vertebra_arm(rig_cfg)
-        planner = EndFollowPlanner(arm, follow_params(rig_cfg))
-        dt = 1.0 / rig_cfg.control.rate_hz
-        fraction = rig_cfg.vertebra.follow.speed_fraction
-        t, psi, _ = plan_session(
-            planner, paper_session(scale=0.5 if quick else 1.0), dt, speed_fraction=fraction
-        )
+        t, psi, planner = plan_follow_offline(rig_cfg, paper_session(scale=0.5 if quick else 1.0))
         # Back to straight in the planner's synchronised steps (within the planned speed), so the
         # next run starts where this one did instead of behind the daemon's lead-in move (whose
         # speed is set in joint space: three joints together drive a distal cable past its
         # limit).
         planner.set_targets(np.zeros_like(psi[-1]))
-        t_back, psi_back, _ = plan_session(planner, [], dt, speed_fraction=fraction)
+        t_back, psi_back, _ = plan_follow_offline(rig_cfg, [], planner)
         t = np.concatenate((t, t[-1] + t_back[1:]))
         psi = np.concatenate((psi, psi_back[1:]))
         return {"end_following": tj.Trajectory(t, psi, "end_following", "<joystick session>")}

@@ -224,6 +224,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         commands,  # noqa: F401  registers the heavier commands
         discrepancy,  # noqa: F401  registers discrepancy
         identify,  # noqa: F401  registers identify, experiments
+        joystick,  # noqa: F401  registers joystick
     )
 
     try:

@@ -53,6 +53,7 @@ from cdcr_ctl.model.ujoint import (
 )
 from cdcr_ctl.model.vertebra import (
     AttitudeLoopParams,
+    EndFollowPlanner,
     FollowParams,
     LinearModule,
     VertebraArm,
@@ -60,7 +61,7 @@ from cdcr_ctl.model.vertebra import (
     VertebraJoint,
     rotvec_matrix,
 )
-from cdcr_ctl.model.vertebra_follow import SPEED_FRACTION
+from cdcr_ctl.model.vertebra_follow import SPEED_FRACTION, plan_session
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 KeyPath = tuple[str | int, ...]
@@ -497,6 +498,23 @@ def follow_params(cfg: Any) -> FollowParams:
     """The end-following planner's parameters of a vertebra rig config."""
     f = cfg.vertebra.follow
     return FollowParams(f.step_rad, f.theta_increment_rad, f.phi_increment_rad, f.theta_max_rad)
+
+
+def plan_follow_offline(
+    cfg: Any, script: list[Any], planner: EndFollowPlanner | None = None
+) -> tuple[np.ndarray, np.ndarray, EndFollowPlanner]:
+    """A scripted joystick session planned offline at the rig's loop rate and follow speed
+    (:func:`cdcr_ctl.model.vertebra_follow.plan_session`): (t_s (M,), psi (M, N, 2) rad, the
+    planner, for planning on from where the session left it)."""
+    if planner is None:
+        planner = EndFollowPlanner(vertebra_arm(cfg), follow_params(cfg))
+    t, psi, _ = plan_session(
+        planner,
+        script,
+        1.0 / cfg.control.rate_hz,
+        speed_fraction=cfg.vertebra.follow.speed_fraction,
+    )
+    return t, psi, planner
 
 
 def sensor_mounts(cfg: Any) -> list[np.ndarray] | None:

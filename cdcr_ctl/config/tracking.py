@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator, model_validator
 
 from cdcr_ctl.config.base import Section
 from cdcr_ctl.config.loadcells import SerialPortConfig
@@ -78,18 +78,89 @@ class AttitudeSensorsConfig(Section):
     stale_after_s: PositiveFloat = 0.1
 
 
-class JoystickConfig(Section):
-    """Joystick through Linux evdev: device and the axis codes of the two steering axes.
+#: URL scheme of the network joystick (:func:`cdcr_ctl.sensors.joystick.open_tcp_joystick`).
+TCP_SCHEME = "tcp://"
 
-    ``device``: an evdev node (``/dev/input/event5``, ``/dev/input/by-id/...-event-joystick``);
-    None: the first input device that has both axes. ``axis_x``/``axis_y``: evdev axis names
-    (``ABS_X``, ``ABS_RY``, ...). ``deadband``: fraction of the half-range around the centre that
-    reads as 0. ``invert_x``/``invert_y``: flip an axis (many sticks report "forward" as negative).
+
+def parse_tcp_url(url: str) -> tuple[str, int]:
+    """``tcp://HOST:PORT`` -> (host, port); ValueError saying what is wrong otherwise.
+
+    HOST is a name or an IPv4 address (an IPv6 address in brackets, ``tcp://[::1]:5000``);
+    PORT 1..65535; no user, path, query or fragment.
+    """
+    if not url.startswith(TCP_SCHEME):
+        raise ValueError(f"a network joystick is tcp://HOST:PORT, got {url!r}")
+    rest = url[len(TCP_SCHEME) :]
+    if any(c in rest for c in "/?#@"):
+        raise ValueError(f"tcp://HOST:PORT has no user, path, query or fragment: {url!r}")
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"tcp://HOST:PORT needs a host and a port: {url!r}")
+    if host.startswith("["):
+        if not host.endswith("]") or len(host) < 3:
+            raise ValueError(f"unbalanced brackets around the IPv6 address: {url!r}")
+        host = host[1:-1]
+    elif ":" in host or "[" in host or "]" in host:
+        raise ValueError(f"put an IPv6 address in brackets: {url!r}")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ValueError(f"port must be 1..65535: {url!r}")
+    return host, int(port)
+
+
+class AxisRangeConfig(Section):
+    """Raw range of the steering axes (device units): what evdev's absinfo says for a local
+    device. A network joystick sends only events (no absinfo), so its range comes from here."""
+
+    min: int = -32768
+    max: int = 32767
+
+    @model_validator(mode="after")
+    def _ordered(self) -> AxisRangeConfig:
+        if self.max <= self.min:
+            raise ValueError(f"max ({self.max}) must be above min ({self.min})")
+        return self
+
+
+class JoystickConfig(Section):
+    """Joystick: a local evdev device or a network joystick, and the two steering axes.
+
+    ``device``: an evdev node (an absolute path: ``/dev/input/event5``,
+    ``/dev/input/by-id/...-event-joystick``); ``tcp://HOST:PORT``: a network joystick, i.e. the
+    Linux ``struct input_event`` records of a device streamed over TCP by a sender that listens
+    there (:func:`cdcr_ctl.sensors.joystick.open_tcp_joystick`); None: the first local input
+    device that has both axes. ``axis_x``/``axis_y``: evdev axis names (``ABS_X``, ``ABS_RY``,
+    ...). ``axis_range``: raw range of both steering axes; required in effect for a network
+    joystick (default: signed 16 bit), and when given it overrides a local device's absinfo.
+    ``deadband``: fraction of the half-range around the centre that reads as 0.
+    ``invert_x``/``invert_y``: flip an axis (many sticks report "forward" as negative).
+    ``advance_button``: the "forward" button of end-following (paper Fig. 12), an evdev button
+    name. ``connect_timeout_s``: how long opening a network joystick waits for the sender (s).
     """
 
     device: str | None = None
     axis_x: str = "ABS_X"
     axis_y: str = "ABS_Y"
+    axis_range: AxisRangeConfig | None = None
     deadband: Annotated[float, Field(ge=0, lt=1)] = 0.05
     invert_x: bool = False
     invert_y: bool = False
+    advance_button: Annotated[str, Field(pattern=r"^(BTN|KEY)_[A-Z0-9_]+$")] = "BTN_SOUTH"
+    connect_timeout_s: PositiveFloat = 2.0
+
+    @field_validator("device")
+    @classmethod
+    def _device(cls, value: str | None) -> str | None:
+        if value is None:
+            return value
+        if "://" in value:
+            parse_tcp_url(value)
+        elif not value.startswith("/"):
+            raise ValueError(f"an evdev device is an absolute path or tcp://HOST:PORT: {value!r}")
+        return value
+
+    @property
+    def tcp_address(self) -> tuple[str, int] | None:
+        """(host, port) of a network joystick, None for an evdev device."""
+        if self.device is None or not self.device.startswith(TCP_SCHEME):
+            return None
+        return parse_tcp_url(self.device)

@@ -168,18 +168,10 @@ class CycleRow(Mapping[str, Any]):
 RowSink = Callable[[Mapping[str, float | str]], None]
 
 
-@dataclass
-class _Pending:
-    source: SetpointSource | None = None
-    run: RunInfo | None = None
-    sink: Any = None
-    cable_offset_target: np.ndarray | None = None
-    stop: Reaction | None = None
-    mode: str | None = None
-    reenabled: bool = False
-    home: np.ndarray | None = None
-    sink_change: bool = False
-    new_sink: Any = None
+#: A command posted to the loop thread: (kind, payload). Kinds: ``follow`` (source, run, sink),
+#: ``offset`` (cable offset target, mm), ``home`` (counts), ``sink``, ``mode``, ``stop``
+#: (Reaction), ``reenabled``. Applied at the start of the next cycle in the order posted.
+_Command = tuple[str, Any]
 
 
 #: Stages of a cycle timed by :class:`LoopCounters` (``time.perf_counter`` marks): read inputs
@@ -297,7 +289,9 @@ class ControlLoop:
         self.ticker = Ticker(cfg.period_s)
         self.counters = LoopCounters()
         self._lock = threading.Lock()
-        self._pending = _Pending()
+        self._pending: list[_Command] = []
+        #: The cable offset target the posted commands leave (jogs add to it); None: the loop's.
+        self._pending_offset: np.ndarray | None = None
         #: Set (under the lock) with every posted command: the cycle looks at the lock only then.
         self._has_pending = False
         self._stop_evt = threading.Event()
@@ -366,23 +360,23 @@ class ControlLoop:
             log_dir=str(getattr(sink, "run_dir", "") or ""),
         )
         with self._lock:
-            self._pending.source = source
-            self._pending.run = run
-            self._pending.sink = sink
-            self._has_pending = True
+            self._pending_offset = np.zeros_like(self._q_offset_target)
+            self._post("follow", (source, run, sink))
         return run
+
+    def _post(self, kind: str, payload: Any = None) -> None:
+        """Queue a command for the loop thread (caller holds the lock)."""
+        self._pending.append((kind, payload))
+        self._has_pending = True
 
     def jog_cable(self, cable: int, delta_mm: float) -> None:
         """Move cable ``cable`` (0-based) by ``delta_mm`` at the cable velocity limit."""
         with self._lock:
-            target = (
-                self._q_offset_target.copy()
-                if self._pending.cable_offset_target is None
-                else (self._pending.cable_offset_target.copy())
-            )
+            base = self._q_offset_target if self._pending_offset is None else self._pending_offset
+            target = base.copy()
             target[cable] += delta_mm
-            self._pending.cable_offset_target = target
-            self._has_pending = True
+            self._pending_offset = target
+            self._post("offset", target)
 
     def pause(self, paused: bool) -> None:
         """While paused the loop keeps reading feedback and logging but sends no RPDO or SYNC
@@ -392,26 +386,22 @@ class ControlLoop:
     def set_home(self, home_counts: Sequence[int]) -> None:
         """New home positions (counts at q = 0): the robot is straight there."""
         with self._lock:
-            self._pending.home = np.array(home_counts, dtype=np.int64)
-            self._has_pending = True
+            self._pending_offset = np.zeros_like(self._q_offset_target)
+            self._post("home", np.array(home_counts, dtype=np.int64))
 
     def attach_sink(self, sink: Any) -> None:
         """Log every cycle to ``sink`` (a manual log) or stop doing so (``None``)."""
         with self._lock:
-            self._pending.sink_change = True
-            self._pending.new_sink = sink
-            self._has_pending = True
+            self._post("sink", sink)
 
     def set_compensation(self, mode: str) -> None:
         """Compensation mode for holding and for runs that do not name one."""
         with self._lock:
-            self._pending.mode = mode
-            self._has_pending = True
+            self._post("mode", mode)
 
     def request_stop(self, reaction: Reaction) -> None:
         with self._lock:
-            self._pending.stop = reaction
-            self._has_pending = True
+            self._post("stop", reaction)
 
     @property
     def psi_cmd(self) -> np.ndarray:
@@ -474,42 +464,49 @@ class ControlLoop:
         if not self._has_pending:
             return
         with self._lock:
-            p = self._pending
-            self._pending = _Pending()
+            commands, self._pending = self._pending, []
+            self._pending_offset = None
             self._has_pending = False
-        if p.stop is not None:
-            self._react(Trip(OPERATOR_STOP, p.stop, "stop requested", now))
-        if p.source is not None:
+        for kind, payload in commands:
+            self._apply(kind, payload, now)
+
+    def _apply(self, kind: str, payload: Any, now: float) -> None:
+        """One posted command, on the loop thread."""
+        if kind == "stop":
+            self._react(Trip(OPERATOR_STOP, payload, "stop requested", now))
+        elif kind == "follow":
+            source, run, sink = payload
             if self.supervisor.trip is not None:
                 reason = f"refused: supervisor tripped ({self.supervisor.trip.cause})"
-                assert p.run is not None
-                p.run.state, p.run.end_reason = "refused", reason
-                self.history.append(p.run)
-                if p.sink is not None:
-                    p.sink.close(reason, outcome="refused", wait=False)
+                run.state, run.end_reason = "refused", reason
+                self.history.append(run)
+                if sink is not None:
+                    sink.close(reason, outcome="refused", wait=False)
             else:
                 self._finish_run("stopped", "replaced by a new run")
-                self._source, self._t_source0 = p.source, now
+                self._source, self._t_source0 = source, now
                 # Cable offsets (single-cable jogs, re-enable slack) ramp out at the velocity
                 # limit: a run commands absolute displacements.
                 self._q_offset_target = np.zeros_like(self._q_offset)
-                self._run, self._sink = p.run, p.sink
-        if p.cable_offset_target is not None:
-            self._q_offset_target = p.cable_offset_target
-        if p.mode is not None:
-            self._mode = p.mode
-            self.cfg.compensation = p.mode
-        if p.reenabled:
+                self._run, self._sink = run, sink
+        elif kind == "offset":
+            self._q_offset_target = payload
+        elif kind == "mode":
+            self._mode = payload
+            self.cfg.compensation = payload
+        elif kind == "reenabled":
             self._resume_after_enable()
-        if p.home is not None:
-            self.home_counts = p.home
+        elif kind == "home":
+            self.home_counts = payload
             self._psi_cmd = np.zeros_like(self._psi_cmd)
             self._source, self._t_source0 = Hold(self._psi_cmd), now
             self._q_offset[:] = 0.0
             self._q_offset_target[:] = 0.0
             self._model_state = self.model.new_state()
-        if p.sink_change:
-            self._manual_sink = p.new_sink
+        elif kind == "sink":
+            self._manual_sink = payload
+        else:  # pragma: no cover - a programming error
+            raise ValueError(f"unknown loop command {kind!r}")
 
     def _cycle(self, t_s: float, now: float, lateness_s: float) -> None:
         clock = time.perf_counter
@@ -672,8 +669,7 @@ class ControlLoop:
     def drives_reenabled(self) -> None:
         """Called by the daemon after re-enabling drives: resume sending computed targets."""
         with self._lock:
-            self._pending.reenabled = True
-            self._has_pending = True
+            self._post("reenabled")
 
     def _resume_after_enable(self) -> None:
         # Absorb the difference between where the drives are and where the command is into the

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from cdcr_ctl.config.control import LimitsConfig
@@ -81,10 +81,24 @@ class Supervisor:
     #: The worst limit violated in the last checked cycle, latched or not: the loop never sends a
     #: command that violates a limit, even while an earlier trip is latched.
     cycle_worst: Trip | None = None
+    #: More per-cycle checks (a session's own sensors, e.g. a joystick): each returns a Trip for
+    #: this cycle or None; their trips latch and escalate like the built-in limits'. Replaced as
+    #: a whole (:meth:`add_check`, :meth:`remove_check`) so the loop thread sees a consistent tuple.
+    extra_checks: tuple[Callable[[CycleCheck], Trip | None], ...] = ()
+
+    def add_check(self, check: Callable[[CycleCheck], Trip | None]) -> None:
+        self.extra_checks = (*self.extra_checks, check)
+
+    def remove_check(self, check: Callable[[CycleCheck], Trip | None]) -> None:
+        self.extra_checks = tuple(c for c in self.extra_checks if c != check)  # bound methods: ==
 
     def check(self, c: CycleCheck) -> Trip | None:
         """The most severe new trip of this cycle (None when all is well or already latched)."""
         found = self._find(c)
+        for extra in self.extra_checks:
+            trip = extra(c)
+            if trip is not None:
+                found.append(trip)
         if not found:
             self.cycle_worst = None
             return None

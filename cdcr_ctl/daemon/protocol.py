@@ -75,6 +75,17 @@ class TrajectoryArgs(_Args):
     log: bool = True
 
 
+class JoystickArgs(_Args):
+    """A live joystick end-following session (vertebra arm): ``seconds`` limit (None: until
+    ``stop``), compensation mode of the run, log it (run directory like a trajectory's),
+    run name for the log."""
+
+    seconds: Annotated[float, Field(gt=0, le=24 * 3600, allow_inf_nan=False)] | None = None
+    compensation: Literal["off", "model", "measured"] | None = None
+    log: bool = True
+    name: Annotated[str, Field(min_length=1, max_length=200)] = "joystick"
+
+
 class StopArgs(_Args):
     mode: Literal["halt", "quick_stop"] = "quick_stop"
 
@@ -101,6 +112,7 @@ COMMANDS: dict[str, type[_Args]] = {
     "home": NoArgs,
     "jog": JogArgs,
     "trajectory": TrajectoryArgs,
+    "joystick": JoystickArgs,
     "stop": StopArgs,
     "log_start": LogStartArgs,
     "log_stop": NoArgs,

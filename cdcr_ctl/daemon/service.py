@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.control.loop import ControlLoop, LoopConfig
+from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.ports import DrivePort, RobotModelPort, TensionPort, TipPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
+from cdcr_ctl.daemon.joystick import JoystickSession
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.protocol import ProtocolError, Request
 from cdcr_ctl.daemon.server import ControlServer
@@ -36,6 +37,8 @@ LOOP_JOIN_TIMEOUT_S = 2.0
 #: The lead-in move before a trajectory keeps its fastest cable within this fraction of
 #: ``limits.cable_velocity_mm_s`` (the rest is room for the compensation's own motion).
 LEAD_IN_CABLE_FRACTION = 0.5
+#: Longest wait of a run request (trajectory, jog, joystick) for the loop to take it up (s).
+RUN_PICKUP_TIMEOUT_S = 1.0
 
 
 @dataclass
@@ -62,7 +65,10 @@ class Daemon:
         run_sink_factory: Callable[..., Any],
         trajectory_factory: Callable[..., Any],
         notifier: SystemdNotifier | None = None,
+        joystick_opener: Callable[..., Any] | None = None,
     ) -> None:
+        """``joystick_opener(JoystickConfig)`` opens the rig's joystick for a ``joystick``
+        session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`)."""
         self.cfg = cfg
         self.config_path = config_path
         self.io = io
@@ -100,6 +106,11 @@ class Daemon:
         self.homed = False
         self._manual_sink: Any = None
         self.server: ControlServer | None = None
+        self._open_joystick = joystick_opener
+        self._session: JoystickSession | None = None
+        #: The last run handed to the loop: "running" from then on, even before the loop takes
+        #: it up, until the loop ends it.
+        self._last_run: Any = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -148,6 +159,7 @@ class Daemon:
         steps: list[tuple[str, Callable[[], None]]] = [
             ("halt", lambda: self.loop.request_stop(Reaction.HALT)),
             ("settle", lambda: time.sleep(3 * self.loop.cfg.period_s)),
+            ("joystick", lambda: self._session.shutdown() if self._session else None),
             ("manual log", self._close_manual_sink),
             ("disable drives", self.io.drives.disable),
             ("traffic log", lambda: getattr(self.io.drives, "log_traffic", lambda p: None)(None)),
@@ -205,6 +217,7 @@ class Daemon:
             "runs": [r.__dict__ for r in self.loop.history[-10:]],
             "loop": snap,
             "logging": self._manual_sink is not None,
+            "joystick": None if self._session is None else self._session.status(),
         }
 
     def _cmd_enable(self, args: Any) -> dict[str, Any]:
@@ -232,6 +245,9 @@ class Daemon:
         finally:
             self.loop.pause(False)
         self.loop.set_home(home)
+        # A run posted in the same cycle as the new home would be replaced by the home's hold
+        # before it ever ran: reply once the loop has taken the home up.
+        self._wait_cycles(2)
         self.homed = True
         return {"home_counts": list(home)}
 
@@ -256,7 +272,8 @@ class Daemon:
             goal = start.copy()
             goal[args.segment - 1] = (args.theta_rad, args.phi_rad)
             traj = self.new_trajectory.move(start, goal, speed_rad_s=args.speed)
-            run = self.loop.follow(traj, f"jog seg{args.segment}", None, None)
+            run = self._last_run = self.loop.follow(traj, f"jog seg{args.segment}", None, None)
+            self._wait_picked_up(run)
             return {"run": run.id, "duration_s": run.duration_s}
         if args.cable > K:
             raise ProtocolError(f"rig has {K} cables", field="args.cable")
@@ -306,13 +323,82 @@ class Daemon:
         if args.log:
             sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
             self._log_traffic(sink)
-        run = self.loop.follow(traj, args.name, args.compensation, sink)
+        run = self._last_run = self.loop.follow(traj, args.name, args.compensation, sink)
+        return self._started(run)
+
+    def _started(self, run: RunInfo, **extra: Any) -> dict[str, Any]:
+        """Reply to a command that started ``run``, once the loop has taken it up."""
+        self._wait_picked_up(run)
         return {
             "run": run.id,
             "duration_s": run.duration_s,
             "log_dir": run.log_dir,
             "compensation": run.compensation,
+            **extra,
         }
+
+    def _cmd_joystick(self, args: Any) -> dict[str, Any]:
+        """A live end-following session from the rig's joystick (:mod:`.joystick`): the stick
+        is opened now and closed when the run ends (stop, ``seconds``, a trip, a new run)."""
+        self._require_ready()
+        prev = self._session
+        if prev is not None and prev.active:
+            if prev.run.state == "running":
+                raise RigError(
+                    f"joystick session {prev.run.id} is running: `cdcr-ctl stop` it first"
+                )
+            prev.close()  # its run has ended; its watcher had not caught up yet
+        last = self._last_run
+        if last is not None and last.state == "running":
+            # The session plans from the commanded pose: it must be standing still.
+            raise RigError(f"run {last.name!r} is in progress: stop it first")
+        opener = self._open_joystick
+        if opener is None:
+            from cdcr_ctl.sensors.joystick import open_joystick as opener
+        session = JoystickSession.open(
+            self.cfg,
+            self.config_path,
+            self.loop.psi_cmd,
+            opener,
+            duration_s=math.inf if args.seconds is None else args.seconds,
+        )
+        try:
+            sink = None
+            if args.log:
+                sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
+                self._log_traffic(sink)
+            self.supervisor.add_check(session.check)
+            run = self._last_run = self.loop.follow(
+                session.source, args.name, args.compensation, sink
+            )
+        except BaseException:
+            session.close()
+            raise
+        session.attach(run, self.supervisor)
+        self._session = session
+        return self._started(run, device=session.device)
+
+    def _wait_picked_up(self, run: Any) -> None:
+        """Return once the loop runs ``run`` (or ended it): a ``stop`` posted in the same cycle
+        as a new run is applied before the run starts and would be lost, so the reply to a run
+        request (trajectory, jog, joystick) means the run is running. Bounded:
+        ``RUN_PICKUP_TIMEOUT_S`` (a loop that is not running does not hold the reply up)."""
+        end = time.monotonic() + RUN_PICKUP_TIMEOUT_S
+        while self.loop.running and time.monotonic() < end and run.state == "running":
+            current = self.loop.snapshot()["run"]
+            if current is not None and current["id"] == run.id:
+                return
+            time.sleep(self.loop.cfg.period_s / 2)
+
+    def _wait_cycles(self, n: int) -> None:
+        """Return after ``n`` more loop cycles (a command posted before them has been taken
+        up); bounded by ``RUN_PICKUP_TIMEOUT_S``, at once when the loop is not running."""
+        start = self.loop.counters.cycles
+        end = time.monotonic() + RUN_PICKUP_TIMEOUT_S
+        while (
+            self.loop.running and self.loop.counters.cycles < start + n and time.monotonic() < end
+        ):
+            time.sleep(self.loop.cfg.period_s / 2)
 
     def _cmd_stop(self, args: Any) -> dict[str, Any]:
         reaction = Reaction.QUICK_STOP if args.mode == "quick_stop" else Reaction.HALT

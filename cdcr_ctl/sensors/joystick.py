@@ -5,7 +5,10 @@ terms (``EV_ABS`` axis moves, ``EV_KEY`` button presses, ``EV_SYN`` reports), wh
 ``None`` as an idle tick (lets the thread notice ``stop()``). Tests and the simulated rig inject a
 list or a scripted source (``cdcr_ctl.sim.joystick``); :func:`open_evdev_joystick` makes one from
 a real device with python-evdev, an optional dependency (``pip install 'cdcr-ctl[joystick]'``)
-imported only there.
+imported only there. :func:`open_tcp_joystick` makes one from a *network joystick*: the kernel's
+``struct input_event`` records of a device streamed over TCP (:class:`InputEventParser`), the way
+netevent-style tools and ``socat -u /dev/input/eventN TCP-LISTEN:PORT`` forward input devices;
+:func:`open_joystick` picks the transport from the config's ``device``.
 
 State is published atomically at each ``SYN_REPORT`` (the kernel's end of a consistent set).
 After ``SYN_DROPPED`` (the kernel's buffer overflowed) events are ignored up to the next report,
@@ -22,6 +25,8 @@ from __future__ import annotations
 import contextlib
 import math
 import select
+import socket
+import struct
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -98,6 +103,8 @@ BUTTON_CODES: Mapping[str, int] = MappingProxyType({v: k for k, v in BUTTON_NAME
 
 #: Longest wait of the evdev source for an event before yielding an idle tick (s).
 EVDEV_POLL_S = 0.02
+#: Highest event type of the kernel ABI (EV_MAX, linux/input-event-codes.h).
+EV_MAX = 0x1F
 
 Event = tuple[int, int, int]
 
@@ -374,13 +381,22 @@ def _evdev_events(device: Any, name: str) -> Iterator[Event | None]:
             raise SensorError(name, f"joystick disconnected: {exc}") from exc
 
 
+def _config_ranges(cfg: JoystickConfig) -> dict[int, AxisRange]:
+    """The steering axes' raw range from ``cfg.axis_range`` (empty when not given)."""
+    if cfg.axis_range is None:
+        return {}
+    r = AxisRange(cfg.axis_range.min, cfg.axis_range.max)
+    return {axis_code(cfg.axis_x): r, axis_code(cfg.axis_y): r}
+
+
 def open_evdev_joystick(
     cfg: JoystickConfig, *, clock: Clock = time.monotonic, start: bool = True
 ) -> Joystick:
     """Open the evdev device of ``cfg`` (or the first with both axes) and start a reader.
 
-    Raises :class:`SensorError` when python-evdev is missing, the device cannot be opened or
-    lacks an axis; ValueError for an unknown axis name.
+    Axis ranges come from the device's absinfo; ``cfg.axis_range``, when given, overrides
+    them for the two steering axes. Raises :class:`SensorError` when python-evdev is missing,
+    the device cannot be opened or lacks an axis; ValueError for an unknown axis name.
     """
     codes = (axis_code(cfg.axis_x), axis_code(cfg.axis_y))
     where = cfg.device or "evdev"
@@ -398,6 +414,7 @@ def open_evdev_joystick(
         device.close()
         raise SensorError(name, f"joystick has no axis {', '.join(missing)}")
     ranges = {c: AxisRange(i.min, i.max) for c, i in info.items() if i.max > i.min}
+    ranges.update(_config_ranges(cfg))
 
     def resync() -> tuple[dict[int, int], list[int]]:
         now = _abs_info(device)
@@ -418,3 +435,225 @@ def open_evdev_joystick(
         clock=clock,
     )
     return stick.start() if start else stick
+
+
+# -- network joystick: struct input_event over TCP ------------------------------------------
+
+#: ``struct input_event`` of a 64-bit Linux (linux/input.h): struct timeval {int64 tv_sec,
+#: int64 tv_usec}, uint16 type, uint16 code, int32 value; little endian, 24 bytes, no padding.
+INPUT_EVENT = struct.Struct("<qqHHi")
+INPUT_EVENT_SIZE = INPUT_EVENT.size  # 24
+#: How long the TCP source waits for bytes before yielding an idle tick (s).
+TCP_POLL_S = 0.02
+#: TCP keep-alive of the network joystick: probes after this much silence (s), this often (s),
+#: this many unanswered probes = the sender is gone. A joystick held still sends nothing, so
+#: silence alone never means a disconnect; the kernel's probes tell a dead peer (cable pulled,
+#: host down) from a quiet one within ~idle + interval * count seconds.
+TCP_KEEPIDLE_S = 1
+TCP_KEEPINTVL_S = 1
+TCP_KEEPCNT = 3
+
+
+@dataclass(frozen=True, slots=True)
+class InputEvent:
+    """One decoded ``struct input_event``: the sender's timestamp (s, us), type, code, value."""
+
+    sec: int
+    usec: int
+    type: int
+    code: int
+    value: int
+
+    @property
+    def event(self) -> Event:
+        """As the reader takes it: ``(type, code, value)``."""
+        return (self.type, self.code, self.value)
+
+
+def pack_input_event(type_: int, code: int, value: int, t_s: float = 0.0) -> bytes:
+    """The 24-byte record of one event at time ``t_s`` (s, sender clock), as the kernel writes
+    it to a reader of ``/dev/input/eventN`` on a 64-bit machine."""
+    sec = math.floor(t_s)
+    usec = min(999_999, round((t_s - sec) * 1e6))
+    return INPUT_EVENT.pack(sec, usec, type_, code, value)
+
+
+class InputEventError(SensorError):
+    """The byte stream is not a sequence of ``struct input_event`` records; ``offset`` is the
+    byte offset (from the start of the stream) of the record at fault."""
+
+    def __init__(self, port: str, offset: int, message: str) -> None:
+        self.offset = offset
+        super().__init__(port, f"byte {offset}: {message}")
+
+
+class InputEventParser:
+    """Incremental decoder of a stream of 24-byte ``struct input_event`` records.
+
+    :meth:`feed` takes bytes as they arrive (records may be split anywhere across calls) and
+    returns the complete records; the rest waits for the next call. A record that cannot be an
+    input event (type above :data:`EV_MAX`, microseconds outside 0..999999, negative seconds)
+    raises :class:`InputEventError` naming its byte offset: the stream has no sync marks, so
+    after such a record nothing that follows can be trusted and the parser stays failed. The
+    good records before it in the same call are returned first and the error is raised by the
+    next call (:meth:`check`, :meth:`feed` or :meth:`eof`), so no good event is lost.
+    :meth:`eof` checks that the stream ended on a record boundary.
+    """
+
+    def __init__(self, port: str = "joystick") -> None:
+        self.port = port
+        #: Bytes taken in so far; the offset of the next record is ``offset - len(pending)``.
+        self.offset = 0
+        self.records = 0
+        self._buf = bytearray()
+        self._failed: InputEventError | None = None
+
+    @property
+    def pending(self) -> int:
+        """Bytes of an incomplete record waiting for the rest."""
+        return len(self._buf)
+
+    def check(self) -> None:
+        """Raise the :class:`InputEventError` of a bad record seen so far, if any."""
+        if self._failed is not None:
+            raise self._failed
+
+    def feed(self, data: bytes) -> list[InputEvent]:
+        """Decode what ``data`` completes; :class:`InputEventError` on a bad record (see the
+        class docstring for the records before it)."""
+        self.check()
+        self._buf += data
+        self.offset += len(data)
+        n = len(self._buf) // INPUT_EVENT_SIZE
+        out: list[InputEvent] = []
+        base = self.offset - len(self._buf)
+        for i in range(n):
+            sec, usec, type_, code, value = INPUT_EVENT.unpack_from(self._buf, i * INPUT_EVENT_SIZE)
+            problem = ""
+            if type_ > EV_MAX:
+                problem = f"event type 0x{type_:04x} above EV_MAX (0x{EV_MAX:02x})"
+            elif not 0 <= usec <= 999_999:
+                problem = f"tv_usec {usec} outside 0..999999"
+            elif sec < 0:
+                problem = f"tv_sec {sec} negative"
+            if problem:
+                self._failed = InputEventError(
+                    self.port,
+                    base + i * INPUT_EVENT_SIZE,
+                    f"not a struct input_event record ({problem}; 24-byte records of a 64-bit"
+                    " kernel expected)",
+                )
+                del self._buf[:]
+                self.records += len(out)
+                if out:
+                    return out
+                raise self._failed
+            out.append(InputEvent(sec, usec, type_, code, value))
+        del self._buf[: n * INPUT_EVENT_SIZE]
+        self.records += n
+        return out
+
+    def eof(self) -> None:
+        """The stream ended: :class:`InputEventError` if it stopped inside a record."""
+        self.check()
+        if self._buf:
+            raise InputEventError(
+                self.port,
+                self.offset - len(self._buf),
+                f"stream ended {len(self._buf)} byte(s) into a {INPUT_EVENT_SIZE}-byte record",
+            )
+
+
+def _tcp_events(
+    sock: socket.socket, name: str, poll_s: float = TCP_POLL_S
+) -> Iterator[Event | None]:
+    """Event source over a connected socket: records -> events, ``None`` while idle.
+
+    The peer closing the connection, a reset, keep-alive failure or a bad record raise
+    :class:`SensorError` (the device is gone: a network joystick does not end normally).
+    """
+    parser = InputEventParser(name)
+    while True:
+        try:
+            ready, _, _ = select.select([sock], [], [], poll_s)
+            if not ready:
+                yield None
+                continue
+            data = sock.recv(INPUT_EVENT_SIZE * 256)
+        except (OSError, ValueError) as exc:  # ValueError: select on a closed socket
+            raise SensorError(name, f"joystick disconnected: {exc}") from exc
+        if not data:
+            parser.eof()
+            raise SensorError(
+                name,
+                f"joystick disconnected: the sender closed the connection at byte {parser.offset}",
+            )
+        for ev in parser.feed(data):
+            yield ev.event
+        parser.check()
+
+
+def _keepalive(sock: socket.socket) -> None:
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+    for opt, value in (
+        ("TCP_KEEPIDLE", TCP_KEEPIDLE_S),
+        ("TCP_KEEPINTVL", TCP_KEEPINTVL_S),
+        ("TCP_KEEPCNT", TCP_KEEPCNT),
+    ):
+        if hasattr(socket, opt):  # Linux
+            sock.setsockopt(socket.IPPROTO_TCP, getattr(socket, opt), value)
+
+
+def open_tcp_joystick(
+    cfg: JoystickConfig,
+    *,
+    clock: Clock = time.monotonic,
+    start: bool = True,
+    sock: socket.socket | None = None,
+) -> Joystick:
+    """Connect to the network joystick ``cfg.device`` (``tcp://HOST:PORT``) and start a reader.
+
+    The sender streams ``struct input_event`` records (:data:`INPUT_EVENT`) of its device. There
+    is no absinfo over the wire: the steering axes' raw range is ``cfg.axis_range`` (default
+    signed 16 bit, :data:`DEFAULT_RANGE`) and the axes read 0 until their first event. ``sock``:
+    an already connected socket (tests); else one is connected within ``cfg.connect_timeout_s``.
+    Raises :class:`SensorError` naming the address when nobody answers there.
+    """
+    address = cfg.tcp_address
+    if address is None:
+        raise ValueError(f"not a network joystick: {cfg.device!r}")
+    name = str(cfg.device)
+    if sock is None:
+        try:
+            sock = socket.create_connection(address, timeout=cfg.connect_timeout_s)
+        except OSError as exc:
+            raise SensorError(name, f"cannot connect to the network joystick: {exc}") from exc
+    try:
+        sock.settimeout(None)
+        sock.setblocking(True)
+        _keepalive(sock)
+        stick = Joystick(
+            _tcp_events(sock, name),
+            name=name,
+            axis_x=cfg.axis_x,
+            axis_y=cfg.axis_y,
+            axis_ranges=_config_ranges(cfg),
+            deadband=cfg.deadband,
+            invert_x=cfg.invert_x,
+            invert_y=cfg.invert_y,
+            closer=sock.close,
+            clock=clock,
+        )
+    except BaseException:
+        sock.close()
+        raise
+    return stick.start() if start else stick
+
+
+def open_joystick(
+    cfg: JoystickConfig, *, clock: Clock = time.monotonic, start: bool = True
+) -> Joystick:
+    """The joystick of ``cfg``: a network joystick for ``tcp://`` devices, evdev otherwise."""
+    if cfg.tcp_address is not None:
+        return open_tcp_joystick(cfg, clock=clock, start=start)
+    return open_evdev_joystick(cfg, clock=clock, start=start)

@@ -14,7 +14,10 @@ simulator with the rig config unchanged.
 The truth is the rig's design's (:func:`cdcr_ctl.sim.design_truth.make_truth`): constant-curvature
 disks, universal-joint segments or vertebrae. A rig with ``sensors.attitude`` (the vertebra arm)
 gets one simulated WitMotion sensor per joint end on a pty (symlinked to its configured port),
-reading the truth's joint-end orientation.
+reading the truth's joint-end orientation. A rig whose ``sensors.joystick.device`` is
+``tcp://127.0.0.1:PORT`` gets a simulated network joystick there
+(:class:`cdcr_ctl.sim.joystick.NetworkJoystickServer`) that plays the simulator config's stick
+script (``joystick:``; the paper's Fig. 12 session by default) to each client that connects.
 """
 
 from __future__ import annotations
@@ -73,6 +76,7 @@ class SimRig:
         self.load_cells: Any = None
         self.tracker: Any = None
         self.attitude: list[Any] = []
+        self.joystick: Any = None
         self._links: list[Path] = []
 
     # ------------------------------------------------------------------ lifecycle
@@ -80,6 +84,10 @@ class SimRig:
         from cdcr_ctl.sim.epos.rig import SimDriveBus  # the simulated EPOS nodes on their bus
 
         noise = self.loaded.sim.noise
+        js = self.rig.sensors.joystick
+        if js is not None and js.tcp_address is not None:
+            # First: a taken port fails here, before any other device runs.
+            self.joystick = network_joystick(self.loaded).start()
         if self.rig.sensors.load_cells is not None:
             lc = self.rig.sensors.load_cells
             link = lc.serial.port if self.link_paths else None
@@ -150,7 +158,7 @@ class SimRig:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5.0)
-        for dev in (self.drives, self.load_cells, self.tracker, *self.attitude):
+        for dev in (self.joystick, self.drives, self.load_cells, self.tracker, *self.attitude):
             if dev is not None:
                 with contextlib.suppress(Exception):
                     dev.stop()
@@ -177,6 +185,12 @@ class SimRig:
             info["load_cells"] = {"port": str(self.load_cells.path)}
         if self.attitude:
             info["attitude"] = [str(dev.path) for dev in self.attitude]
+        if self.joystick is not None:
+            info["joystick"] = {
+                "url": self.joystick.url,
+                "script": self.loaded.sim.joystick.script,
+                "format": "struct input_event, 24-byte records, little endian",
+            }
         if self.tracker is not None:
             info["tracker"] = {
                 "host": self.rig.sensors.tracker.host,
@@ -204,3 +218,60 @@ class SimRig:
                 next_t = time.monotonic()
             else:
                 self._stop.wait(wait)
+
+
+def stick_script(loaded: LoadedSim) -> list[Any]:
+    """The simulator config's stick session as :class:`~cdcr_ctl.sim.joystick.JoystickFrame`
+    keyframes (times from the connection, s): ``paper`` or a YAML script file."""
+    from cdcr_ctl.model.vertebra_follow import paper_session
+    from cdcr_ctl.sim.joystick import JoystickFrame, load_stick_script
+
+    cfg = loaded.sim.joystick
+    js = loaded.rig.sensors.joystick
+    assert js is not None
+    if cfg.script == "paper":
+        frames = [
+            JoystickFrame(f.t_s, f.x, f.y, f.buttons)
+            for f in paper_session(js.advance_button, scale=cfg.scale)
+        ]
+    else:
+        frames = load_stick_script(loaded.path.parent / cfg.script)
+    cut = cfg.disconnect_after_s
+    if cut is not None:
+        before = [f for f in frames if f.t_s <= cut]
+        last = before[-1] if before else JoystickFrame(0.0)
+        frames = [*before, JoystickFrame(cut, last.x, last.y, last.buttons)]
+    return frames
+
+
+def network_joystick(loaded: LoadedSim) -> Any:
+    """A (not started) :class:`~cdcr_ctl.sim.joystick.NetworkJoystickServer` on the rig's
+    ``sensors.joystick.device`` address, playing :func:`stick_script` to each client.
+
+    The frames are the operator's intent; the raw values sent are what the configured stick
+    reports (an inverted axis is sent inverted, so the controller's ``invert_*`` undoes it).
+    """
+    from cdcr_ctl.sensors.joystick import DEFAULT_RANGE, AxisRange
+    from cdcr_ctl.sim.joystick import JoystickFrame, NetworkJoystickServer, ScriptedJoystick
+
+    js = loaded.rig.sensors.joystick
+    assert js is not None and js.tcp_address is not None
+    host, port = js.tcp_address
+    sx = -1.0 if js.invert_x else 1.0
+    sy = -1.0 if js.invert_y else 1.0
+    frames = [JoystickFrame(f.t_s, sx * f.x, sy * f.y, f.buttons) for f in stick_script(loaded)]
+    rng = (
+        DEFAULT_RANGE if js.axis_range is None else AxisRange(js.axis_range.min, js.axis_range.max)
+    )
+    disconnect = loaded.sim.joystick.disconnect_after_s is not None
+
+    def source() -> ScriptedJoystick:
+        return ScriptedJoystick(
+            frames,
+            axis_x=js.axis_x,
+            axis_y=js.axis_y,
+            axis_range=rng,
+            disconnect_at_end=disconnect,
+        )
+
+    return NetworkJoystickServer(source, host=host, port=port)

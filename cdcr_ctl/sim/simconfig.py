@@ -63,12 +63,30 @@ class AttitudeSimConfig(Section):
     latency_s: NonNegativeFloat = 0.0
 
 
+class JoystickSimConfig(Section):
+    """The simulated network joystick of a rig whose ``sensors.joystick.device`` is
+    ``tcp://127.0.0.1:PORT``: what each connecting client gets.
+
+    ``script``: ``paper`` (the fuel-tank paper's Fig. 12 session,
+    :func:`cdcr_ctl.model.vertebra_follow.paper_session`, with the rig's advance button) or a
+    YAML stick script (:func:`cdcr_ctl.sim.joystick.load_stick_script`; a path relative to this
+    file). ``scale``: shortens the paper session's bend moves (0, 1]. ``disconnect_after_s``:
+    drop the connection this long after the client connected (s; a sender unplugged
+    mid-session); None: keep it until the client leaves.
+    """
+
+    script: Annotated[str, Field(min_length=1)] = "paper"
+    scale: Annotated[float, Field(gt=0, le=1)] = 1.0
+    disconnect_after_s: PositiveFloat | None = None
+
+
 class SimConfig(Section):
     """Top level of a simulator YAML file.
 
     ``truth_design``: merged over the rig's design section (``ujoint:``/``vertebra:``) for the
     world (:func:`cdcr_ctl.sim.design_truth.truth_rig_config`); ``attitude``: the simulated
-    attitude sensors of a rig with ``sensors.attitude``.
+    attitude sensors of a rig with ``sensors.attitude``; ``joystick``: the stick session the
+    simulated network joystick plays (a rig whose joystick device is ``tcp://``).
     """
 
     rig: Annotated[str, Field(min_length=1)]
@@ -78,6 +96,7 @@ class SimConfig(Section):
     effects: TruthEffects = Field(default_factory=TruthEffects)
     noise: NoiseConfig = Field(default_factory=NoiseConfig)
     tracker: TrackerSimConfig = Field(default_factory=TrackerSimConfig)
+    joystick: JoystickSimConfig = Field(default_factory=JoystickSimConfig)
     physics_rate_hz: PositiveFloat = 500.0
     seed: int = 1
 

@@ -306,3 +306,40 @@ def test_a_cycle_that_raises_quick_stops_the_drives_and_the_loop_goes_on():
         loop.stop()
     assert sup.trip.cause == "loop_exception" and sup.trip.reaction is Reaction.QUICK_STOP
     assert "ZeroDivisionError: a bug" in sup.trip.detail
+
+
+def test_commands_of_one_cycle_apply_in_the_order_posted():
+    """Commands posted between two cycles all apply at the next one, in posting order: a stop
+    after a new run ends that run; a run after a home is not replaced by the home's hold."""
+    loop, drives, _, _ = make_loop()
+    first = ListSink()
+    run1 = loop.follow(Ramp(0.5, 5.0), "ramp", "off", first)
+    loop.request_stop(Reaction.HALT)
+    loop.start()
+    try:
+        assert wait_until(lambda: run1.state != "running")
+        assert run1.state == "stopped" and first.closed.startswith("operator_stop")
+        loop.set_home([0, 0, 0])
+        second = ListSink()
+        run2 = loop.follow(Ramp(0.5, 0.1), "ramp", "off", second)
+        assert wait_until(lambda: run2.state != "running")
+    finally:
+        loop.stop()
+    assert run2.state == "completed", run2.end_reason
+    # The run moved from the new home: theta 0.5 -> q1 = 5 mm -> 5000 counts from 0.
+    assert drives.sent[-1][0] == 5000
+
+
+def test_jogs_after_a_new_run_in_the_same_cycle_add_up_and_are_kept():
+    loop, drives, _, _ = make_loop()
+    loop.follow(Hold(np.zeros((1, 2))), "hold", "off")
+    loop.jog_cable(0, 1.5)
+    loop.jog_cable(0, 0.5)
+    loop.start()
+    try:
+        # cable 1: home 100 counts + 2.0 mm x 1000 counts/mm, reached at the offset ramp rate
+        assert wait_until(lambda: drives.sent and drives.sent[-1][0] == 2100)
+        time.sleep(0.05)
+    finally:
+        loop.stop()
+    assert drives.sent[-1] == [2100, 200, 300]

@@ -22,7 +22,7 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.protocol import COMMANDS, ProtocolError, encode_request, parse_request
 from cdcr_ctl.drives.emcy import decode_emcy, encode_emcy
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.sensors import attitude, loadcell_ascii, natnet
+from cdcr_ctl.sensors import attitude, joystick, loadcell_ascii, natnet
 from cdcr_ctl.sensors import loadcell_modbus as mb
 from cdcr_ctl.sensors.tracker import format_stream_line, parse_stream_line
 from cdcr_ctl.sim.slcan_device import decode_frame
@@ -297,6 +297,24 @@ def run_slcan(data: bytes) -> None:
     decode_frame(data.decode("latin-1"))
 
 
+# ---------------------------------------------------------------- network joystick
+_JOYSTICK_SEEDS = [
+    joystick.pack_input_event(joystick.EV_ABS, 0, 120, 1.5)
+    + joystick.pack_input_event(joystick.EV_KEY, 304, 1, 1.5)
+    + joystick.pack_input_event(joystick.EV_SYN, joystick.SYN_REPORT, 0, 1.5)
+]
+
+
+def run_joystick_events(data: bytes) -> None:
+    """The TCP joystick's record stream, split in three reads, then its end."""
+    parser = joystick.InputEventParser("fuzz")
+    third = max(1, len(data) // 3)
+    for part in (data[:third], data[third : 2 * third], data[2 * third :]):
+        for ev in parser.feed(part):
+            assert 0 <= ev.usec <= 999_999 and ev.type <= joystick.EV_MAX
+    parser.eof()
+
+
 @dataclass(frozen=True)
 class Target:
     name: str
@@ -317,6 +335,7 @@ TARGETS = [
     Target("attitude_witmotion", lambda: inputs(_WIT_SEEDS), run_attitude),
     Target("emcy_decode", lambda: inputs(_EMCY_SEEDS, 16), run_emcy),
     Target("slcan_adapter", lambda: inputs(_SLCAN_SEEDS, 40), run_slcan),
+    Target("joystick_input_events", lambda: inputs(_JOYSTICK_SEEDS, 120), run_joystick_events),
 ]
 
 
