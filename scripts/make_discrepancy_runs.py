@@ -9,11 +9,13 @@ commands, and the run directory is written with the project's run-log writer in 
 The world is :class:`cdcr_ctl.sim.truth.TruthModel` (the simulator's physics, with its backlash
 and counts-per-mm error), stepped once per control cycle, offline (the quasi-static truth is rate
 independent, so a 60 s run takes seconds). What the controller would measure is made the way the
-simulated devices make it: drives follow the command one cycle late and report whole counts
-(converted with the controller's counts_per_mm), load cells read the truth tensions at their
-location with Gaussian noise, the tracker samples the truth at its rate with its latency and noise
-and reports through the true tracker alignment (``effects.tracker_offset``) read back with the
-controller's ``base_from_tracker``.
+simulated devices make it: the command is the control loop's (the controller's model,
+``q_command`` in the rig config's compensation mode as the daemon runs it, unless the supervisor
+would halt that run: :func:`compensation_mode`), drives follow the command one cycle late and
+report whole counts (converted with the controller's counts_per_mm), load cells read the truth
+tensions at their location with Gaussian noise, the tracker samples the truth at its rate with
+its latency and noise and reports through the true tracker alignment
+(``effects.tracker_offset``) read back with the controller's ``base_from_tracker``.
 
 Which effect is hidden: the simulator YAML's stem names it (``disk_friction``, ``cable_elongation``,
 ``pulley_losses``, ``gravity_sag``, ``coupling``, ``backlash``, ``actuator_scale``,
@@ -21,6 +23,10 @@ Which effect is hidden: the simulator YAML's stem names it (``disk_friction``, `
 (friction, elongation, pulley friction, gravity, coupling) the controller's model has the switch
 off, and the run says so in ``run.yaml`` (``extra.model_effects``: what a controller built with
 those switches records); the other three live only in the truth.
+
+How far it bends: by default up to 90 deg per segment (Qi et al. 2023's experiments) within
+the rig's own limits (:func:`trajectory_within_limits`); the friction, elongation and gravity
+effects all grow with the bend, so a timid trajectory hides them.
 
 Usage::
 
@@ -45,9 +51,11 @@ if str(ROOT) not in sys.path:
 
 from cdcr_ctl.config.build_model import build_cc_disk_model  # noqa: E402
 from cdcr_ctl.control.trajectory import Trajectory, psi_from_vectors, random_smooth  # noqa: E402
+from cdcr_ctl.errors import ModelError  # noqa: E402
 from cdcr_ctl.model.effects import rotation_from_rotvec  # noqa: E402
 from cdcr_ctl.model.params import Effects  # noqa: E402
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, sample_columns  # noqa: E402
+from cdcr_ctl.runlog.columns import group_of  # noqa: E402
 from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML  # noqa: E402
 from cdcr_ctl.sim.simconfig import load_sim_config  # noqa: E402
 from cdcr_ctl.sim.truth import TruthModel  # noqa: E402
@@ -62,6 +70,21 @@ SWITCH_OF = {
     "coupling": "coupling",
 }
 HIDDEN = ("none", *SWITCH_OF, "backlash", "actuator_scale", "tracker_offset")
+TRAJECTORIES = ("rich", "random", "circle")
+#: Column groups a partial log may lack (``--drop``).
+DROPPABLE = ("tension", "q_act", "tip")
+#: Largest bend (rad, per segment) of a generated trajectory when none is given: Qi et al. 2023
+#: section 5 bend their robot from 0 to 90 deg (planar experiment, the one whose uncompensated
+#: 3.03 mm mean error the compensation halves) and identify the disk friction over 40-90 deg. A
+#: smaller range under-samples exactly the poses where friction matters: the capstan factor
+#: exp(mu theta) and the tension that bends the robot both grow with theta.
+PAPER_BEND_RAD = math.pi / 2
+#: Share of the rig's own limits (``limits.bend_rad``, ``limits.cable_displacement_mm``) a
+#: generated trajectory may use: the daemon's supervisor refuses commands at the limits, so a
+#: logged run never reaches them (10 % is left for the compensation and the margin).
+LIMIT_SHARE = 0.9
+#: Rate of the bending vector (rad/s): about Qi et al. 2023's pi/10 rad/s bending rate.
+BEND_RATE_RAD_S = 0.35
 
 
 def rich_trajectory(S: int, duration_s: float, bend_rad: float, rate_rad_s: float, seed: int):
@@ -115,13 +138,110 @@ def rich_trajectory(S: int, duration_s: float, bend_rad: float, rate_rad_s: floa
     return Trajectory(t, psi, f"rich_seed{seed}", "<make_discrepancy_runs rich>")
 
 
+def circle_trajectory(S: int, duration_s: float, theta_rad: float, rate_rad_s: float, seed: int):
+    """Spatial circles at a fixed bend ``theta_rad`` (every segment, direction phi of segment i
+    offset by a seeded angle): lead-in along phi0, one turn forward, one turn back (so that every
+    cable reverses), repeated until ``duration_s``, then back to straight. The bending vector moves
+    at ``rate_rad_s`` (phi rate = rate / theta)."""
+    rng = np.random.default_rng(seed)
+    phi0 = rng.uniform(0, 2 * math.pi, S)
+    lead = theta_rad / rate_rad_s
+    turn_s = 2 * math.pi * theta_rad / rate_rad_s
+    t = [0.0, lead]
+    phi_rel = [0.0, 0.0]
+    th = [0.0, theta_rad]
+    sign = 1.0
+    while t[-1] + turn_s + lead <= duration_s + 1e-9:
+        for _ in range(72):
+            t.append(t[-1] + turn_s / 72)
+            phi_rel.append(phi_rel[-1] + sign * 2 * math.pi / 72)
+            th.append(theta_rad)
+        sign = -sign
+    t.append(t[-1] + lead)
+    phi_rel.append(phi_rel[-1])
+    th.append(0.0)
+    th_a = np.array(th)[:, None] * np.ones(S)
+    phi = np.array(phi_rel)[:, None] + phi0
+    psi = np.stack((th_a, phi), axis=-1)
+    return Trajectory(np.array(t), psi, f"circle_theta{theta_rad:g}_seed{seed}", "<circle>")
+
+
 def make_trajectory(kind: str, S: int, duration_s: float, bend_rad: float, seed: int):
-    rate = 0.35  # rad/s of the bending vector
+    """``rich`` (reversals, holds, every direction, a circle, a random tail), ``random`` (seeded
+    random smooth within ``bend_rad``) or ``circle`` (turns back and forth at theta = bend_rad)."""
+    rate = BEND_RATE_RAD_S
     if kind == "rich":
         return rich_trajectory(S, duration_s, bend_rad, rate, seed)
     if kind == "random":
         return random_smooth(S, duration_s, bend_rad, rate, seed=seed, bandwidth_hz=0.3)
-    raise SystemExit(f"unknown trajectory {kind!r} (rich, random)")
+    if kind == "circle":
+        return circle_trajectory(S, duration_s, bend_rad, rate, seed)
+    raise SystemExit(f"unknown trajectory {kind!r} ({', '.join(TRAJECTORIES)})")
+
+
+def trajectory_within_limits(
+    cfg, model, kind: str, duration_s: float, bend_rad: float | None, seed: int
+) -> tuple[Trajectory, float, str]:
+    """The trajectory of ``kind`` and the bend it was made with (rad), and how it was chosen.
+
+    ``bend_rad`` given: used as is. Otherwise :data:`PAPER_BEND_RAD`, capped by
+    :data:`LIMIT_SHARE` of the rig's ``limits.bend_rad``, then reduced until the nominal cable
+    displacements stay within :data:`LIMIT_SHARE` of ``limits.cable_displacement_mm`` (a
+    multi-segment robot's distal cables add up every segment's bend).
+    """
+    S = model.n_segments
+    if bend_rad is not None:
+        return make_trajectory(kind, S, duration_s, bend_rad, seed), bend_rad, "given"
+    bend = min(PAPER_BEND_RAD, LIMIT_SHARE * cfg.limits.bend_rad)
+    q_lim = LIMIT_SHARE * min(abs(v) for v in cfg.limits.cable_displacement_mm)
+    how = f"min(pi/2, {LIMIT_SHARE:g} x limits.bend_rad)"
+    for _ in range(10):
+        traj = make_trajectory(kind, S, duration_s, bend, seed)
+        t = np.arange(0.0, traj.duration_s, 0.05)
+        q_max = max(float(np.max(np.abs(model.q_nominal(traj.sample(ti))))) for ti in t)
+        if q_max <= q_lim:
+            return traj, bend, how
+        bend *= 0.97 * q_lim / q_max
+        how = f"reduced to keep the cables within {q_lim:g} mm"
+    return traj, bend, how
+
+
+def compensation_mode(
+    cfg, model, traj: Trajectory, rate_hz: float, compensation: str | None
+) -> tuple[str, str]:
+    """The loop's compensation mode for the run, and why.
+
+    Given: used as is. Otherwise the rig config's ``control.compensation`` (what the daemon
+    runs) if its commands along ``traj`` stay within ``limits.cable_velocity_mm_s`` at every
+    cycle; if not (the inverse model steps a cable by its friction dead zone at a reversal, e.g.
+    ~1.5 mm in one cycle on a three-segment robot bent 80 deg per segment), the daemon's
+    supervisor would HALT that run at the first such cycle, so a lab would log it uncompensated:
+    ``off``. ``measured`` is checked as ``model`` (no readings before the run).
+    """
+    if compensation is not None:
+        if compensation not in ("off", "model", "measured"):
+            raise SystemExit(f"compensation {compensation!r}: choose off, model or measured")
+        return compensation, "given"
+    mode = cfg.control.compensation
+    if mode == "off":
+        return mode, "rig config"
+    state = model.new_state()
+    dt = 1.0 / rate_hz
+    v_max = cfg.limits.cable_velocity_mm_s
+    q_prev = None
+    for i in range(round(traj.duration_s / dt) + 1):
+        psi = traj.sample(i * dt)
+        try:
+            q = model.q_command(psi, model.q_nominal(psi), state, "model", None)
+        except ModelError:
+            continue
+        if q_prev is not None and float(np.max(np.abs(q - q_prev))) > v_max * dt:
+            return "off", (
+                f"rig config's {mode!r} would step a cable faster than {v_max:g} mm/s at"
+                f" t = {i * dt:.2f} s (the supervisor halts such a run): off"
+            )
+        q_prev = q
+    return mode, "rig config"
 
 
 def hidden_of(sim_path: Path, hidden: str | None) -> str:
@@ -139,15 +259,34 @@ def make_run(
     duration_s: float = 60.0,
     rate_hz: float = 100.0,
     trajectory: str = "rich",
-    bend_rad: float = 1.0,
+    bend_rad: float | None = None,
     seed: int = 1,
     name: str | None = None,
     progress: bool = False,
+    tracker_noise_mm: float | None = None,
+    tracker_rate_hz: float | None = None,
+    tracker_dropout: float = 0.0,
+    drop: tuple[str, ...] = (),
+    compensation: str | None = None,
 ) -> Path:
-    """Write one run directory below ``out_dir`` and return it."""
+    """Write one run directory below ``out_dir`` and return it.
+
+    ``bend_rad``: largest bend per segment (rad; default :func:`trajectory_within_limits`).
+    ``compensation``: the loop's mode (``off``, ``model``, ``measured``; default
+    :func:`compensation_mode`: the rig config's, what the daemon runs, unless the supervisor
+    would halt it): the command is ``q_command(psi, q_nominal, ...)`` of the controller's model,
+    as in the control loop.
+    ``tracker_noise_mm``/``tracker_rate_hz`` override the simulator YAML's; ``tracker_dropout``
+    is the probability that a tracker frame is lost (the row keeps the last frame, as the loop's
+    latest-sample port does); ``drop`` lists column groups the log leaves out (``tension``,
+    ``q_act``, ``tip``: a partial log).
+    """
     loaded = load_sim_config(sim_path)
     cfg = loaded.rig
     hid = hidden_of(sim_path, hidden)
+    bad = set(drop) - set(DROPPABLE)
+    if bad:
+        raise SystemExit(f"cannot drop {sorted(bad)}: choose from {DROPPABLE}")
     truth = TruthModel(loaded)
     eff = loaded.sim.effects
     switches = {
@@ -161,9 +300,14 @@ def make_run(
         switches[SWITCH_OF[hid]] = False
     model = build_cc_disk_model(cfg, Effects(geometry=cfg.control.geometry, **switches))
     S, K = model.n_segments, model.n_cables
-    traj = make_trajectory(trajectory, S, duration_s, bend_rad, seed)
+    traj, bend, bend_how = trajectory_within_limits(
+        cfg, model, trajectory, duration_s, bend_rad, seed
+    )
+    comp, comp_how = compensation_mode(cfg, model, traj, rate_hz, compensation)
+    comp_state = model.new_state()
     rng = np.random.default_rng(seed + 1000)
     noise = loaded.sim.noise
+    sigma_tip = noise.tracker_mm if tracker_noise_mm is None else tracker_noise_mm
     trk = loaded.sim.tracker
     R_o = rotation_from_rotvec(eff.tracker_offset.rotvec_rad)
     t_o = np.asarray(eff.tracker_offset.translation_mm, dtype=float)
@@ -181,19 +325,27 @@ def make_run(
         raise SystemExit(f"{run_dir} exists")
     rig_text = loaded.rig_path.read_text()
     effective = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+    columns = [
+        c for c in sample_columns(S, K, ("cycle",)) if not any(group_of(c) == g for g in drop)
+    ]
     writer = RunLogWriter(
         run_dir,
-        sample_columns(S, K, ("cycle",)),
+        columns,
         RunMetadata(
             name=run_name,
             rig=cfg.name,
             design=cfg.design,
-            compensation="off",
+            compensation=comp,
             rate_hz=rate_hz,
             trajectory=traj.name,
             extra={
                 "model_effects": {k: v for k, v in switches.items()},
                 "generator": "scripts/make_discrepancy_runs.py (offline truth stepping)",
+                "hidden_effect": hid,
+                "sim_config": str(sim_path),
+                "bend_rad": round(float(bend), 4),
+                "bend_rule": bend_how,
+                "compensation_rule": comp_how,
             },
         ),
         config_text=rig_text,
@@ -204,10 +356,13 @@ def make_run(
     n = round(duration_s / dt) + 1
     counts = np.zeros(K)
     tips: list[tuple[float, np.ndarray]] = []  # (time, true tip) per physics step
-    frame_dt = 1.0 / trk.rate_hz
-    next_frame = 0.0
+    frame_dt = 1.0 / (tracker_rate_hz or trk.rate_hz)
+    # The tracker runs on its own clock: frame k is exposed at phase + k * frame_dt (a seeded
+    # phase, so frame and loop instants do not coincide) and arrives latency_s later.
+    phase_s = float(np.random.default_rng(seed + 2000).uniform(0.0, frame_dt))
+    k_frame = 0
     last_frame: np.ndarray | None = None
-    frames: list[tuple[float, np.ndarray]] = []
+    q_cmd_last: np.ndarray | None = None
     it = range(n)
     if progress:
         from tqdm import tqdm
@@ -222,32 +377,42 @@ def make_run(
             q_act = counts / cpm
             state = truth.step(counts.astype(int).tolist())
             tips.append((t, state.tip_mm.copy()))
-            # tracker frames captured at its own rate, delivered after the latency
-            while next_frame <= t - trk.latency_s + 1e-12:
-                tc = next_frame
-                p = next(tp for tt, tp in reversed(tips) if tt <= tc + 1e-12)
-                logged = R_o.T @ (p - t_o) + noise.tracker_mm * rng.standard_normal(3)
-                frames.append((tc, logged))
-                next_frame += frame_dt
-            if frames:
-                last_frame = frames[-1][1]
-                frames = frames[-2:]
+            # frames exposed at t_c show the world of the last physics step at or before t_c
+            while phase_s + k_frame * frame_dt + trk.latency_s <= t:
+                tc = phase_s + k_frame * frame_dt
+                k_frame += 1
+                if tracker_dropout > 0 and rng.random() < tracker_dropout:
+                    continue
+                p = next(tp for tt, tp in reversed(tips) if tt <= tc)
+                last_frame = R_o.T @ (p - t_o) + sigma_tip * rng.standard_normal(3)
             tens = truth.cell_tensions()
+            measured = np.full(K, np.nan)  # load-cell readings in cable order (NaN: no cell)
+            for k, j in cells.items():
+                measured[k] = tens[j] + noise.load_cell_N * rng.standard_normal()
+            # the loop's command: the controller's model, its compensation mode, the readings
+            # of this cycle; a pose the model cannot reach holds the last command (as the loop)
+            try:
+                q_cmd = model.q_command(
+                    psi, q_nom, comp_state, comp, measured if comp == "measured" else None
+                )
+            except ModelError:
+                q_cmd = q_cmd_last if q_cmd_last is not None else q_nom
+            q_cmd_last = q_cmd
             row = {"t_s": t, "cycle": i}
             for s in range(S):
                 row[f"seg{s + 1}_theta_cmd_rad"] = float(psi[s, 0])
                 row[f"seg{s + 1}_phi_cmd_rad"] = float(psi[s, 1])
             for k in range(K):
                 row[f"cable{k + 1}_q_nominal_mm"] = float(q_nom[k])
-                row[f"cable{k + 1}_q_cmd_mm"] = float(q_nom[k])
-                row[f"cable{k + 1}_q_act_mm"] = float(q_act[k])
-                if k in cells:
-                    v = tens[cells[k]] + noise.load_cell_N * rng.standard_normal()
-                    row[f"cable{k + 1}_tension_N"] = float(v)
-            if last_frame is not None:
+                row[f"cable{k + 1}_q_cmd_mm"] = float(q_cmd[k])
+                if "q_act" not in drop:
+                    row[f"cable{k + 1}_q_act_mm"] = float(q_act[k])
+                if k in cells and "tension" not in drop:
+                    row[f"cable{k + 1}_tension_N"] = float(measured[k])
+            if last_frame is not None and "tip" not in drop:
                 row["tip_x_mm"], row["tip_y_mm"], row["tip_z_mm"] = (float(v) for v in last_frame)
             writer.write(row)
-            counts = np.round(q_nom * cpm)
+            counts = np.round(q_cmd * cpm)
             if len(tips) > 64:
                 tips = tips[-32:]
     return run_dir
@@ -256,15 +421,42 @@ def make_run(
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sim", type=Path, action="append", help="simulator YAML (repeatable)")
+    ap.add_argument(
+        "--sim-dir",
+        type=Path,
+        default=EFFECTS_DIR,
+        help="directory of variants when no --sim is given (default config/sim/effects)",
+    )
     ap.add_argument("--hidden", choices=HIDDEN, default=None)
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--duration-s", type=float, default=60.0)
     ap.add_argument("--rate-hz", type=float, default=100.0)
-    ap.add_argument("--trajectory", default="rich", choices=("rich", "random"))
-    ap.add_argument("--bend-rad", type=float, default=1.0)
+    ap.add_argument("--trajectory", default="rich", choices=TRAJECTORIES)
+    ap.add_argument(
+        "--bend-rad",
+        type=float,
+        default=None,
+        help="bend limit (rich, random) or circle theta, rad [default: pi/2 within the rig's"
+        " limits, see trajectory_within_limits]",
+    )
+    ap.add_argument(
+        "--compensation",
+        choices=("off", "model", "measured"),
+        default=None,
+        help="the loop's compensation mode [default: the rig config's control.compensation]",
+    )
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--tracker-noise-mm", type=float, default=None, help="override the YAML's")
+    ap.add_argument("--tracker-rate-hz", type=float, default=None, help="override the YAML's")
+    ap.add_argument("--tracker-dropout", type=float, default=0.0, help="lost frame probability")
+    ap.add_argument(
+        "--drop",
+        default="",
+        help=f"comma-separated column groups to leave out (partial log): {', '.join(DROPPABLE)}",
+    )
     args = ap.parse_args(argv)
-    sims = args.sim or sorted(EFFECTS_DIR.glob("*.yaml"))
+    sims = args.sim or sorted(p for p in args.sim_dir.glob("*.yaml"))
+    drop = tuple(d.strip() for d in args.drop.split(",") if d.strip())
     args.out.mkdir(parents=True, exist_ok=True)
     for sim in sims:
         d = make_run(
@@ -278,6 +470,11 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             name=f"{sim.stem}-{args.trajectory}-s{args.seed}",
             progress=True,
+            tracker_noise_mm=args.tracker_noise_mm,
+            tracker_rate_hz=args.tracker_rate_hz,
+            tracker_dropout=args.tracker_dropout,
+            drop=drop,
+            compensation=args.compensation,
         )
         print(d)
     return 0

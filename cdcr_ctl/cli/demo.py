@@ -148,6 +148,21 @@ def running(
         log.close()
 
 
+@contextlib.contextmanager
+def rig_running(sim_path: Path, rig_path: Path, sock: Path, logs: Path) -> Iterator[None]:
+    """``cdcr-ctl sim`` and ``cdcr-ctl daemon`` as processes (logs ``sim.log``, ``daemon.log`` in
+    ``logs``), the drives enabled and homed; both stopped on exit."""
+    with (
+        running(_cli("sim", str(sim_path)), logs / "sim.log", ready='"ready"'),
+        running(_cli("--config", str(rig_path), "daemon"), logs / "daemon.log") as d,
+    ):
+        wait_for_socket(sock, d, logs / "daemon.log")
+        with ControlClient(sock) as c:
+            c.call("enable")
+            c.call("home")
+        yield
+
+
 def wait_for_socket(path: Path, proc: subprocess.Popen, log_path: Path) -> None:
     deadline = time.monotonic() + START_TIMEOUT_S
     while time.monotonic() < deadline:
@@ -294,14 +309,7 @@ def demo(obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool)
     experiments = experiments_for(design, rig_cfg, quick)
     rows: list[dict[str, Any]] = []
     click.echo(f"demo session: {session}", err=True)
-    with (
-        running(_cli("sim", str(sim_path)), session / "sim.log", ready='"ready"'),
-        running(_cli("--config", str(rig_path), "daemon"), session / "daemon.log") as d,
-    ):
-        wait_for_socket(sock, d, session / "daemon.log")
-        with ControlClient(sock) as c:
-            c.call("enable")
-            c.call("home")
+    with rig_running(sim_path, rig_path, sock, session):
         for exp, traj in experiments.items():
             for comp in ("off", "model"):
                 for _attempt in range(2):

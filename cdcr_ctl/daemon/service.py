@@ -125,23 +125,30 @@ class Daemon:
 
     def serve(self, install_signals: bool = True) -> str:
         """Run until SIGTERM/SIGINT or a ``shutdown`` request; return the stop reason."""
+        previous: dict[int, Any] = {}
         if install_signals:
             for sig in (signal.SIGTERM, signal.SIGINT):
-                signal.signal(sig, self._signal)
+                previous[sig] = signal.signal(sig, self._signal)
             # A file-size limit (RLIMIT_FSIZE) must fail the write (EFBIG, handled like a full
             # disk by the run log) rather than kill the controller with the drives enabled.
-            signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        period = self.notifier.watchdog_period_s() or 1.0
-        while not self._stop.wait(min(period, 1.0)):
-            if self.loop.running:
-                # Pet the watchdog only while the loop is alive: a hung loop gets us restarted.
-                self.notifier.watchdog()
-                self.notifier.status(self._status_line())
-            else:
-                log.error("control loop thread died; stopping")
-                self._stop_reason = "control loop died"
-                break
-        self.shutdown(self._stop_reason or "stopped")
+            previous[signal.SIGXFSZ] = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        try:
+            period = self.notifier.watchdog_period_s() or 1.0
+            while not self._stop.wait(min(period, 1.0)):
+                if self.loop.running:
+                    # Pet the watchdog only while the loop is alive: a hung loop gets us
+                    # restarted.
+                    self.notifier.watchdog()
+                    self.notifier.status(self._status_line())
+                else:
+                    log.error("control loop thread died; stopping")
+                    self._stop_reason = "control loop died"
+                    break
+            self.shutdown(self._stop_reason or "stopped")
+        finally:
+            # The process's handlers as they were (a daemon embedded in a larger program).
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
         return self._stop_reason
 
     def _signal(self, signum: int, frame: object) -> None:

@@ -13,7 +13,12 @@
   ``max_points`` samples are simulated. Predictions at the other rows are linear in time between
   simulated ones (exact during holds).
 * Noise: from the measurements alone (no model): the robust spread of the second differences of
-  the distinct tracker samples (white noise: var(d2) = 6 sigma^2), and of the tensions.
+  the distinct tracker samples (white noise: var(d2) = 6 sigma^2), and of the tensions. Once the
+  tracker timing is known (:mod:`~cdcr_ctl.discrepancy.timing`, estimated by the workflow from
+  the controller model's residual) the tip noise is re-estimated from the residual's second
+  differences (:func:`residual_noise_sigma`): the sampling jitter of a moving tip is not noise.
+* Cycle numbers: the loop's ``cycle`` column when the log has one (a dropped row leaves a gap),
+  else the row index; the tracker's beat with the loop is periodic in them.
 """
 
 from __future__ import annotations
@@ -27,9 +32,12 @@ import yaml
 from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.config.loader import load_rig_config, validate_mapping
 from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.discrepancy.timing import TipTiming, no_timing
 from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.model.effects import ModelSpec
+from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.runlog import Run, load_run
 from cdcr_ctl.runlog.writer import CONFIG_YAML, EFFECTIVE_CONFIG_YAML
 
@@ -48,6 +56,10 @@ class AlignedRun:
     measured (NaN where untracked); ``tension_N`` (N, K) or None; ``psi_cmd`` (N, S, 2) or None.
     ``sim_idx``: indices of the rows that are simulated. ``spec``: the controller's model.
     ``locations``: load-cell location per cable. Noise ``sigma_tip_mm``, ``sigma_tension_N``.
+    ``cycle`` (N,) the loop's cycle numbers; ``timing`` when each row's tracker sample was taken
+    (identity until the workflow has estimated it). ``shape_tip_mm`` (N, 3): the rigid-cable
+    constant-curvature tip of every row's input (:func:`kinematic_tip`), the shape the
+    simulations are interpolated along.
     """
 
     run_dir: Path
@@ -66,6 +78,17 @@ class AlignedRun:
     sigma_tip_mm: float
     sigma_tension_N: float
     notes: list[str] = field(default_factory=list)
+    cycle: np.ndarray | None = None
+    timing: TipTiming | None = None
+    shape_tip_mm: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.cycle is None:
+            self.cycle = np.arange(len(self.t_s))
+        if self.timing is None:
+            self.timing = no_timing(self.t_s)
+        if self.shape_tip_mm is None:
+            self.shape_tip_mm = kinematic_tip(self.spec.params, self.q_in_mm)
 
     @property
     def n_cables(self) -> int:
@@ -112,6 +135,17 @@ def model_switches(run: Run, override: dict[str, bool] | None = None) -> tuple[d
     return sw, src
 
 
+def kinematic_tip(params, q_mm: np.ndarray) -> np.ndarray:
+    """Tip (N, 3) mm, base frame, of rigid cables on constant-curvature segments for the cable
+    displacements ``q_mm`` (N, K): bending vectors x = B^+ q (Qi et al. 2023 eq. 4, linear in x;
+    least squares over the cables), tip by eq. 1-3. No statics, no elongation, no friction: a
+    cheap, smooth function of q that differs from the full model by a smooth correction."""
+    B = cable_matrix_x(params)
+    X = np.asarray(q_mm, dtype=float) @ np.linalg.pinv(B).T
+    L = [s.length_mm for s in params.segments]
+    return np.array([tip_position_fast(x.tolist(), L) for x in X]).reshape(len(X), 3)
+
+
 def noise_sigma(x: np.ndarray, floor: float) -> float:
     """Noise standard deviation of a sampled signal (..., C) from its distinct samples.
 
@@ -129,6 +163,27 @@ def noise_sigma(x: np.ndarray, floor: float) -> float:
         if v.size < 10:
             continue
         d2 = v[2:] - 2 * v[1:-1] + v[:-2]
+        out.append(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+    return max(float(np.median(out)) if out else floor, floor)
+
+
+def residual_noise_sigma(meas: np.ndarray, pred: np.ndarray, floor: float) -> float:
+    """Noise standard deviation of a sensor from its residual against a model (..., C): the
+    robust spread of the second differences of ``meas - pred`` over the rows where the sensor
+    delivered a new sample (a sample-and-hold sensor repeats values), divided by sqrt(6).
+    The model's own error is smooth and drops out of the second differences."""
+    out = []
+    for c in range(meas.shape[1]):
+        v, p = meas[:, c], pred[:, c]
+        ok = np.isfinite(v) & np.isfinite(p)
+        v, p = v[ok], p[ok]
+        if v.size < 10:
+            continue
+        keep = np.concatenate(([True], np.diff(v) != 0.0))
+        r = (v - p)[keep]
+        if r.size < 10:
+            continue
+        d2 = r[2:] - 2 * r[1:-1] + r[:-2]
         out.append(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
     return max(float(np.median(out)) if out else floor, floor)
 
@@ -181,7 +236,7 @@ def _select(q: np.ndarray, t: np.ndarray, delta: float, hold_s: float) -> np.nda
     keep = [0]
     last_q = q[0]
     last_t = t[0]
-    last_turn_q = None
+    last_turn_q = q[0]  # the run starts from rest: friction mobilises as after a reversal
     for i in range(1, len(q)):
         near = last_turn_q is not None and np.max(np.abs(q[i] - last_turn_q)) < 3.0 * delta
         step = delta / 3.0 if near else delta
@@ -247,6 +302,11 @@ def align_run(
     if not np.isfinite(tip).any():
         notes.append("no tracker columns: only tensions are compared")
     psi = run.psi_cmd()[ok] if run.has("psi_cmd") else None
+    cycle = np.arange(len(ok))[ok]
+    if "cycle" in run.data:
+        c = np.asarray(run.column("cycle"), dtype=float)[ok]
+        if np.all(np.isfinite(c)) and np.all(np.diff(c) > 0):
+            cycle = c.astype(np.int64)
     idx, dq = decimate(q, t, max_points, hold_s)
     notes.append(
         f"{len(t)} rows, {len(idx)} simulated (a sample per {dq:.3f} mm of cable travel or"
@@ -271,4 +331,5 @@ def align_run(
         sigma_tip_mm=s_tip,
         sigma_tension_N=s_T,
         notes=notes,
+        cycle=cycle,
     )

@@ -150,6 +150,12 @@ def config_fragment(res: DiscrepancyResult) -> str:
                 )
             elif fv.what == "tracker" and fv.key == "model_to_measured_rotvec_rad":
                 pass
+            elif fv.what == "tracker" and cfg.sensors.tracker is None:
+                fix = _tracker_fix(res, cfg)["base_from_tracker"]
+                comments.append(
+                    f"sensors.tracker.base_from_tracker = {fix} (the rig config has no tracker"
+                    " section: the logged tips were in the base frame; put it with the tracker)"
+                )
             elif fv.what == "tracker":
                 doc.setdefault("sensors", {})["tracker"] = _tracker_fix(res, cfg)
             else:
@@ -179,8 +185,11 @@ def _tracker_fix(res: DiscrepancyResult, cfg) -> dict:
     R_t = rotation_from_rotvec(spec.tip_rotvec_rad)
     t_t = np.asarray(spec.tip_translation_mm)
     tr = cfg.sensors.tracker
-    R_b = rotation_from_rotvec(tr.base_from_tracker.rotvec_rad)
-    t_b = np.asarray(tr.base_from_tracker.translation_mm)
+    if tr is None:  # no tracker section: the logged tips were taken as base-frame points
+        R_b, t_b = np.eye(3), np.zeros(3)
+    else:
+        R_b = rotation_from_rotvec(tr.base_from_tracker.rotvec_rad)
+        t_b = np.asarray(tr.base_from_tracker.translation_mm)
     R_new = R_t.T @ R_b
     t_new = R_t.T @ (t_b - t_t)
     return {

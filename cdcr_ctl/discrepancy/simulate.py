@@ -2,7 +2,10 @@
 
 The spec's :class:`~cdcr_ctl.model.forward.ForwardStepper` (friction memory, transmission
 effects) is stepped through the decimated input path of the run (``AlignedRun.sim_idx``); the
-predictions are then interpolated to every row along the input path (:func:`path_weights`).
+predictions are then interpolated to every row along the input path (:func:`path_weights`); the
+tip as the run's rigid-cable kinematic tip (``AlignedRun.shape_tip_mm``, every row) plus the
+interpolated difference of the model from it: that difference (stretch, friction, sag) is small
+and smooth, while the tip itself turns between simulated rows on a fast multi-segment robot.
 A step the model cannot solve keeps the last solution and is counted. A spec with a
 ``coupling_gain`` between the forward model's two switch positions is the blend of both
 solutions (:class:`SegmentCoupling`).
@@ -16,19 +19,24 @@ import numpy as np
 
 from cdcr_ctl.discrepancy.alignment import AlignedRun
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.effects import ModelSpec
+from cdcr_ctl.model.effects import ModelSpec, rotation_from_rotvec
 from cdcr_ctl.model.forward import ForwardStepper
 
 
 @dataclass(frozen=True)
 class Prediction:
     """Model outputs at every row of a run: tip (N, 3) mm as the tracker would report it,
-    tensions at the load-cell locations (N, K) N, pose (N, S, 2) rad, failed steps."""
+    tensions at the load-cell locations (N, K) N, pose (N, S, 2) rad, failed steps. Once the
+    tracker timing is applied (workflow): the tip's velocity (mm/s) and acceleration (mm/s^2)
+    at the same instants, from the untimed series (the timed one mixes the delays of
+    neighbouring rows, so its finite differences are not the tip's velocity)."""
 
     tip_mm: np.ndarray
     tension_N: np.ndarray
     psi: np.ndarray
     failures: int
+    tip_velocity_mm_s: np.ndarray | None = None
+    tip_accel_mm_s2: np.ndarray | None = None
 
 
 def path_weights(q: np.ndarray, t: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,8 +112,11 @@ def simulate_model(spec: ModelSpec, run: AlignedRun) -> Prediction:
         tip, T, psi = ((1.0 - lam) * x + lam * y for x, y in zip(a[:3], b[:3], strict=True))
         fails = a[3] + b[3]
     seg, u = path_weights(run.q_in_mm, run.t_s, run.sim_idx)
+    # the tip between simulated rows: the rigid-cable kinematic tip of every row plus the
+    # interpolated (smooth, small) difference of the model from it, not the chord of the path
+    shape = run.shape_tip_mm
     return Prediction(
-        tip_mm=_interp(seg, u, tip),
+        tip_mm=shape + _interp(seg, u, tip - shape[run.sim_idx]),
         tension_N=_interp(seg, u, T),
         psi=_interp(seg, u, psi),
         failures=fails,
@@ -113,8 +124,16 @@ def simulate_model(spec: ModelSpec, run: AlignedRun) -> Prediction:
 
 
 def with_tip_map(spec: ModelSpec, pred: Prediction) -> Prediction:
-    """``pred`` (of the model part of ``spec``) as the tracker reports it."""
-    return replace(pred, tip_mm=spec.tip_map(pred.tip_mm))
+    """``pred`` (of the model part of ``spec``) as the tracker reports it (the map is rigid:
+    velocity and acceleration turn with it)."""
+    R = rotation_from_rotvec(spec.tip_rotvec_rad)
+    v, a = pred.tip_velocity_mm_s, pred.tip_accel_mm_s2
+    return replace(
+        pred,
+        tip_mm=spec.tip_map(pred.tip_mm),
+        tip_velocity_mm_s=None if v is None else v @ R.T,
+        tip_accel_mm_s2=None if a is None else a @ R.T,
+    )
 
 
 def simulate(spec: ModelSpec, run: AlignedRun) -> Prediction:

@@ -4,13 +4,16 @@
 
 1. load and align every run (:mod:`~cdcr_ctl.discrepancy.alignment`): the controller's model,
    the input path, the measurements, noise levels;
-2. simulate the baseline (the controller's model) and localise the disagreement
+2. simulate the baseline (the controller's model), estimate from its residual when each row's
+   tracker sample was taken (:mod:`~cdcr_ctl.discrepancy.timing`; every later prediction is
+   evaluated at those instants) and the tracker noise, and localise the disagreement
    (:mod:`~cdcr_ctl.discrepancy.localise`);
 3. one forward simulation per parameter of every applicable candidate term
    (:data:`~cdcr_ctl.model.effects.CANDIDATES`), the linearised fits of every term and pair,
    blocked cross-validation, AIC/BIC and the significance rule
    (:mod:`~cdcr_ctl.discrepancy.selection`);
-4. the nonlinear refit of the winner, residuals before and after, the tip gap shrink.
+4. the nonlinear refit of the winner, the tracker's common delay re-estimated with the refitted
+   model, residuals before and after, the tip gap shrink.
 
 Simulations run in ``jobs`` worker processes when ``jobs > 1``; a progress bar (tqdm, on stderr)
 counts them.
@@ -27,18 +30,27 @@ from pathlib import Path
 
 import numpy as np
 
-from cdcr_ctl.discrepancy.alignment import AlignedRun, align_run
+from cdcr_ctl.discrepancy.alignment import (
+    MIN_TIP_SIGMA_MM,
+    AlignedRun,
+    align_run,
+    residual_noise_sigma,
+)
 from cdcr_ctl.discrepancy.localise import Table, localise
 from cdcr_ctl.discrepancy.selection import (
     Design,
     Refit,
     Selection,
     active_terms,
+    apply_all,
     build_design,
+    entry_vector,
+    predicted_vector,
     refit,
     select,
 )
 from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
+from cdcr_ctl.discrepancy.timing import estimate_timing
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
 
@@ -46,7 +58,8 @@ from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
 @dataclass
 class RunOutcome:
     """Per run: tip RMS gap (mm) and tension RMS gap (N) before and after the refit, and the
-    tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove."""
+    tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove.
+    ``lag_s``: the tracker's mean delay behind the rows (timing model + fitted correction)."""
 
     name: str
     tip_noise_floor_mm: float
@@ -146,23 +159,40 @@ class _Simulator:
         return repr(model_part(spec)), ri
 
     def __call__(self, spec: ModelSpec, ri: int) -> Prediction:
+        """What ``spec`` predicts for run ``ri`` as the tracker reports it (timing, tip map)."""
+        return with_tip_map(spec, self.timed(self.raw(spec, ri), ri))
+
+    def raw(self, spec: ModelSpec, ri: int) -> Prediction:
+        """The model part's prediction at the row times (no tracker timing, no tip map)."""
         m = model_part(spec)
         if m.coupling_gain is not None:  # a blend of the two cached switch positions
             lam = m.coupling_gain
-            a = self(replace(m, coupling_gain=0.0), ri)
-            b = self(replace(m, coupling_gain=1.0), ri)
-            mix = Prediction(
+            a = self.raw(replace(m, coupling_gain=0.0), ri)
+            b = self.raw(replace(m, coupling_gain=1.0), ri)
+            return Prediction(
                 (1 - lam) * a.tip_mm + lam * b.tip_mm,
                 (1 - lam) * a.tension_N + lam * b.tension_N,
                 (1 - lam) * a.psi + lam * b.psi,
                 a.failures + b.failures,
             )
-            return with_tip_map(spec, mix)
         k = self.key(spec, ri)
         if k not in self.cache:
             self.cache[k] = simulate_model(spec, self.runs[ri])
             self._tick()
-        return with_tip_map(spec, self.cache[k])
+        return self.cache[k]
+
+    def timed(self, pred: Prediction, ri: int) -> Prediction:
+        """``pred`` with its tip, tip velocity and acceleration at the instants the tracker
+        samples were taken."""
+        run = self.runs[ri]
+        v = np.gradient(pred.tip_mm, run.t_s, axis=0)
+        a = np.gradient(v, run.t_s, axis=0)
+        return replace(
+            pred,
+            tip_mm=run.timing.apply(pred.tip_mm),
+            tip_velocity_mm_s=run.timing.apply(v),
+            tip_accel_mm_s2=run.timing.apply(a),
+        )
 
     def many(self, items: list[tuple[ModelSpec, int]]) -> list[Prediction]:
         todo = {}
@@ -222,6 +252,9 @@ def analyse(
         bar = tqdm(total=total, desc="discrepancy", unit="sim", leave=False)
     sim = _Simulator(runs, jobs, bar)
     try:
+        raw = sim.many([(r.spec, i) for i, r in enumerate(runs)])  # no timing estimated yet
+        for r, b in zip(runs, raw, strict=True):
+            _estimate_timing(r, b)
         baselines = sim.many([(r.spec, i) for i, r in enumerate(runs)])
         # every column simulation up front (in parallel when asked), then the design from cache
         items: list[tuple[ModelSpec, int]] = []
@@ -241,7 +274,8 @@ def analyse(
         if selection.chosen is not None:
             rf = refit(design, runs, selection.chosen, sim, max_nfev=refit_evals)
             rf = _maybe_pair(design, runs, selection, rf, sim, refit_evals)
-        outcomes = _outcomes(runs, baselines, design, rf)
+        baselines, nuis_before = _final_timing(design, runs, rf, sim)
+        outcomes = _outcomes(runs, baselines, design, rf, nuis_before)
     finally:
         sim.close()
         if bar is not None:
@@ -293,6 +327,87 @@ def _maybe_pair(d: Design, runs, sel: Selection, rf: Refit, sim, evals: int) -> 
     return rf
 
 
+def _estimate_timing(run: AlignedRun, base: Prediction) -> None:
+    """The tracker timing and tip noise of ``run`` from the baseline's residual (in place)."""
+    if not np.isfinite(run.tip_mm).any():
+        return
+    run.timing = estimate_timing(run.t_s, run.cycle, run.tip_mm, base.tip_mm)
+    sigma = residual_noise_sigma(run.tip_mm, run.timing.apply(base.tip_mm), MIN_TIP_SIGMA_MM)
+    run.notes.append(run.timing.note)
+    run.notes.append(
+        f"tip noise sigma {sigma:.4f} mm from the timed residual (from the samples alone:"
+        f" {run.sigma_tip_mm:.4f} mm, which includes the sampling jitter of the moving tip)"
+    )
+    run.sigma_tip_mm = sigma
+
+
+def _final_timing(
+    d: Design, runs: Sequence[AlignedRun], rf: Refit | None, sim: _Simulator
+) -> tuple[list[Prediction], list[np.ndarray]]:
+    """Fix each run's common tracker delay with the best model (the refit, or the controller's
+    model when nothing was refitted), then predict both models with that one timing and fit
+    their nuisance other than the lag (the load-cell offsets; in place for ``rf``). Returns the
+    baselines and their nuisance per run."""
+    nb_all, base_all, preds = [], [], []
+    nuis_after = np.array(rf.nuisance, dtype=float) if rf is not None else None
+    for ri, run in enumerate(runs):
+        best = _refit_spec(rf, run) if rf is not None else run.spec
+        if np.isfinite(run.tip_mm).any():
+            start = _lag_of(d, run, nuis_after if rf is not None else _nuisance_fit(ri, d, d.r0))
+            start += float(np.mean(run.timing.row_delay_s))
+            model_tip = best.tip_map(sim.raw(best, ri).tip_mm)  # untimed, in the tracker's view
+            run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start_s=start)
+            run.notes.append(run.timing.note)
+        base = sim(run.spec, ri)
+        base_all.append(base)
+        nb_all.append(_without_lag(d, run, _nuisance_fit(ri, d, _run_residual(d, run, ri, base))))
+        if rf is not None:
+            pr = sim(best, ri)
+            preds.append(pr)
+            na = _without_lag(d, run, _nuisance_fit(ri, d, _run_residual(d, run, ri, pr)))
+            cols = np.any(d.Nu[d.run == ri] != 0, axis=0)
+            nuis_after[cols] = na[cols]
+    if rf is not None:
+        rf.predictions = preds
+        rf.nuisance = nuis_after
+    return base_all, nb_all
+
+
+def _without_lag(d: Design, run: AlignedRun, nuis: np.ndarray) -> np.ndarray:
+    """``nuis`` with the run's linear tracker-lag correction set to 0: once the timing is fixed
+    by the best model, both models are compared at the same sampling instants (a model's error
+    along the path must not pass for tracker delay)."""
+    out = np.array(nuis, dtype=float)
+    for i, n in enumerate(d.nu_names):
+        if n.startswith(f"{run.name}: tracker lag"):
+            out[i] = 0.0
+    return out
+
+
+def _lag_of(d: Design, run: AlignedRun, nuis: np.ndarray) -> float:
+    """The fitted linear tracker-lag nuisance of ``run`` (s), 0 if it has none."""
+    names = [i for i, n in enumerate(d.nu_names) if n.startswith(f"{run.name}: tracker lag")]
+    return float(nuis[names[0]]) if names else 0.0
+
+
+def _run_residual(d: Design, run: AlignedRun, ri: int, pred: Prediction) -> np.ndarray:
+    """Normalised residual of ``pred`` on the design's entries of run ``ri`` (0 elsewhere)."""
+    m = d.run == ri
+    r = np.zeros(len(d.r0))
+    r[m] = _measured_vector(run, d.row[m], d.chan[m]) - predicted_vector(
+        run, pred, d.row[m], d.chan[m]
+    )
+    return r
+
+
+def _refit_spec(rf: Refit, run: AlignedRun) -> ModelSpec:
+    return apply_all(rf.terms, run.spec, rf.values)
+
+
+def _measured_vector(run: AlignedRun, rows: np.ndarray, chans: np.ndarray) -> np.ndarray:
+    return entry_vector(run, run.tip_mm, run.tension_N, rows, chans)
+
+
 def _nuisance_fit(run_i: int, d: Design, resid_entries: np.ndarray) -> np.ndarray:
     m = d.run == run_i
     Nu = d.Nu[m]
@@ -319,17 +434,19 @@ def _corrected_tip_error(
     if run.tension_N is not None:
         Te = run.tension_N - pred.tension_N
         Te[rows[~t_m], chans[~t_m] - 3] -= corr[~t_m] * run.sigma_tension_N
-    lag_names = [i for i, n in enumerate(d.nu_names) if n.startswith(f"{run.name}: tracker lag")]
-    lag = float(nuis[lag_names[0]]) if lag_names else 0.0
-    return np.linalg.norm(tip_c, axis=1), Te, lag
+    return np.linalg.norm(tip_c, axis=1), Te, _lag_of(d, run, nuis)
 
 
 def _outcomes(
-    runs: Sequence[AlignedRun], baselines: Sequence[Prediction], d: Design, rf: Refit | None
+    runs: Sequence[AlignedRun],
+    baselines: Sequence[Prediction],
+    d: Design,
+    rf: Refit | None,
+    nuis_before: Sequence[np.ndarray],
 ) -> list[RunOutcome]:
     out = []
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
-        nb = _nuisance_fit(ri, d, d.r0)
+        nb = nuis_before[ri]
         eb, Tb, lag = _corrected_tip_error(run, base, d, ri, nb)
         if rf is not None:
             after = rf.predictions[ri]
@@ -353,7 +470,7 @@ def _outcomes(
                 tip_rms_after_mm=rms(ea),
                 tension_rms_before_N=rms(Tb),
                 tension_rms_after_N=rms(Ta),
-                lag_s=lag,
+                lag_s=lag + float(np.mean(run.timing.row_delay_s)),
                 tables=tables,
                 t_s=run.t_s,
                 tip_err_before_mm=eb,

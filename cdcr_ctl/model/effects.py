@@ -37,6 +37,9 @@ from cdcr_ctl.model.params import CableParams, Effects, RobotParams
 REFERENCE_EA_N = 2493.0
 #: Reference disk mass (g) when the config gives none (Qi et al. 2023 aluminium disks, ~0.8 g).
 REFERENCE_DISK_MASS_G = 0.8
+#: Reference disk-hole friction coefficient when the config gives none (PE cable in aluminium
+#: holes, the middle of Qi et al. 2023's identified values 0.26-0.31).
+REFERENCE_MU_DISK = 0.28
 #: Standard gravity in the base frame when the config's gravity vector is zero (mm/s^2).
 STANDARD_GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
 
@@ -248,9 +251,14 @@ class CableElongation(EffectTerm):
 class DiskFriction(EffectTerm):
     """Capstan friction of the cables in the disk holes (eq. 16-24) with a corrected mu.
 
-    Parameter ``d_mu`` (dimensionless, common to all cables): mu_k = mu0_k + d_mu, mu0 = 0 when
-    the model has disk friction off. Signature: direction-dependent (hysteresis), growing with
-    the bend (the wrap angles add up to about theta), stick at reversals.
+    Parameter ``d_mu_scale`` (dimensionless, common to all cables): mu_k = (a0 + d) * mu_ref_k,
+    a0 = 1 when the model has disk friction on, 0 when off; mu_ref_k = the config's ``mu_disk``
+    of cable k (the cables' ratios are kept: they come from the same holes and the same cable), or
+    :data:`REFERENCE_MU_DISK` for every cable when the config gives none. The refit evaluates the
+    forward model itself with the friction switched on (direction-dependent capstan factors per
+    cable and disk, stick at reversals, the friction state carried from sample to sample as the
+    simulated world does), not a linearisation. Signature: direction-dependent (hysteresis),
+    growing with the bend (the wrap angles add up to about theta), stick at reversals.
     """
 
     name = "disk_friction"
@@ -258,26 +266,31 @@ class DiskFriction(EffectTerm):
     signature = "direction-dependent error (hysteresis) that grows with the bend angle"
     reference = "Qi et al. 2023 eq. 16-24"
 
-    def _mu0(self, base: ModelSpec) -> np.ndarray:
-        on = base.effects.disk_friction
-        return np.array([c.mu_disk if on else 0.0 for c in base.params.cables])
+    def _a0(self, base: ModelSpec) -> float:
+        return 1.0 if base.effects.disk_friction else 0.0
+
+    def _mu_ref(self, base: ModelSpec) -> np.ndarray:
+        mu = np.array([c.mu_disk for c in base.params.cables], dtype=float)
+        return mu if np.any(mu > 0) else np.full(len(mu), REFERENCE_MU_DISK)
 
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
-        return (EffectParam("d_mu", "1", 0.1, -float(self._mu0(base).min()), 2.0),)
+        a0 = self._a0(base)
+        return (EffectParam("d_mu_scale", "1 (x configured mu_disk)", 0.5, -a0, 6.0),)
+
+    def _mu(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
+        return max(self._a0(base) + float(values[0]), 0.0) * self._mu_ref(base)
 
     def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
-        mu = np.maximum(self._mu0(base) + float(values[0]), 0.0)
         return replace(
             base,
-            params=_cables(base.params, mu_disk=mu.tolist()),
+            params=_cables(base.params, mu_disk=self._mu(base, values).tolist()),
             effects=replace(base.effects, disk_friction=True),
         )
 
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
-        mu = np.maximum(self._mu0(base) + float(values[0]), 0.0)
         out = [
             FittedValue("cable", c.name, "mu_disk", float(m))
-            for c, m in zip(base.params.cables, mu, strict=True)
+            for c, m in zip(base.params.cables, self._mu(base, values), strict=True)
         ]
         if not base.effects.disk_friction:
             out.append(FittedValue("model_effects", "", "disk_friction", True))

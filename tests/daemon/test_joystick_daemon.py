@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -305,16 +306,26 @@ def test_cli_ctrl_c_sends_stop_and_the_arm_holds(tmp_path, capsys):
         def interrupt():  # Ctrl-C once the session runs (SIGINT -> KeyboardInterrupt in main)
             if _wait(lambda: t.daemon._session is not None and t.daemon._session.active):
                 time.sleep(0.3)
-                signal.raise_signal(signal.SIGINT)
+                # A process-directed SIGINT as a terminal's Ctrl-C sends: Linux gives it to the
+                # main thread (raise_signal here would target this thread, and CPython 3.11 may
+                # then not flag the main thread to handle it).
+                os.kill(os.getpid(), signal.SIGINT)
 
+        # Ctrl-C is Python's KeyboardInterrupt here, whatever handler an earlier test left.
+        previous = signal.signal(signal.SIGINT, signal.default_int_handler)
         threading.Thread(target=interrupt, daemon=True).start()
-        code = main(["--socket", sock, "joystick"])
+        try:
+            code = main(["--socket", sock, "joystick"])
+        finally:
+            signal.signal(signal.SIGINT, previous)
         captured = capsys.readouterr()
+        # The session's watcher notices the run's end within SESSION_WATCH_S and closes it.
+        closed = _wait(lambda: t.client.call("status")["joystick"]["active"] is False)
         st = t.client.call("status")
     assert code == 0, captured.err
     assert "sending stop (halt)" in captured.err
     assert "state: stopped" in captured.out
-    assert st["enabled"] and st["fault"] is None and st["joystick"]["active"] is False
+    assert closed and st["enabled"] and st["fault"] is None
 
 
 # -- protocol ----------------------------------------------------------------------------------

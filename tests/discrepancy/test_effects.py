@@ -97,8 +97,10 @@ def test_switched_off_effects_are_switched_on_with_the_fitted_value(spec):
             pulley_friction=False,
         ),
     )
-    f = DiskFriction().apply(off, np.array([0.3]))
-    assert f.effects.disk_friction and all(c.mu_disk == 0.3 for c in f.params.cables)
+    # friction switched on at d times the configured mu of each cable (0.26, 0.31, 0.28)
+    f = DiskFriction().apply(off, np.array([0.5]))
+    assert f.effects.disk_friction
+    assert [c.mu_disk for c in f.params.cables] == pytest.approx([0.13, 0.155, 0.14])
     e = CableElongation().apply(off, np.array([0.5]))
     assert e.effects.elongation
     assert e.params.cables[0].EA_N == pytest.approx(spec.params.cables[0].EA_N / 0.5)
@@ -108,8 +110,20 @@ def test_switched_off_effects_are_switched_on_with_the_fitted_value(spec):
     assert p.effects.pulley_friction
     assert all(pl.alpha == pytest.approx(0.2) for c in p.params.cables for pl in c.pulleys)
     # a model that has them gets corrections on top of its values
-    f2 = DiskFriction().apply(spec, np.array([0.1]))
-    assert [c.mu_disk for c in f2.params.cables] == pytest.approx([0.36, 0.41, 0.38])
+    f2 = DiskFriction().apply(spec, np.array([0.25]))
+    assert [c.mu_disk for c in f2.params.cables] == pytest.approx([0.325, 0.3875, 0.35])
+
+
+def test_disk_friction_without_configured_mu_uses_the_reference(spec):
+    from dataclasses import replace
+
+    from cdcr_ctl.model.effects import REFERENCE_MU_DISK
+
+    cables = tuple(replace(c, mu_disk=0.0) for c in spec.params.cables)
+    bare = ModelSpec(replace(spec.params, cables=cables), Effects(disk_friction=False))
+    f = DiskFriction().apply(bare, np.array([1.0]))
+    assert all(c.mu_disk == pytest.approx(REFERENCE_MU_DISK) for c in f.params.cables)
+    assert DiskFriction().parameters(bare)[0].lower == 0.0
 
 
 def test_scale_and_backlash_terms_add_transmission_effects(spec):

@@ -99,6 +99,27 @@ def test_partial_log_without_tensions_skips_tension_effects(short_runs, tmp_path
     assert res.named == "actuator_scale"
 
 
+def test_a_missing_effect_that_was_skipped_is_not_reported_as_nothing(gen, tmp_path):
+    """Hidden pulley losses in a log without tensions: the pulley term is skipped, yet the tip
+    misses by far more than the noise. That is 'no effect in the library explains this', never
+    'nothing significant is missing'."""
+    run = gen.make_run(
+        EFFECTS / "pulley_losses.yaml",
+        tmp_path,
+        duration_s=12.0,
+        rate_hz=50.0,
+        seed=2,
+        name="pulley-no-tensions",
+        drop=("tension",),
+    )
+    terms = [candidate(n) for n in ("pulley_losses", "backlash", "tracker_offset")]
+    res = analyse([run], candidates=terms, **FAST)
+    assert any("skipped pulley_losses" in n for n in res.notes)
+    assert res.selection.baseline_ms > 2.0
+    assert res.selection.verdict == "unexplained", res.selection.reasons
+    assert res.named is None
+
+
 def test_fragment_overlays_on_the_rig_config(short_runs, analysed):
     res = analysed("actuator_scale")
     frag = yaml.safe_load(config_fragment(res))
@@ -113,6 +134,20 @@ def test_fragment_overlays_on_the_rig_config(short_runs, analysed):
         for d, b in zip(merged.drives, base["drives"], strict=True)
     ]
     assert got == pytest.approx(scale, abs=0.003)
+
+
+def test_tracker_fragment_without_a_tracker_section_is_a_comment(analysed):
+    """A rig config with no tracker section (e.g. the three-segment example): the fitted
+    alignment is reported as a comment, the overlay stays valid (no half tracker section)."""
+    from dataclasses import replace
+
+    res = analysed("tracker_offset")
+    cfg = res.runs[0].cfg
+    bare = cfg.model_copy(update={"sensors": cfg.sensors.model_copy(update={"tracker": None})})
+    res_bare = replace(res, runs=[replace(res.runs[0], cfg=bare)])
+    text = config_fragment(res_bare)
+    assert "sensors.tracker.base_from_tracker" in text and "no tracker" in text
+    assert "tracker" not in (yaml.safe_load(text) or {}).get("sensors", {})
 
 
 def test_cli_writes_report_plots_and_fragment(short_runs, tmp_path, capsys):
