@@ -290,8 +290,6 @@ class ControlLoop:
         self.counters = LoopCounters()
         self._lock = threading.Lock()
         self._pending: list[_Command] = []
-        #: The cable offset target the posted commands leave (jogs add to it); None: the loop's.
-        self._pending_offset: np.ndarray | None = None
         #: Set (under the lock) with every posted command: the cycle looks at the lock only then.
         self._has_pending = False
         self._stop_evt = threading.Event()
@@ -310,7 +308,7 @@ class ControlLoop:
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
         self._last_row: Mapping[str, Any] = {}
-        self._row_layout: RowLayout | None = None
+        self._row_layout = RowLayout(S, K)
         self._stopped_drives = False
         self._paused = False
         self._manual_sink: Any = None
@@ -360,7 +358,6 @@ class ControlLoop:
             log_dir=str(getattr(sink, "run_dir", "") or ""),
         )
         with self._lock:
-            self._pending_offset = np.zeros_like(self._q_offset_target)
             self._post("follow", (source, run, sink))
         return run
 
@@ -372,11 +369,19 @@ class ControlLoop:
     def jog_cable(self, cable: int, delta_mm: float) -> None:
         """Move cable ``cable`` (0-based) by ``delta_mm`` at the cable velocity limit."""
         with self._lock:
-            base = self._q_offset_target if self._pending_offset is None else self._pending_offset
-            target = base.copy()
+            target = self._offset_target_after_pending()
             target[cable] += delta_mm
-            self._pending_offset = target
             self._post("offset", target)
+
+    def _offset_target_after_pending(self) -> np.ndarray:
+        """The cable offset target (mm) once the posted commands are applied (caller holds the
+        lock): the last jog's, zero after a new run or a home, else the loop's own."""
+        for kind, payload in reversed(self._pending):
+            if kind == "offset":
+                return payload.copy()
+            if kind in ("follow", "home"):
+                return np.zeros_like(self._q_offset_target)
+        return self._q_offset_target.copy()
 
     def pause(self, paused: bool) -> None:
         """While paused the loop keeps reading feedback and logging but sends no RPDO or SYNC
@@ -386,7 +391,6 @@ class ControlLoop:
     def set_home(self, home_counts: Sequence[int]) -> None:
         """New home positions (counts at q = 0): the robot is straight there."""
         with self._lock:
-            self._pending_offset = np.zeros_like(self._q_offset_target)
             self._post("home", np.array(home_counts, dtype=np.int64))
 
     def attach_sink(self, sink: Any) -> None:
@@ -465,7 +469,6 @@ class ControlLoop:
             return
         with self._lock:
             commands, self._pending = self._pending, []
-            self._pending_offset = None
             self._has_pending = False
         for kind, payload in commands:
             self._apply(kind, payload, now)
@@ -553,12 +556,13 @@ class ControlLoop:
         m2 = clock()
 
         # Limits
+        tip_err = math.nan  # no tracker (sample): nothing to compare the model tip with
         if self.supervisor.use_tracker:
             self._tips.add(now, self.model.tip(psi))
-        if self.supervisor.use_tracker and np.isfinite(tip_mm).all():
-            tip_err = self._tips.distance(now, tip_mm, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s)
-        else:
-            tip_err = math.nan  # no tracker sample: nothing to compare the model tip with
+            if np.isfinite(tip_mm).all():
+                tip_err = self._tips.distance(
+                    now, tip_mm, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s
+                )
         moving = run is not None and run.state == "running"
         trip = self.supervisor.check(
             CycleCheck(
@@ -633,8 +637,6 @@ class ControlLoop:
 
     def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event) -> CycleRow:
         layout = self._row_layout
-        if layout is None:
-            layout = self._row_layout = RowLayout(len(psi), len(q_nom))
         # One fresh array: later cycles may reuse the arrays they were given.
         values = np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N, tip_mm))
         return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)

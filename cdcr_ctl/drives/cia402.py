@@ -9,6 +9,7 @@ SWITCH ON -> 0x07 -> SWITCHED ON -> 0x0F -> OPERATION ENABLED.
 from __future__ import annotations
 
 import enum
+import functools
 
 
 class State(enum.Enum):
@@ -102,6 +103,7 @@ MODE_BY_NAME = {
 }
 
 
+@functools.cache  # a handful of distinct statuswords; called for every TPDO
 def state_of(statusword: int) -> State:
     """The CiA 402 state a statusword reports."""
     for mask, value, state in _SW_PATTERNS:

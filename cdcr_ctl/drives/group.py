@@ -129,10 +129,6 @@ CLOSE_SETTLE_S = 0.3
 CLOSE_SDO_TIMEOUT_S = 0.1
 #: The SYNC frame (COB-ID, data).
 _SYNC_FRAME = (SYNC_COB_ID, b"")
-#: csp/pm RPDO1 payload: what epos.target_payload packs (int32 little endian).
-_pack_target = struct.Struct("<i").pack
-#: Statusword -> CiA 402 state, filled as statuswords are seen (a few dozen values at most).
-_STATES: dict[int, State] = {}
 
 
 @dataclass(frozen=True)
@@ -360,11 +356,6 @@ class DriveGroup:
             self._by_tpdo[drive.layout.feedback.cob_id] = drive  # decoded in _on_frame
             self.network.subscribe(0x080 + d.node_id, self._on_emcy)
             self.network.subscribe(0x700 + d.node_id, self._on_heartbeat)
-        #: Every drive in a synchronous-target mode (csp, pm): send_cycle's short path.
-        self._cyclic_only = all(
-            d.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE) for d in self._drives
-        )
-        self._setpoint_cobs = [d.layout.setpoint.cob_id for d in self._drives]
         self._heartbeats = HeartbeatConsumer(
             {d.node_id: d.heartbeat_producer_ms / 1e3 for d in drives}
         )
@@ -536,9 +527,7 @@ class DriveGroup:
             )
             return
         sw, pos = parsed
-        state = _STATES.get(sw)
-        if state is None:
-            state = _STATES[sw] = state_of(sw)
+        state = state_of(sw)
         d.feedback = Feedback(d.id, sw, pos, state, now, d.fault_text)
         d.tpdo_sync = self.sync_count
         d.tpdo_count += 1
@@ -756,16 +745,18 @@ class DriveGroup:
         for d, t in zip(self._drives, targets_counts, strict=True):
             t = int(t)
             last, pending, points, active = d.last_target, d.pp_pending, d.ip_points, d.ip_active
+            cob = d.layout.setpoint.cob_id
+            if d.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE):
+                # A synchronous target: one RPDO, no stream state but the last target.
+                frames.append((cob, target_payload(t)))
+                states.append((t, pending, points, active))
+                continue
             enabled = (
                 not faulted
                 and d.feedback.state is State.OPERATION_ENABLED
                 and d.controlword & 0x8F == CW_ENABLE_OPERATION
             )
-            cob = d.layout.setpoint.cob_id
-            if d.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE):
-                frames.append((cob, target_payload(t)))
-                last = t
-            elif d.mode is Mode.PROFILE_POSITION:
+            if d.mode is Mode.PROFILE_POSITION:
                 cw = d.controlword & ~(CW_NEW_SETPOINT_BIT | CW_CHANGE_IMMEDIATELY_BIT)
                 if not enabled:
                     last, pending = None, False
@@ -795,7 +786,7 @@ class DriveGroup:
         """(COB-ID, data) of every frame of one cycle: the set-point RPDOs, then SYNC. Pure: it
         neither sends nor changes the group. ``targets_counts`` in the group's drive order."""
         frames, _ = self._plan(targets_counts)
-        return [*frames, (SYNC_COB_ID, b"")]
+        return [*frames, _SYNC_FRAME]
 
     def send_cycle(self, targets_counts: Sequence[int]) -> None:
         """Send one cycle's set-points as one burst, then SYNC; then check feedback and heartbeat
@@ -805,32 +796,18 @@ class DriveGroup:
         now = self.clock()
         with self._cycle_lock:
             self._send_pending_quick_stop()
-            states = None
-            if self._cyclic_only:
-                # Every drive takes a synchronous target (csp, pm): one RPDO each, no stream
-                # state but the last target (what _plan gives for these modes).
-                targets = [int(t) for t in targets_counts]
-                frames = [
-                    (cob, _pack_target(t))
-                    for cob, t in zip(self._setpoint_cobs, targets, strict=True)
-                ]
-            else:
-                frames, states = self._plan(targets_counts)
+            frames, states = self._plan(targets_counts)
             frames.append(_SYNC_FRAME)
             self._sync_starts(now)
             try:
                 self._send_burst(frames)
             except CommError:
                 return
-            if states is None:
-                for d, t in zip(self._drives, targets, strict=True):
-                    d.last_target = t
-            else:
-                for d, (last, pending, points, active) in zip(self._drives, states, strict=True):
-                    d.last_target, d.pp_pending, d.ip_points = last, pending, points
-                    if active and not d.ip_active:
-                        d.controlword |= CW_IP_ENABLE_BIT
-                    d.ip_active = active
+            for d, (last, pending, points, active) in zip(self._drives, states, strict=True):
+                d.last_target, d.pp_pending, d.ip_points = last, pending, points
+                if active and not d.ip_active:
+                    d.controlword |= CW_IP_ENABLE_BIT
+                d.ip_active = active
             self.sync_count += 1
             self._last_cycle_s = now
         self._supervise(now)

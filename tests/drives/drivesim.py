@@ -176,3 +176,15 @@ def can_messages() -> st.SearchStrategy[can.Message]:
         st.binary(max_size=8),
         st.integers(0, 0x1FFFFFFF),
     )
+
+
+def assert_same_frame(back: can.Message | None, msg: can.Message) -> None:
+    """``back`` (a frame parsed back from its slcan line) is ``msg``: id, kind, DLC and data."""
+    assert back is not None
+    assert (back.arbitration_id, back.is_extended_id, back.is_remote_frame, back.dlc) == (
+        msg.arbitration_id,
+        msg.is_extended_id,
+        msg.is_remote_frame,
+        msg.dlc,
+    )
+    assert bytes(back.data) == (b"" if msg.is_remote_frame else bytes(msg.data))

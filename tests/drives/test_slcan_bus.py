@@ -12,7 +12,7 @@ import tty
 
 import can
 import pytest
-from drivesim import can_messages, channel, wait_until
+from drivesim import assert_same_frame, can_messages, channel, wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -87,14 +87,7 @@ def test_encode_line_matches_the_emulator_and_parses_back(msg):
     if not (msg.is_extended_id or msg.is_remote_frame):
         assert encode_data_line(msg.arbitration_id, bytes(msg.data)) == line
     back = parse_line(line[:-1].decode())
-    assert back is not None
-    assert (back.arbitration_id, back.is_extended_id, back.is_remote_frame, back.dlc) == (
-        msg.arbitration_id,
-        msg.is_extended_id,
-        msg.is_remote_frame,
-        msg.dlc,
-    )
-    assert bytes(back.data) == (b"" if msg.is_remote_frame else bytes(msg.data))
+    assert_same_frame(back, msg)
 
 
 @settings(max_examples=300)

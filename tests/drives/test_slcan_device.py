@@ -9,7 +9,7 @@ import time
 
 import can
 import pytest
-from drivesim import can_messages, channel, wait_until
+from drivesim import assert_same_frame, can_messages, channel, wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -161,14 +161,7 @@ def test_encode_decode_round_trip(msg):
     line = encode_frame(msg).decode()
     assert line.endswith("\r")
     back = decode_frame(line[:-1])
-    assert back is not None
-    assert (back.arbitration_id, back.is_extended_id, back.is_remote_frame, back.dlc) == (
-        msg.arbitration_id,
-        msg.is_extended_id,
-        msg.is_remote_frame,
-        msg.dlc,
-    )
-    assert bytes(back.data) == (b"" if msg.is_remote_frame else bytes(msg.data))
+    assert_same_frame(back, msg)
 
 
 @pytest.fixture(scope="module")
