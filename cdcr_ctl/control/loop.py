@@ -344,6 +344,11 @@ class ControlLoop:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
+    @property
+    def current_run(self) -> RunInfo | None:
+        """The run the loop is following now (None: holding); posted runs count once taken up."""
+        return self._run
+
     def follow(
         self, source: SetpointSource, name: str, compensation: str | None, sink: Any = None
     ) -> RunInfo:

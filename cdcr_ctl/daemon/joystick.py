@@ -9,8 +9,8 @@ whose config has no vertebra section is refused by that same config check.
 
 Life cycle: the joystick is opened when the session starts (``start``) and closed when its run
 ends, whatever ended it: ``stop``, the ``seconds`` limit, a supervisor trip, a new run replacing
-it, daemon shutdown. A :class:`SessionWatcher` thread notices the end (it polls the run's state,
-off the loop's path) and closes the reader.
+it, daemon shutdown. The session's watcher thread (started by :meth:`JoystickSession.attach`)
+notices the end (it polls the run's state, off the loop's path) and closes the reader.
 
 Losing the joystick mid-session is treated like a stale sensor: the session's check in the
 supervisor (one of its ``extra_checks``) trips ``joystick_lost`` with reaction HALT, so the loop
@@ -140,8 +140,7 @@ def end_follow_source(cfg: RigConfig, psi0: np.ndarray, read: Any, source: str =
 class JoystickSession:
     """One live session: its source, its joystick, its run and the watcher that ends it."""
 
-    def __init__(self, cfg: RigConfig, source: SessionSource, device: str) -> None:
-        self.cfg = cfg
+    def __init__(self, source: SessionSource, device: str) -> None:
         self.source = source
         self.stick = source.stick
         self.device = device
@@ -168,7 +167,7 @@ class JoystickSession:
         stick = opener(js)  # SensorError naming the device when it cannot be opened
         source = SessionSource(follow, stick, duration_s)
         holder.append(source)
-        return cls(cfg, source, js.device or "evdev (first device with both axes)")
+        return cls(source, js.device or "evdev (first device with both axes)")
 
     def check(self, c: CycleCheck) -> Trip | None:
         """The supervisor's per-cycle check: HALT when the joystick failed (like a stale

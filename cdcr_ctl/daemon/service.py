@@ -244,7 +244,7 @@ class Daemon:
         return {"enabled": False}
 
     def _cmd_home(self, args: Any) -> dict[str, Any]:
-        if self.loop.snapshot()["run"] is not None:
+        if self.loop.current_run is not None:
             raise RigError("a run is in progress: stop it before homing")
         self.loop.pause(True)
         try:
@@ -252,8 +252,7 @@ class Daemon:
         finally:
             self.loop.pause(False)
         self.loop.set_home(home)
-        # A run posted in the same cycle as the new home would be replaced by the home's hold
-        # before it ever ran: reply once the loop has taken the home up.
+        # Reply once the loop has taken the home up (status shows the new home).
         self._wait_cycles(2)
         self.homed = True
         return {"home_counts": list(home)}
@@ -386,14 +385,13 @@ class Daemon:
         return self._started(run, device=session.device)
 
     def _wait_picked_up(self, run: Any) -> None:
-        """Return once the loop runs ``run`` (or ended it): a ``stop`` posted in the same cycle
-        as a new run is applied before the run starts and would be lost, so the reply to a run
-        request (trajectory, jog, joystick) means the run is running. Bounded:
-        ``RUN_PICKUP_TIMEOUT_S`` (a loop that is not running does not hold the reply up)."""
+        """Return once the loop runs ``run`` (or ended it), so the reply to a run request
+        (trajectory, jog, joystick) means the run is running and a ``status`` right after it
+        shows it. Bounded: ``RUN_PICKUP_TIMEOUT_S`` (a loop that is not running does not hold
+        the reply up)."""
         end = time.monotonic() + RUN_PICKUP_TIMEOUT_S
         while self.loop.running and time.monotonic() < end and run.state == "running":
-            current = self.loop.snapshot()["run"]
-            if current is not None and current["id"] == run.id:
+            if self.loop.current_run is run:
                 return
             time.sleep(self.loop.cfg.period_s / 2)
 

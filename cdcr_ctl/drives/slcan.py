@@ -13,12 +13,11 @@ it). At 1 kHz that cannot keep up. :class:`SlcanBus` keeps python-can's set-up (
   Message; filters whose masks are the full 11-bit identifier are one set lookup before any
   Message is made, others fall back to python-can's matching; frames for a hook
   (:meth:`SlcanBus.set_frame_hook`, the cyclic TPDOs) go to it as (id, bytes) at once;
-- send: each line goes out with one ``write`` and no drain; :meth:`SlcanBus.send_many` (Messages)
-  and :meth:`SlcanBus.send_frames` ((id, data) pairs) write a burst (a cycle's set-points and
-  SYNC) with one ``write``; a port that does not take the bytes
-  within ``timeout`` raises :class:`can.CanTimeoutError` (a line already started is finished
-  first, within :data:`PARTIAL_LINE_S`, so the adapter never sees two lines run together); the
-  port's settings are never changed per call.
+- send: each line goes out with one ``write`` and no drain; :meth:`SlcanBus.send_frames`
+  ((id, data) pairs) writes a burst (a cycle's set-points and SYNC) with one ``write``; a port
+  that does not take the bytes within ``timeout`` raises :class:`can.CanTimeoutError` (a line
+  already started is finished first, within :data:`PARTIAL_LINE_S`, so the adapter never sees two
+  lines run together); the port's settings are never changed per call.
 
 The bytes on the wire are the same as python-can's (``tiiildd..\\r``, hex upper case). Ports
 without a file descriptor (pyserial URL handlers such as ``loop://``) use python-can's own path;
@@ -295,14 +294,6 @@ class SlcanBus(slcanBus):
             super().send(msg, timeout)
             return
         self._write_all(encode_line(msg), timeout)
-
-    def send_many(self, msgs: Iterable[can.Message], timeout: float | None = None) -> None:
-        """Send ``msgs`` in order with one write (one burst on the adapter)."""
-        data = b"".join(encode_line(m) for m in msgs)
-        if self._fd is None:
-            self.serialPortOrig.write(data)
-            return
-        self._write_all(data, timeout)
 
     def send_frames(
         self, frames: Sequence[tuple[int, bytes]], timeout: float | None = None

@@ -381,12 +381,17 @@ def _evdev_events(device: Any, name: str) -> Iterator[Event | None]:
             raise SensorError(name, f"joystick disconnected: {exc}") from exc
 
 
+def config_axis_range(cfg: JoystickConfig) -> AxisRange | None:
+    """The steering axes' raw range given in the config (``axis_range``), or None."""
+    if cfg.axis_range is None:
+        return None
+    return AxisRange(cfg.axis_range.min, cfg.axis_range.max)
+
+
 def _config_ranges(cfg: JoystickConfig) -> dict[int, AxisRange]:
     """The steering axes' raw range from ``cfg.axis_range`` (empty when not given)."""
-    if cfg.axis_range is None:
-        return {}
-    r = AxisRange(cfg.axis_range.min, cfg.axis_range.max)
-    return {axis_code(cfg.axis_x): r, axis_code(cfg.axis_y): r}
+    r = config_axis_range(cfg)
+    return {} if r is None else {axis_code(cfg.axis_x): r, axis_code(cfg.axis_y): r}
 
 
 def open_evdev_joystick(

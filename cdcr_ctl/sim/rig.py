@@ -251,7 +251,7 @@ def network_joystick(loaded: LoadedSim) -> Any:
     The frames are the operator's intent; the raw values sent are what the configured stick
     reports (an inverted axis is sent inverted, so the controller's ``invert_*`` undoes it).
     """
-    from cdcr_ctl.sensors.joystick import DEFAULT_RANGE, AxisRange
+    from cdcr_ctl.sensors.joystick import DEFAULT_RANGE, config_axis_range
     from cdcr_ctl.sim.joystick import JoystickFrame, NetworkJoystickServer, ScriptedJoystick
 
     js = loaded.rig.sensors.joystick
@@ -260,9 +260,7 @@ def network_joystick(loaded: LoadedSim) -> Any:
     sx = -1.0 if js.invert_x else 1.0
     sy = -1.0 if js.invert_y else 1.0
     frames = [JoystickFrame(f.t_s, sx * f.x, sy * f.y, f.buttons) for f in stick_script(loaded)]
-    rng = (
-        DEFAULT_RANGE if js.axis_range is None else AxisRange(js.axis_range.min, js.axis_range.max)
-    )
+    rng = config_axis_range(js) or DEFAULT_RANGE
     disconnect = loaded.sim.joystick.disconnect_after_s is not None
 
     def source() -> ScriptedJoystick:

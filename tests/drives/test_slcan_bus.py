@@ -140,7 +140,7 @@ def test_filters_drop_frames_before_a_message_is_made(pty):
         bus.shutdown()
 
 
-def test_send_many_is_one_write_in_order(pty):
+def test_send_frames_is_one_write_in_order(pty):
     bus = open_bus(pty.path)
     try:
         pty.read_all()
@@ -150,11 +150,9 @@ def test_send_many_is_one_write_in_order(pty):
             )
             for n in (1, 2, 3)
         ] + [can.Message(arbitration_id=0x080, data=b"", is_extended_id=False)]
-        bus.send_many(burst, 0.005)
+        bus.send_frames([(m.arbitration_id, bytes(m.data)) for m in burst], 0.005)
         want = b"".join(encode_line(m) for m in burst)
         assert os.read(pty.master, 4096) == want  # one read takes the whole burst
-        bus.send_frames([(m.arbitration_id, bytes(m.data)) for m in burst], 0.005)
-        assert os.read(pty.master, 4096) == want
     finally:
         bus.shutdown()
 
@@ -208,7 +206,7 @@ def test_a_write_the_adapter_does_not_take_times_out_and_never_cuts_a_line(
     try:
         t0 = time.monotonic()
         with pytest.raises(can.CanTimeoutError):
-            bus.send_many(burst, 0.02)
+            bus.send_frames([(m.arbitration_id, bytes(m.data)) for m in burst], 0.02)
         assert time.monotonic() - t0 < 2.0
         line = encode_line(burst[0])
         # Whole lines or nothing: the line started is finished when the port takes it within
