@@ -52,6 +52,7 @@ if str(ROOT) not in sys.path:
 from cdcr_ctl.config.build_model import build_cc_disk_model  # noqa: E402
 from cdcr_ctl.control.trajectory import Trajectory, psi_from_vectors, random_smooth  # noqa: E402
 from cdcr_ctl.errors import ModelError  # noqa: E402
+from cdcr_ctl.model.compensation import MODES  # noqa: E402
 from cdcr_ctl.model.effects import rotation_from_rotvec  # noqa: E402
 from cdcr_ctl.model.params import Effects  # noqa: E402
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, sample_columns  # noqa: E402
@@ -83,7 +84,8 @@ PAPER_BEND_RAD = math.pi / 2
 #: generated trajectory may use: the daemon's supervisor refuses commands at the limits, so a
 #: logged run never reaches them (10 % is left for the compensation and the margin).
 LIMIT_SHARE = 0.9
-#: Rate of the bending vector (rad/s): about Qi et al. 2023's pi/10 rad/s bending rate.
+#: Rate of the bending vector (rad/s): 11 % above Qi et al. 2023's pi/10 rad/s
+#: (:data:`~cdcr_ctl.control.trajectory.QI2023_BEND_RATE_RAD_S`), so 60 s hold more reversals.
 BEND_RATE_RAD_S = 0.35
 
 
@@ -219,7 +221,7 @@ def compensation_mode(
     ``off``. ``measured`` is checked as ``model`` (no readings before the run).
     """
     if compensation is not None:
-        if compensation not in ("off", "model", "measured"):
+        if compensation not in MODES:
             raise SystemExit(f"compensation {compensation!r}: choose off, model or measured")
         return compensation, "given"
     mode = cfg.control.compensation
@@ -441,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--compensation",
-        choices=("off", "model", "measured"),
+        choices=MODES,
         default=None,
         help="the loop's compensation mode [default: the rig config's control.compensation]",
     )

@@ -152,19 +152,7 @@ def noise_sigma(x: np.ndarray, floor: float) -> float:
     sigma = 1.4826 * MAD(d2) / sqrt(6), d2 the second differences of the samples that changed
     (a sample-and-hold sensor repeats values); robust to the smooth motion and to outliers.
     """
-    out = []
-    for c in range(x.shape[1]):
-        v = x[:, c]
-        v = v[np.isfinite(v)]
-        if v.size < 10:
-            continue
-        keep = np.concatenate(([True], np.diff(v) != 0.0))
-        v = v[keep]
-        if v.size < 10:
-            continue
-        d2 = v[2:] - 2 * v[1:-1] + v[:-2]
-        out.append(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
-    return max(float(np.median(out)) if out else floor, floor)
+    return residual_noise_sigma(x, np.zeros_like(x), floor)
 
 
 def residual_noise_sigma(meas: np.ndarray, pred: np.ndarray, floor: float) -> float:

@@ -81,9 +81,7 @@ class TipTiming:
 
     def apply(self, tip_mm: np.ndarray) -> np.ndarray:
         """The model tip series (N, 3) as the tracker shows it: each row at t_i - delay_i (mm)."""
-        tq = self.t_s - self.row_delay_s
-        tip = np.asarray(tip_mm, dtype=float)
-        return np.column_stack([np.interp(tq, self.t_s, tip[:, a]) for a in range(tip.shape[1])])
+        return _at(self.t_s - self.row_delay_s, self.t_s, np.asarray(tip_mm, dtype=float))
 
     def with_common_delay(
         self, tip_meas: np.ndarray, tip_model: np.ndarray, start_s: float = 0.0
@@ -139,16 +137,17 @@ def _common_delay(
         return 0.0
 
     def sse(L: float) -> float:
-        tq = t_s - (rel_delay + L)
-        pred = np.column_stack([np.interp(tq, t_s, tip_model[:, a]) for a in range(3)])
+        pred = _at(t_s - (rel_delay + L), t_s, tip_model)
         return float(np.sum((tip_meas - pred)[ok] ** 2))
+
+    velocity = np.gradient(tip_model, t_s, axis=0)
 
     L = float(np.clip(start_s, -MAX_DELAY_S, MAX_DELAY_S))
     best = (sse(L), L)
     for _ in range(6):
         tq = t_s - (rel_delay + L)
-        pred = np.column_stack([np.interp(tq, t_s, tip_model[:, a]) for a in range(3)])
-        v = np.column_stack([np.interp(tq, t_s, g) for g in np.gradient(tip_model, t_s, axis=0).T])
+        pred = _at(tq, t_s, tip_model)
+        v = _at(tq, t_s, velocity)
         e = (tip_meas - pred)[ok].ravel()
         a = -v[ok].ravel()
         den = float(a @ a)
@@ -244,3 +243,8 @@ def estimate_timing(
             f" [{pattern}] ms about the common delay"
         )
     return TipTiming(P, rel, classes, t_s, note)
+
+
+def _at(tq: np.ndarray, t_s: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Series ``x`` (N, C) sampled at ``t_s`` (s), linearly interpolated at the times ``tq``."""
+    return np.column_stack([np.interp(tq, t_s, x[:, c]) for c in range(x.shape[1])])

@@ -59,7 +59,7 @@ from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
 class RunOutcome:
     """Per run: tip RMS gap (mm) and tension RMS gap (N) before and after the refit, and the
     tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove.
-    ``lag_s``: the tracker's mean delay behind the rows (timing model + fitted correction)."""
+    ``lag_s``: the tracker's mean delay behind the rows (the run's timing model)."""
 
     name: str
     tip_noise_floor_mm: float
@@ -386,7 +386,7 @@ def _without_lag(d: Design, run: AlignedRun, nuis: np.ndarray) -> np.ndarray:
 
 def _lag_of(d: Design, run: AlignedRun, nuis: np.ndarray) -> float:
     """The fitted linear tracker-lag nuisance of ``run`` (s), 0 if it has none."""
-    names = [i for i, n in enumerate(d.nu_names) if n.startswith(f"{run.name}: tracker lag")]
+    names = [i for i, n in enumerate(d.nu_names) if n == f"{run.name}: tracker lag (s)"]
     return float(nuis[names[0]]) if names else 0.0
 
 
@@ -420,9 +420,10 @@ def _nuisance_fit(run_i: int, d: Design, resid_entries: np.ndarray) -> np.ndarra
 
 def _corrected_tip_error(
     run: AlignedRun, pred: Prediction, d: Design, ri: int, nuis: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """Tip error (N,) mm and tension residual (N, K) N after removing the nuisance (lag,
-    load-cell offsets) fitted to them; and the lag (s)."""
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Tip error (N,) mm and tension residual (N, K) N after removing the nuisance fitted to
+    them (the load-cell offsets; the tracker lag is already in the run's timing, its linear
+    nuisance is zero here: :func:`_final_timing`)."""
     m = d.run == ri
     rows, chans = d.row[m], d.chan[m]
     corr = d.Nu[m] @ nuis
@@ -434,7 +435,7 @@ def _corrected_tip_error(
     if run.tension_N is not None:
         Te = run.tension_N - pred.tension_N
         Te[rows[~t_m], chans[~t_m] - 3] -= corr[~t_m] * run.sigma_tension_N
-    return np.linalg.norm(tip_c, axis=1), Te, _lag_of(d, run, nuis)
+    return np.linalg.norm(tip_c, axis=1), Te
 
 
 def _outcomes(
@@ -447,13 +448,13 @@ def _outcomes(
     out = []
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
         nb = nuis_before[ri]
-        eb, Tb, lag = _corrected_tip_error(run, base, d, ri, nb)
+        eb, Tb = _corrected_tip_error(run, base, d, ri, nb)
         if rf is not None:
             after = rf.predictions[ri]
-            ea, Ta, _ = _corrected_tip_error(run, after, d, ri, rf.nuisance)
+            ea, Ta = _corrected_tip_error(run, after, d, ri, rf.nuisance)
         else:
             after, ea, Ta = base, eb, Tb
-        tables = localise(run, _shifted(base, run, lag))
+        tables = localise(run, base)
 
         def rms(x):
             return (
@@ -470,7 +471,7 @@ def _outcomes(
                 tip_rms_after_mm=rms(ea),
                 tension_rms_before_N=rms(Tb),
                 tension_rms_after_N=rms(Ta),
-                lag_s=lag + float(np.mean(run.timing.row_delay_s)),
+                lag_s=float(np.mean(run.timing.row_delay_s)),
                 tables=tables,
                 t_s=run.t_s,
                 tip_err_before_mm=eb,
@@ -478,12 +479,3 @@ def _outcomes(
             )
         )
     return out
-
-
-def _shifted(pred: Prediction, run: AlignedRun, lag_s: float) -> Prediction:
-    """Prediction delayed by the fitted tracker lag (for the localisation tables)."""
-    if lag_s == 0.0:
-        return pred
-    t = run.t_s - lag_s
-    tip = np.column_stack([np.interp(t, run.t_s, pred.tip_mm[:, a]) for a in range(3)])
-    return Prediction(tip, pred.tension_N, pred.psi, pred.failures)
