@@ -71,6 +71,10 @@ def run_sequence(fast: bool) -> tuple[list[int], list[float]]:
             if not fast:
                 wait_until(lambda k=k: r.sim.nodes[0].sync_count > k, 1.0)
         assert wait_until(lambda: all(n.sync_count == 300 for n in r.sim.nodes))
+        # A node counts a SYNC when it starts handling it and sends its TPDO after the motor step:
+        # the positions are final only once every drive's TPDO of the last SYNC is back. (Reading
+        # on sync_count alone raced the last step of the last drive under load.)
+        assert wait_until(lambda: g.tpdo_counts() == [g.sync_count] * 3)
         assert g.first_fault() is None
         return r.sim.actual_positions(), [n.motor.x for n in r.sim.nodes]
     finally:
