@@ -41,6 +41,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from cdcr_ctl.config.base import Section
+from cdcr_ctl.config.keys import KeyPath, format_key
 from cdcr_ctl.config.robot import NonNegativeFloat, PositiveFloat
 from cdcr_ctl.errors import ConfigError, ConfigErrors
 from cdcr_ctl.model.ujoint import (
@@ -64,7 +65,6 @@ from cdcr_ctl.model.vertebra import (
 from cdcr_ctl.model.vertebra_follow import SPEED_FRACTION, plan_session
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-KeyPath = tuple[str | int, ...]
 
 #: Relative mismatch allowed between a drive's counts_per_mm and the design's transmission.
 COUNTS_PER_MM_REL_TOL = 1e-3
@@ -377,7 +377,6 @@ def _lead_screw(uj: UJointConfig) -> LeadScrewDrive:
 
 
 def _raise_problems(problems: list[tuple[KeyPath, str, Any]], source: str) -> None:
-    from cdcr_ctl.config.loader import format_key  # the loader imports the schema, which imports us
 
     if problems:
         raise ConfigErrors([ConfigError(source, format_key(k), m, v) for k, m, v in problems])

@@ -19,22 +19,11 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from cdcr_ctl.config.designs import check_design
+from cdcr_ctl.config.keys import KeyPath, format_key
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, ConfigErrors
 
 M = TypeVar("M", bound=BaseModel)
-KeyPath = tuple[str | int, ...]
-
-
-def format_key(path: KeyPath) -> str:
-    """Render a key path as ``robot.cables[1].segment``."""
-    out = ""
-    for part in path:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        else:
-            out += ("." if out else "") + str(part)
-    return out
 
 
 def read_yaml(path: str | Path) -> Any:

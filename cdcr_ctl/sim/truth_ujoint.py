@@ -21,7 +21,7 @@ import numpy as np
 
 from cdcr_ctl.config.designs import ujoint_arm
 from cdcr_ctl.model import ujoint as uj
-from cdcr_ctl.sim.design_truth import DesignTruth, DesignTruthState
+from cdcr_ctl.sim.design_base import DesignTruth, DesignTruthState
 from cdcr_ctl.sim.simconfig import LoadedSim
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from cdcr_ctl.config.designs import sensor_mounts, vertebra_arm
 from cdcr_ctl.model import vertebra as vt
-from cdcr_ctl.sim.design_truth import DesignTruth, DesignTruthState
+from cdcr_ctl.sim.design_base import DesignTruth, DesignTruthState
 from cdcr_ctl.sim.simconfig import LoadedSim
 
 
