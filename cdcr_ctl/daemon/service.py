@@ -454,7 +454,8 @@ class Daemon:
         start = getattr(self.io.drives, "log_traffic", None)
         path = getattr(sink, "can_log_path", None)
         if start is not None and path is not None and self.cfg.can.log_traffic:
-            start(path("asc"))
+            tap = getattr(sink, "can_tap", None)  # the run's MCAP /can channel
+            start(path("asc"), tap) if tap is not None else start(path("asc"))
 
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:

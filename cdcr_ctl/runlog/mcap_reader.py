@@ -16,6 +16,7 @@ hold whole rows) reads as NaN there.
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -80,7 +81,8 @@ def read_mcap(path: str | Path, *, with_can: bool = False) -> McapRun:
     try:
         f = open(p, "rb")  # noqa: SIM115 - closed below
     except OSError as exc:
-        raise ConfigError(str(p), "", f"cannot open the MCAP run log: {exc.strerror or exc}") from exc
+        why = f"cannot open the MCAP run log: {exc.strerror or exc}"
+        raise ConfigError(str(p), "", why) from exc
     with f:
         size = f.seek(0, 2)
         f.seek(0)
@@ -106,7 +108,7 @@ def read_mcap(path: str | Path, *, with_can: bool = False) -> McapRun:
                     out.attachments[rec.name] = rec.data
                 elif isinstance(rec, Metadata):
                     out.metadata[rec.name] = dict(rec.metadata)
-        except McapError as exc:
+        except (McapError, struct.error) as exc:  # struct: a cut inside a record's length
             if n_records == 0:
                 raise ConfigError(str(p), "", f"not an MCAP file: {exc}") from exc
             out.complete = False

@@ -149,8 +149,8 @@ class McapSink:
             t = d.get("t_s")
             t = float(t) if t is not None else 0.0
             if self._epoch_ns is None:
-                self._epoch_ns = time.time_ns() - int(round(t * 1e9))
-            log_ns = self._epoch_ns + int(round(t * 1e9))
+                self._epoch_ns = time.time_ns() - round(t * 1e9)
+            log_ns = self._epoch_ns + round(t * 1e9)
             index = self.rows_written
             for topic, msg in self.rows.messages(d, index):
                 self._add(topic, log_ns, msg)
@@ -181,7 +181,7 @@ class McapSink:
                 "dlc": dlc,
                 "data": data.hex(),
             }
-            self._add(streams.CAN, int(round(ts * 1e9)), msg)
+            self._add(streams.CAN, round(ts * 1e9), msg)
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the OS (no fsync)."""

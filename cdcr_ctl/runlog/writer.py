@@ -295,7 +295,8 @@ class RunLogWriter:
             self._bytes += len(header)
             if second_sink is not None:
                 files = {CONFIG_YAML: config_text} if config_text is not None else {}
-                self._second = second_sink(self.run_dir, self.columns, {**files, **(extra_files or {})})
+                files.update(extra_files or {})
+                self._second = second_sink(self.run_dir, self.columns, files)
         except OSError as exc:
             if self._file is not None:
                 with contextlib.suppress(Exception):
