@@ -148,6 +148,7 @@ class _Tee(can.Listener):
             self.second.stop()
 
 
+@dataclass(frozen=True)
 class Feedback:
     """Latest TPDO of one drive: statusword, actual position (counts), its CiA 402 state, when it
     came (s, on the group's clock, ``time.monotonic`` by default) and this drive's fault text
@@ -161,7 +162,6 @@ class Feedback:
     fault: str = ""
 
 
-@dataclass(frozen=True)
 @dataclass(frozen=True)
 class GroupFault:
     """The first fault the group latched.
