@@ -136,9 +136,10 @@ def watch(obj: Ctx, hz: float, count: int | None) -> None:
     n = 0
     tip_model: TipModel | None = None
     model_for: str | None = None
-    with ControlClient(obj.socket) as client, Live(
-        console=console, auto_refresh=False, transient=False
-    ) as live:
+    with (
+        ControlClient(obj.socket) as client,
+        Live(console=console, auto_refresh=False, transient=False) as live,
+    ):
         try:
             while count is None or n < count:
                 t0 = time.monotonic()

@@ -36,7 +36,9 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run, streams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "runlog"))
-import fgclient  # noqa: E402
+import itertools
+
+import fgclient
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -70,8 +72,10 @@ def start_run(work, seconds: float, name: str) -> dict:
 def wait_run_end(work, run_id: str, timeout_s: float = 60.0) -> dict:
     return wait_status(
         work,
-        lambda s: (s.get("run") or {}).get("id") != run_id
-        or (s.get("run") or {}).get("state") != "running",
+        lambda s: (
+            (s.get("run") or {}).get("id") != run_id
+            or (s.get("run") or {}).get("state") != "running"
+        ),
         timeout_s,
     )
 
@@ -140,7 +144,7 @@ def test_live_client_and_the_mcap_file(rig_session):
         # window); a machine loaded by the rest of CI may make it skip ticks, never add them.
         assert 0.5 * expected <= n <= expected + 2, (topic, n, expected)
         ts = [m["t_s"] for _, m in rx[topic]]
-        assert all(b > a for a, b in zip(ts, ts[1:], strict=False))
+        assert all(b > a for a, b in itertools.pairwise(ts))
     assert all(len(m["tension_N"]) == 3 for _, m in rx[streams.TENSION])
     assert all(m["x_mm"] is not None for _, m in rx[streams.TIP_TRACKED])
     assert rx[streams.TIP_MODEL] and rx[streams.SCENE]
