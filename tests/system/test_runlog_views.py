@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import fcntl
+import itertools
 import math
 import os
 import pty
@@ -36,9 +37,7 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run, streams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "runlog"))
-import itertools
-
-import fgclient
+import fgclient  # tests/runlog/fgclient.py: the protocol client
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
