@@ -25,7 +25,8 @@ import numpy as np
 import yaml
 from mcap.exceptions import McapError
 from mcap.records import Attachment, Channel, Message, Metadata
-from mcap.stream_reader import StreamReader
+from mcap.stream_reader import CRCValidationError, StreamReader
+from zstandard import ZstdError
 
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.runlog import streams
@@ -38,6 +39,11 @@ from cdcr_ctl.runlog.columns import (
     sample_columns,
     theta_cmd,
 )
+
+#: What a cut file raises in the ``mcap`` library: the end inside a record (EndOfFile and other
+#: McapErrors, struct.error inside a length field), a zero-filled tail read as a chunk (its
+#: decompression or its CRC fails).
+_CUT = (McapError, struct.error, ZstdError, CRCValidationError)
 
 
 @dataclass
@@ -86,7 +92,7 @@ def read_mcap(path: str | Path, *, with_can: bool = False) -> McapRun:
     with f:
         size = f.seek(0, 2)
         f.seek(0)
-        reader = StreamReader(f, record_size_limit=max(size, 1))
+        reader = StreamReader(f, validate_crcs=True, record_size_limit=max(size, 1))
         try:
             for rec in reader.records:
                 n_records += 1
@@ -108,13 +114,14 @@ def read_mcap(path: str | Path, *, with_can: bool = False) -> McapRun:
                     out.attachments[rec.name] = rec.data
                 elif isinstance(rec, Metadata):
                     out.metadata[rec.name] = dict(rec.metadata)
-        except (McapError, struct.error) as exc:  # struct: a cut inside a record's length
+        except _CUT as exc:
             if n_records == 0:
                 raise ConfigError(str(p), "", f"not an MCAP file: {exc}") from exc
             out.complete = False
             out.warnings.append(
-                f"{p}: the file ends inside a record ({type(exc).__name__}; the writer was"
-                f" stopped): read {len(by_topic[streams.COMMAND])} rows up to the last flush"
+                f"{p}: the file is cut or damaged at record {n_records + 1}"
+                f" ({type(exc).__name__}: {exc}; the writer was stopped):"
+                f" read {len(by_topic[streams.COMMAND])} rows up to the last flush"
             )
     _assemble(out, by_topic)
     if with_can:

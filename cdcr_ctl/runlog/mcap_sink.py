@@ -44,7 +44,7 @@ CHUNK_BYTES = 4 * 1024 * 1024
 #: chunk, and Foxglove and the ``mcap`` readers read chunk-indexed files).
 INDEXES = IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA
 #: Rows encoded between two voluntary releases of the GIL (the loop thread never waits long).
-YIELD_EVERY_ROWS = 2
+YIELD_EVERY_ROWS = 1
 #: Bound of the CAN frame queue (frames); beyond it frames are counted as dropped.
 CAN_QUEUE_FRAMES = 200_000
 
