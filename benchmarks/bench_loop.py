@@ -238,7 +238,7 @@ class RunLogBench:
         st = self.writer.stats
         run_dir = self.writer.run_dir
         sizes = {p.name: p.stat().st_size for p in run_dir.iterdir() if p.is_file()}
-        per_h = {k: v * 3600.0 / wall / 1e6 for k, v in sizes.items()}
+        per_row = {k: v / max(st.written, 1) for k, v in sizes.items()}
         return [
             f"run log ({self.kind}): log stage mean {log_us.mean():.1f} us, p50 "
             f"{np.percentile(log_us, 50):.1f}, p99 {np.percentile(log_us, 99):.1f}, p99.9 "
@@ -247,8 +247,12 @@ class RunLogBench:
             f"run log rows: queued {st.queued}, written {st.written}, dropped {st.dropped}, "
             f"lost {st.lost}",
             "run log size: "
-            + ", ".join(f"{k} {v / 1e6:.2f} MB = {per_h[k]:.0f} MB/h" for k, v in sizes.items())
-            + f" (over {wall:.1f} s, at {st.written / wall:.0f} rows/s)",
+            + ", ".join(
+                f"{k} {v / 1e6:.2f} MB = {per_row[k]:.0f} B/row = {per_row[k] * 3.6e6 / 1e6:.0f}"
+                " MB/h at 1 kHz"
+                for k, v in sizes.items()
+            )
+            + f" (over {wall:.1f} s, {st.written} rows at {st.written / wall:.0f} rows/s)",
         ]
 
 

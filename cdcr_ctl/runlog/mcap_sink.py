@@ -38,13 +38,15 @@ RUN_YAML = "run.yaml"  # the writer's name for it (the writer imports this modul
 PROFILE = ""  # no ROS profile: JSON messages with JSON Schemas
 LIBRARY = f"cdcr-ctl {__version__}"
 #: Chunk size at which the mcap writer closes a chunk by itself (bytes, uncompressed).
-CHUNK_BYTES = 4 * 1024 * 1024
+#: Small enough that compressing one (a few ms for 256 KiB here) never holds the writer thread
+#: long; the chunk is closed at each flush (``fsync_every_s``) in any case.
+CHUNK_BYTES = 256 * 1024
 #: Indexes written: chunk, attachment and metadata indexes, no per-message index (16 bytes per
 #: message outside the compressed chunks, ~30 % of the file at 1 kHz; readers find messages by
 #: chunk, and Foxglove and the ``mcap`` readers read chunk-indexed files).
 INDEXES = IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA
 #: Rows encoded between two voluntary releases of the GIL (the loop thread never waits long).
-YIELD_EVERY_ROWS = 1
+YIELD_EVERY_ROWS = 4
 #: Bound of the CAN frame queue (frames); beyond it frames are counted as dropped.
 CAN_QUEUE_FRAMES = 200_000
 
@@ -127,12 +129,12 @@ class McapSink:
         self.flush()
 
     # ------------------------------------------------------------------ writing
-    def _add(self, topic: str, log_time_ns: int, msg: Mapping[str, Any]) -> None:
+    def _add(self, topic: str, log_time_ns: int, msg: Mapping[str, Any] | bytes) -> None:
         self._seq[topic] += 1
         self._w.add_message(
             self._channels[topic],
             log_time=log_time_ns,
-            data=streams.encode(msg),
+            data=msg if isinstance(msg, bytes) else streams.encode(msg),
             publish_time=log_time_ns,
             sequence=self._seq[topic],
         )
@@ -152,7 +154,7 @@ class McapSink:
                 self._epoch_ns = time.time_ns() - round(t * 1e9)
             log_ns = self._epoch_ns + round(t * 1e9)
             index = self.rows_written
-            for topic, msg in self.rows.messages(d, index):
+            for topic, msg in self.rows.encoded(d, index):
                 self._add(topic, log_ns, msg)
             if self.tip_from_psi is not None and S and index % self.model_tip_every == 0:
                 cyc = d.get("cycle")

@@ -101,8 +101,10 @@ def test_messages_are_strict_json_and_keep_every_finite_float(values):
             "tip_x_mm": b,
             "seg1_theta_cmd_rad": c,
         }
+        fast = dict(rs.encoded(d, n))
         for topic, msg in rs.messages(d, n):
             back = json.loads(streams.encode(msg))  # allow_nan=False: never NaN in the text
+            assert json.loads(fast[topic]) == back  # the writer's direct text: the same JSON
             if topic == streams.TENSION:
                 got = back["tension_N"][0]
                 assert (got is None) if math.isnan(a) else got == a
