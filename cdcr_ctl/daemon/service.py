@@ -121,7 +121,10 @@ class Daemon:
         self.loop.start()
         if self.cfg.live.enabled:
             self.live = live_view_for(
-                self.cfg, lambda: self.loop.last_row, self.model.tip, lambda: self.supervisor.trip
+                self.cfg,
+                lambda: self.loop.last_row,
+                lambda: self.supervisor.trip,
+                str(self.config_path),
             ).start()
         self.server = ControlServer(
             self.cfg.daemon.socket_path, self.handle, mode=self.cfg.daemon.socket_mode

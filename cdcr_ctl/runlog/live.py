@@ -40,6 +40,7 @@ from foxglove.messages import (
     Vector3,
 )
 
+from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.model import kinematics
 from cdcr_ctl.runlog import streams
@@ -269,17 +270,21 @@ class LiveView:
 def live_view_for(
     cfg: RigConfig,
     latest_row: RowSource,
-    tip_from_psi: TipFromPsi | None,
     latest_trip: TripSource | None = None,
+    source: str = "",
 ) -> LiveView:
     """The live view of a rig config's ``live`` section (not started). The scene draws the
-    constant-curvature backbone for ``cc_disk`` rigs, the line base - model tip otherwise."""
+    constant-curvature backbone for ``cc_disk`` rigs, the line base - model tip otherwise.
+
+    The model tip comes from a model instance of its own (built here from ``cfg``; ``source``
+    names the file in errors): the publisher thread never shares the loop's model object."""
+    tip_from_psi = build_model(cfg, source=source).tip
     live = cfg.live
     S, K = len(cfg.robot.segments), len(cfg.robot.cables)
     if cfg.design == "cc_disk":
-        backbone: Backbone | None = cc_backbone([s.length_mm for s in cfg.robot.segments])
+        backbone: Backbone = cc_backbone([s.length_mm for s in cfg.robot.segments])
     else:
-        backbone = tip_line(tip_from_psi) if tip_from_psi is not None else None
+        backbone = tip_line(tip_from_psi)
     return LiveView(
         latest_row,
         sample_columns(S, K, LOOP_EXTRA_COLUMNS),

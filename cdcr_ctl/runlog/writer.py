@@ -9,7 +9,9 @@ A run directory holds
   e.g. ``config_effective.yaml`` with every default filled in);
 - ``samples.csv``: one row per control cycle, columns in :mod:`cdcr_ctl.runlog.columns`;
 - ``can.asc`` or ``can.blf``: raw CAN traffic written by the drives layer (name reserved here,
-  see :func:`can_log_path`).
+  see :func:`can_log_path`);
+- ``run.mcap`` when a ``second_sink`` is given (:mod:`cdcr_ctl.runlog.mcap_sink`): the same rows
+  as channels, flushed and fsynced with ``samples.csv``.
 
 Real-time path: :meth:`RunLogWriter.write` appends the row object to a bounded deque and returns
 (no lock, no I/O, no formatting). A writer thread wakes every :data:`DRAIN_INTERVAL_S`, formats
