@@ -20,6 +20,8 @@ sent or received them and are written at the next drain.
 from __future__ import annotations
 
 import collections
+import contextlib
+import os
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
@@ -204,6 +206,8 @@ class McapSink:
                 self._w.add_metadata("run", yaml_metadata(run_yaml))
             self._w.finish()
             self._file.flush()
+            with contextlib.suppress(OSError, ValueError, AttributeError):  # not a real file
+                os.fsync(self._file.fileno())
         finally:
             self._file.close()
 
