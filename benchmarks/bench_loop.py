@@ -57,6 +57,8 @@ from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.control.timing import Ticker, try_realtime
 from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import open_drive_group
+from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
+from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
@@ -198,6 +200,62 @@ def _end_child(child: subprocess.Popen) -> None:
             child.kill()
 
 
+class RunLogBench:
+    """``--runlog``: a run-log writer attached to the loop (as ``cdcr-ctl log start`` does), the
+    CAN traffic to ``can.asc`` (and, with mcap, to ``run.mcap``'s ``/can``), and the log stage of
+    every cycle recorded (the stage from the loop's own perf_counter marks)."""
+
+    def __init__(self, args, loop, group, model, work: str) -> None:
+        self.kind = args.runlog
+        second = McapSinkFactory(model.tip, args.rate) if self.kind == "mcap" else None
+        meta = RunMetadata(name=f"bench-{self.kind}", rate_hz=args.rate)
+        self.writer = RunLogWriter.create(
+            Path(work) / "runs", meta, model.n_segments, model.n_cables, second_sink=second
+        )
+        self.loop, self.group = loop, group
+        self.samples = np.zeros(int(args.seconds * args.rate * 1.5) + 1000)
+        self.n = 0
+        stages = loop.counters._stages
+
+        def record(marks) -> None:
+            stages(marks)
+            if self.n < len(self.samples):
+                self.samples[self.n] = marks[-1] - marks[-2]  # the "log" stage
+                self.n += 1
+
+        loop.counters._stages = record
+        group.log_traffic(self.writer.can_log_path(), self.writer.can_tap)
+        loop.attach_sink(self.writer)
+
+    def stop(self) -> None:
+        self.loop.attach_sink(None)
+        time.sleep(0.1)
+        self.group.log_traffic(None)
+        self.writer.close("benchmark done")
+
+    def report(self, wall: float) -> list[str]:
+        log_us = self.samples[100 : self.n] * 1e6  # past the first cycles with the sink attached
+        st = self.writer.stats
+        run_dir = self.writer.run_dir
+        sizes = {p.name: p.stat().st_size for p in run_dir.iterdir() if p.is_file()}
+        per_row = {k: v / max(st.written, 1) for k, v in sizes.items()}
+        return [
+            f"run log ({self.kind}): log stage mean {log_us.mean():.1f} us, p50 "
+            f"{np.percentile(log_us, 50):.1f}, p99 {np.percentile(log_us, 99):.1f}, p99.9 "
+            f"{np.percentile(log_us, 99.9):.1f}, max {log_us.max():.1f} us over {len(log_us)} "
+            "cycles",
+            f"run log rows: queued {st.queued}, written {st.written}, dropped {st.dropped}, "
+            f"lost {st.lost}",
+            "run log size: "
+            + ", ".join(
+                f"{k} {v / 1e6:.2f} MB = {per_row[k]:.0f} B/row = {per_row[k] * 3.6e6 / 1e6:.0f}"
+                " MB/h at 1 kHz"
+                for k, v in sizes.items()
+            )
+            + f" (over {wall:.1f} s, {st.written} rows at {st.written / wall:.0f} rows/s)",
+        ]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=60.0)
@@ -220,6 +278,13 @@ def main() -> None:
         metavar="WORK_US",
         help="no bus and no loop: the same ticker with WORK_US of busy work a cycle in one "
         "thread (what the machine allows a Python loop)",
+    )
+    ap.add_argument(
+        "--runlog",
+        choices=("none", "csv", "mcap"),
+        default="none",
+        help="log every cycle as the daemon does: csv = samples.csv, mcap = samples.csv + "
+        "run.mcap (with the CAN frames); prints the log stage's percentiles and bytes per hour",
     )
     ap.add_argument("--sim-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -306,6 +371,7 @@ def main() -> None:
     plan = [first, to_circle] if not args.lead_in_in_window else [bend, circle]
     if args.transport.startswith("slcan") and child is not None:
         ask_child(child, "reset-stats")
+    runlog = RunLogBench(args, loop, group, model, work.name) if args.runlog != "none" else None
     gc_pauses = GcPauses()
     gc.callbacks.append(gc_pauses)
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
@@ -342,6 +408,8 @@ def main() -> None:
         else None
     )
     cycles = loop.counters.cycles - c0
+    if runlog is not None:
+        runlog.stop()
     loop.stop()
     s = loop.ticker.stats.summary()
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
@@ -351,6 +419,7 @@ def main() -> None:
         sim.stop()
     if child is not None:
         _end_child(child)
+    runlog_text = runlog.report(wall) if runlog is not None else []
     work.cleanup()
     load = cycle_load(pdo_cycle_frames(3), period, cfg.can.bitrate)
     where = {
@@ -387,6 +456,8 @@ def main() -> None:
         + ", ".join(f"{k} {v:.0f}" for k, v in loop.counters.stage_max_us.items())
         + " us"
     )
+    for line in runlog_text:
+        print(line)
     print(f"garbage collector passes: {gc_pauses.text()}")
     print(f"process CPU use: {100 * cpu / wall:.0f} % of one core (this process only)")
     if child is not None:

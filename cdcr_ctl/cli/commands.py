@@ -55,7 +55,10 @@ def daemon(obj: Ctx, verbose: bool) -> None:
             update={"daemon": cfg.daemon.model_copy(update={"socket_path": obj._socket})}
         )
     model = build_model(cfg, source=str(path))
-    sinks = RunLogFactory.from_config(cfg, path)
+    # The run log's /tip/model: a model instance of its own (the writer thread's, not the loop's).
+    sinks = RunLogFactory.from_config(
+        cfg, path, tip_from_psi=build_model(cfg, source=str(path)).tip
+    )
     # Before any thread exists: every thread of the daemon inherits the policy, so the loop never
     # waits for the interpreter lock held by a thread of lower priority.
     try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)

@@ -225,6 +225,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         discrepancy,  # noqa: F401  registers discrepancy
         identify,  # noqa: F401  registers identify, experiments
         joystick,  # noqa: F401  registers joystick
+        runlogs,  # noqa: F401  registers export
+        watch,  # noqa: F401  registers watch
     )
 
     try:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
@@ -64,6 +65,35 @@ class LoggingConfig(Section):
 
     directory: str = "runs"
     fsync_every_s: PositiveFloat = 0.5
+    #: Also write the run as ``run.mcap`` (Foxglove, PlotJuggler): one channel per stream, zstd
+    #: chunks closed and flushed every ``fsync_every_s``. ``samples.csv`` is written either way.
+    mcap: bool = True
+
+
+class LiveViewConfig(Section):
+    """The live view: the loop's channels over the Foxglove WebSocket protocol while it runs.
+
+    Off unless ``enabled``. There is no authentication, so the server binds ``host``
+    (127.0.0.1 unless the config names another address). ``rate_hz``: messages per second on
+    each sample channel (commands, cables, tensions, tips, loop timing), taken from the latest
+    cycle; ``scene_hz``: backbone 3D scene updates per second.
+    """
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: Annotated[int, Field(ge=0, le=65535)] = 8765
+    rate_hz: Annotated[float, Field(gt=0, le=200)] = 50.0
+    scene_hz: Annotated[float, Field(gt=0, le=60)] = 10.0
+
+    @field_validator("host")
+    @classmethod
+    def _address(cls, value: str) -> str:
+        # An IP address, not a name: what the server listens on must be plain in the config.
+        try:
+            ipaddress.ip_address(value)
+        except ValueError:
+            raise ValueError(f"{value!r} is not an IP address (e.g. 127.0.0.1)") from None
+        return value
 
 
 class DaemonConfig(Section):

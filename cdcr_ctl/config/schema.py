@@ -7,7 +7,13 @@ from typing import Any, Literal
 from pydantic import Field, ValidationInfo, field_validator
 
 from cdcr_ctl.config.base import Section
-from cdcr_ctl.config.control import ControlConfig, DaemonConfig, LimitsConfig, LoggingConfig
+from cdcr_ctl.config.control import (
+    ControlConfig,
+    DaemonConfig,
+    LimitsConfig,
+    LiveViewConfig,
+    LoggingConfig,
+)
 from cdcr_ctl.config.designs import UJointConfig, VertebraConfig, check_design_section
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
 from cdcr_ctl.config.loadcells import LoadCellsConfig
@@ -47,6 +53,7 @@ class RigConfig(Section):
     limits: LimitsConfig = Field(default_factory=LimitsConfig)
     logging: LoggingConfig = Field(default_factory=LoggingConfig)
     daemon: DaemonConfig = Field(default_factory=DaemonConfig)
+    live: LiveViewConfig = Field(default_factory=LiveViewConfig)
     # validate_default: a missing section is checked too, and the error names its key
     ujoint: UJointConfig | None = Field(default=None, validate_default=True)
     vertebra: VertebraConfig | None = Field(default=None, validate_default=True)

@@ -147,9 +147,10 @@ class DriveGroupPort:
     def reset_faults(self) -> None:
         self.group.reset_faults()
 
-    def log_traffic(self, path: str | Path | None) -> None:
-        """Raw CAN traffic of the following cycles to ``path`` (python-can ASC); None stops."""
-        self.group.log_traffic(path)
+    def log_traffic(self, path: str | Path | None, tap: Any = None) -> None:
+        """Raw CAN traffic of the following cycles to ``path`` (python-can ASC) and to ``tap``
+        (a python-can listener) if given; None stops."""
+        self.group.log_traffic(path, tap)
 
     def close(self) -> None:
         self.group.close()

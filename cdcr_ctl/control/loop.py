@@ -413,6 +413,11 @@ class ControlLoop:
             self._post("stop", reaction)
 
     @property
+    def last_row(self) -> Mapping[str, Any]:
+        """The latest cycle's log row (immutable once made; empty before the first cycle)."""
+        return self._last_row
+
+    @property
     def psi_cmd(self) -> np.ndarray:
         return self._psi_cmd.copy()
 

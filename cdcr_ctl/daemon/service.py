@@ -29,6 +29,7 @@ from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.protocol import ProtocolError, Request
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.live import LiveView, live_view_for
 
 log = logging.getLogger(__name__)
 
@@ -111,11 +112,20 @@ class Daemon:
         #: The last run handed to the loop: "running" from then on, even before the loop takes
         #: it up, until the loop ends it.
         self._last_run: Any = None
+        #: The live view (``live.enabled``), started with the loop.
+        self.live: LiveView | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
         # Start the loop before the socket so a connecting client always sees live status.
         self.loop.start()
+        if self.cfg.live.enabled:
+            self.live = live_view_for(
+                self.cfg,
+                lambda: self.loop.last_row,
+                lambda: self.supervisor.trip,
+                str(self.config_path),
+            ).start()
         self.server = ControlServer(
             self.cfg.daemon.socket_path, self.handle, mode=self.cfg.daemon.socket_mode
         ).start()
@@ -172,6 +182,7 @@ class Daemon:
             ("traffic log", lambda: getattr(self.io.drives, "log_traffic", lambda p: None)(None)),
             ("stop loop", lambda: self.loop.stop(LOOP_JOIN_TIMEOUT_S)),
             ("close socket", lambda: self.server.close() if self.server else None),
+            ("live view", lambda: self.live.stop() if self.live else None),
             ("close io", self.io.close),
         ]
         for name, step in steps:
@@ -454,7 +465,8 @@ class Daemon:
         start = getattr(self.io.drives, "log_traffic", None)
         path = getattr(sink, "can_log_path", None)
         if start is not None and path is not None and self.cfg.can.log_traffic:
-            start(path("asc"))
+            tap = getattr(sink, "can_tap", None)  # the run's MCAP /can channel
+            start(path("asc"), tap) if tap is not None else start(path("asc"))
 
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:

@@ -131,6 +131,23 @@ CLOSE_SDO_TIMEOUT_S = 0.1
 _SYNC_FRAME = (SYNC_COB_ID, b"")
 
 
+class _Tee(can.Listener):
+    """Frames to the traffic file and to a tap; stopping stops both."""
+
+    def __init__(self, first: can.Listener, second: can.Listener) -> None:
+        self.first, self.second = first, second
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.first.on_message_received(msg)
+        self.second.on_message_received(msg)
+
+    def stop(self) -> None:
+        try:
+            self.first.stop()
+        finally:
+            self.second.stop()
+
+
 @dataclass(frozen=True)
 class Feedback:
     """Latest TPDO of one drive: statusword, actual position (counts), its CiA 402 state, when it
@@ -615,9 +632,10 @@ class DriveGroup:
         return format_frames(tuple(self._frames))
 
     # ================================================================== traffic log
-    def log_traffic(self, path: str | Path | None) -> None:
+    def log_traffic(self, path: str | Path | None, tap: can.Listener | None = None) -> None:
         """Log every frame seen and sent to ``path`` (python-can writer chosen by suffix: .asc,
-        .blf, .csv, .log, ...); ``None`` stops and closes the file."""
+        .blf, .csv, .log, ...) and to ``tap`` if given (e.g. the run's MCAP ``/can`` channel);
+        ``None`` stops and closes the file."""
         with self._traffic_lock:
             old, self._traffic = self._traffic, None
             if old is not None:
@@ -627,7 +645,8 @@ class DriveGroup:
                     log.error("CAN traffic log: closing failed: %s", exc)
             if path is not None:
                 Path(path).parent.mkdir(parents=True, exist_ok=True)
-                self._traffic = can.Logger(str(path))
+                logger = can.Logger(str(path))
+                self._traffic = logger if tap is None else _Tee(logger, tap)
                 self.traffic_failure = None
 
     # ================================================================== start-up

@@ -1,7 +1,11 @@
-"""Run logs: one directory per run (``run.yaml``, ``config.yaml``, ``samples.csv``, CAN traffic).
+"""Run logs: one directory per run (``run.yaml``, ``config.yaml``, ``samples.csv``, ``run.mcap``,
+CAN traffic).
 
-:mod:`~cdcr_ctl.runlog.writer` writes them off the real-time path, :mod:`~cdcr_ctl.runlog.reader`
-loads them (partial logs included), :mod:`~cdcr_ctl.runlog.plots` draws them. Column names are
+:mod:`~cdcr_ctl.runlog.writer` writes them off the real-time path (``run.mcap`` through its second
+sink, :mod:`~cdcr_ctl.runlog.mcap_sink`), :mod:`~cdcr_ctl.runlog.reader` loads either format
+(partial logs included; :mod:`~cdcr_ctl.runlog.mcap_reader`), :mod:`~cdcr_ctl.runlog.export` writes
+CSV, Parquet and candump copies, :mod:`~cdcr_ctl.runlog.live` serves the channels
+(:mod:`~cdcr_ctl.runlog.streams`) live, :mod:`~cdcr_ctl.runlog.plots` draws them. Column names are
 defined once in :mod:`~cdcr_ctl.runlog.columns`. Plots import matplotlib: import
 ``cdcr_ctl.runlog.plots`` explicitly where they are needed.
 """

@@ -37,6 +37,8 @@ from cdcr_ctl.runlog.columns import (
     phi_cmd,
     theta_cmd,
 )
+from cdcr_ctl.runlog.mcap_reader import read_mcap
+from cdcr_ctl.runlog.mcap_sink import RUN_MCAP
 from cdcr_ctl.runlog.writer import CAN_LOG_NAMES, CONFIG_YAML, RUN_YAML, SAMPLES_CSV
 
 #: Rows converted to numpy per chunk while reading (bounds the memory of the text form).
@@ -139,12 +141,20 @@ class Run:
 
 
 def load_run(path: str | Path) -> Run:
-    """Load a run directory (or its ``samples.csv``).
+    """Load a run directory, its ``samples.csv`` or its ``run.mcap``.
+
+    A directory is read from ``samples.csv`` when it has one, else from ``run.mcap`` (a run
+    logged as MCAP only, or a copy of one); a path to a ``.mcap`` file reads that file. Both
+    give the same columns (see :mod:`cdcr_ctl.runlog.mcap_reader`).
 
     Raises :class:`ConfigError` naming the file and line for corrupt content, and for a missing
     ``samples.csv``. A missing ``run.yaml`` only adds a warning (metadata is then empty).
     """
     p = Path(path)
+    if p.suffix == ".mcap" and not p.is_dir():
+        return load_mcap_run(p)
+    if p.is_dir() and not (p / SAMPLES_CSV).exists() and (p / RUN_MCAP).is_file():
+        return load_mcap_run(p / RUN_MCAP)
     run_dir = p.parent if p.name == SAMPLES_CSV and not p.is_dir() else p
     samples = run_dir / SAMPLES_CSV
     warnings: list[str] = []
@@ -167,6 +177,38 @@ def load_run(path: str | Path) -> Run:
         can_log=can_log,
         warnings=warnings,
         dropped_tail_bytes=tail,
+    )
+
+
+def load_mcap_run(path: str | Path) -> Run:
+    """Load a run from its MCAP file. Metadata: the file's ``run.yaml`` attachment (written at
+    close), else ``run.yaml`` beside the file, else the file's start metadata."""
+    p = Path(path)
+    run_dir = p.parent
+    m = read_mcap(p)
+    warnings = list(m.warnings)
+    metadata = m.run_yaml() if "run.yaml" in m.attachments else None
+    if metadata is None:
+        metadata = (
+            _load_metadata(run_dir / RUN_YAML, warnings)
+            if (run_dir / RUN_YAML).is_file()
+            else (m.run_yaml() or {})
+        )
+    n_seg, n_cab = counts_from_columns(m.columns)
+    config = run_dir / CONFIG_YAML
+    can_log = next((run_dir / n for n in CAN_LOG_NAMES if (run_dir / n).is_file()), None)
+    return Run(
+        run_dir=run_dir,
+        samples_path=p,
+        metadata=metadata,
+        columns=m.columns,
+        data=m.data,
+        n_segments=n_seg,
+        n_cables=n_cab,
+        groups=frozenset(g for c in m.columns if (g := group_of(c)) is not None),
+        config_path=config if config.is_file() else None,
+        can_log=can_log,
+        warnings=warnings,
     )
 
 

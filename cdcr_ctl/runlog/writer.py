@@ -9,7 +9,9 @@ A run directory holds
   e.g. ``config_effective.yaml`` with every default filled in);
 - ``samples.csv``: one row per control cycle, columns in :mod:`cdcr_ctl.runlog.columns`;
 - ``can.asc`` or ``can.blf``: raw CAN traffic written by the drives layer (name reserved here,
-  see :func:`can_log_path`).
+  see :func:`can_log_path`);
+- ``run.mcap`` when a ``second_sink`` is given (:mod:`cdcr_ctl.runlog.mcap_sink`): the same rows
+  as channels, flushed and fsynced with ``samples.csv``.
 
 Real-time path: :meth:`RunLogWriter.write` appends the row object to a bounded deque and returns
 (no lock, no I/O, no formatting). A writer thread wakes every :data:`DRAIN_INTERVAL_S`, formats
@@ -46,6 +48,7 @@ import yaml
 from cdcr_ctl import __version__
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
+from cdcr_ctl.runlog.mcap_sink import RUN_YAML, McapSinkFactory
 
 if TYPE_CHECKING:
     from cdcr_ctl.config.schema import RigConfig
@@ -53,7 +56,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 SAMPLES_CSV = "samples.csv"
-RUN_YAML = "run.yaml"
 CONFIG_YAML = "config.yaml"
 EFFECTIVE_CONFIG_YAML = "config_effective.yaml"
 #: Names the drives layer may use for the raw CAN traffic (python-can ASCWriter / BLFWriter).
@@ -74,6 +76,11 @@ YIELD_EVERY_ROWS = 8
 CLOSE_TIMEOUT_S = 30.0
 
 FileOpener = Callable[[Path], IO[bytes]]
+#: Makes a second sink beside ``samples.csv`` (e.g. :mod:`cdcr_ctl.runlog.mcap_sink`):
+#: ``factory(run_dir, columns, files)`` with ``files`` the config copies (name -> text). The sink
+#: has ``write_rows(rows)``, ``flush()``, ``fileno()`` and ``close(run_yaml, ok)``, all called
+#: from the writer thread (``flush`` + fsync every ``fsync_every_s``).
+SecondSinkFactory = Callable[[Path, list[str], dict[str, str]], Any]
 
 
 def utc_now_iso() -> str:
@@ -235,6 +242,7 @@ class RunLogWriter:
         on_failure: Callable[[str], None] | None = None,
         opener: FileOpener = _default_opener,
         drain_interval_s: float = DRAIN_INTERVAL_S,
+        second_sink: SecondSinkFactory | None = None,
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
@@ -271,6 +279,7 @@ class RunLogWriter:
         self._done_evt = threading.Event()
 
         self._file: IO[bytes] | None = None
+        self._second: Any = None
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             if any(self.run_dir.iterdir()):
@@ -286,6 +295,10 @@ class RunLogWriter:
             self._file.flush()
             self._fsync()
             self._bytes += len(header)
+            if second_sink is not None:
+                files = {CONFIG_YAML: config_text} if config_text is not None else {}
+                files.update(extra_files or {})
+                self._second = second_sink(self.run_dir, self.columns, files)
         except OSError as exc:
             if self._file is not None:
                 with contextlib.suppress(Exception):
@@ -351,6 +364,11 @@ class RunLogWriter:
         return LogStats(
             self._queued, self._written, self._dropped, self._lost, self._fsyncs, self._bytes
         )
+
+    @property
+    def can_tap(self) -> Any:
+        """A python-can listener feeding the second sink's CAN channel, or None."""
+        return getattr(self._second, "can_tap", None)
 
     def can_log_path(self, fmt: str = "asc") -> Path:
         """Path reserved for the raw CAN traffic of this run."""
@@ -424,6 +442,11 @@ class RunLogWriter:
                 continue
             self._written += len(batch)
             self._bytes += len(data)
+            if self._second is not None:
+                try:
+                    self._second.write_rows(batch)
+                except Exception as exc:  # disk full, a bug: stop the log like a CSV failure
+                    self._fail(exc, f"{type(self._second).__name__} write")
 
     def _encode(self, rows: list[Any], raw: bool = False) -> bytes:
         """CSV text of ``rows``. Gives up the GIL every :data:`YIELD_EVERY_ROWS` rows so the
@@ -471,8 +494,11 @@ class RunLogWriter:
 
     def _sync(self) -> None:
         try:
+            if self._second is not None:
+                self._second.flush()
+                os.fsync(self._second.fileno())
             self._fsync()
-        except OSError as exc:
+        except (OSError, ValueError) as exc:
             self._fail(exc, "fsync")
 
     def _fail(self, exc: BaseException, what: str) -> None:
@@ -523,8 +549,14 @@ class RunLogWriter:
                     "reason": self._failure or "writer stopped",
                     "end_utc": utc_now_iso(),
                 }
+            run_yaml = self._run_yaml()
+            if self._second is not None:
+                try:
+                    self._second.close(run_yaml, self._failure is None)
+                except Exception as exc:
+                    log.error("%s: closing %s failed: %s", self.run_dir, self._second, exc)
             try:
-                _write_atomic(self.run_dir / RUN_YAML, self._run_yaml())
+                _write_atomic(self.run_dir / RUN_YAML, run_yaml)
             except OSError as exc:
                 log.error("%s: cannot record the end of the run: %s", self.run_dir / RUN_YAML, exc)
         finally:
@@ -585,8 +617,13 @@ class RunLogFactory:
         extra_columns: Sequence[str] = LOOP_EXTRA_COLUMNS,
         max_queued_rows: int = DEFAULT_QUEUE_ROWS,
         on_failure: Callable[[str], None] | None = None,
+        mcap: bool = False,
+        tip_from_psi: Callable[[Any], Any] | None = None,
     ) -> None:
         self.base_dir = Path(base_dir)
+        #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
+        #: tip of a commanded pose for its ``/tip/model`` channel.
+        self.second_sink = McapSinkFactory(tip_from_psi, rate_hz) if mcap else None
         self.rig, self.design, self.rate_hz = rig, design, float(rate_hz)
         self.n_segments, self.n_cables = n_segments, n_cables
         self.config_text, self.config_source = config_text, config_source
@@ -635,6 +672,7 @@ class RunLogFactory:
             config_source=str(path.resolve()),
             effective_config=effective,
             fsync_every_s=cfg.logging.fsync_every_s,
+            mcap=cfg.logging.mcap,
             **kwargs,
         )
 
@@ -660,4 +698,5 @@ class RunLogFactory:
             fsync_every_s=self.fsync_every_s,
             max_queued_rows=self.max_queued_rows,
             on_failure=self.on_failure,
+            second_sink=self.second_sink,
         )
