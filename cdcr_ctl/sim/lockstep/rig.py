@@ -55,6 +55,14 @@ from cdcr_ctl.sim.tracker import SimNatNetServer, true_transform
 
 log = logging.getLogger(__name__)
 
+#: Heartbeats (CANopen's liveness checks, producer and consumer on the wall clock) between the
+#: drive layer and the nodes: in lock-step both sit in this process and every frame is delivered
+#: synchronously, so there is no link whose death they could detect; only a starved thread (a
+#: loaded machine, the loop running flat out) could make one late. Their periods are relaxed to
+#: these (ms) so that it never does; the frames still go out and are checked.
+LOCKSTEP_HEARTBEAT_MS = 1000
+LOCKSTEP_HEARTBEAT_CONSUMER_MS = 5000
+
 #: Sensor traffic simulated before the loop's first cycle (s), see :meth:`LockstepRig._prime`.
 PRIME_S = 0.1
 
@@ -129,6 +137,7 @@ class LockstepRig:
         for n in self.nodes:
             n.boot()
         self._closers.append(self._stop_nodes)
+        ctl = relaxed_heartbeats(ctl)
         by_cable = {d.cable: d for d in ctl.drives}
         group = DriveGroup(
             self.can.host,
@@ -295,6 +304,26 @@ class LockstepRig:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def relaxed_heartbeats(cfg: RigConfig) -> RigConfig:
+    """``cfg`` with the heartbeat periods of :data:`LOCKSTEP_HEARTBEAT_MS` (drives that produce
+    or consume none keep 0)."""
+    can = cfg.can.model_copy(
+        update={"master_heartbeat_ms": LOCKSTEP_HEARTBEAT_MS if cfg.can.master_heartbeat_ms else 0}
+    )
+    drives = [
+        d.model_copy(
+            update={
+                "heartbeat_producer_ms": LOCKSTEP_HEARTBEAT_MS if d.heartbeat_producer_ms else 0,
+                "heartbeat_consumer_ms": (
+                    LOCKSTEP_HEARTBEAT_CONSUMER_MS if d.heartbeat_consumer_ms else 0
+                ),
+            }
+        )
+        for d in cfg.drives
+    ]
+    return cfg.model_copy(update={"can": can, "drives": drives})
 
 
 def tip_true_mm(rig: LockstepRig) -> np.ndarray:
