@@ -9,14 +9,13 @@ import math
 
 import numpy as np
 import pytest
+from syshelp import TRUTH
 
 from cdcr_ctl.analysis import tip_errors
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.sim.lockstep.session import LockstepSession
 from cdcr_ctl.sim.simconfig import load_sim_config
-
-from syshelp import TRUTH
 
 #: A short bend (0 -> 40 deg at 0.5 rad/s, ~1.4 s simulated) and back, with compensation.
 BEND = tj.planar_bend(theta_max_rad=math.radians(40), rate_rad_s=0.5)
