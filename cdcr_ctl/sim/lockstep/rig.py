@@ -7,9 +7,10 @@ nodes (:class:`~cdcr_ctl.sim.epos.node.SimEpos`) over :mod:`.canlink`; its Modbu
 polls the simulated transmitters and its NatNet parser reads the simulated tracker's datagrams
 (:mod:`.sensors`). What is simulated: time (:class:`~.clock.SimClock`, one SYNC period per loop
 cycle) and the scheduling: each cycle's SYNC steps the nodes by one period inside the loop's send;
-then, before the next cycle, :meth:`LockstepRig.advance` steps the truth at its physics rate,
-runs the load-cell transactions whose replies arrive in that period and delivers the tracker
-frames due in it. Every rate and latency is in simulated time; the random streams are seeded
+then, before the next cycle, :meth:`LockstepRig.advance` steps the truth at its physics rate (by
+default in a worker process, one period behind the drives: :mod:`.truthproc`), runs the
+load-cell transactions whose replies arrive in that period and delivers the tracker frames due
+in it. Every rate and latency is in simulated time; the random streams are seeded
 (``seed`` of the simulator YAML), so one seed, one world and one command sequence give the same
 logs byte for byte whatever the machine load.
 
@@ -50,6 +51,7 @@ from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
 from cdcr_ctl.sim.lockstep.canlink import CanLink
 from cdcr_ctl.sim.lockstep.clock import SimClock
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
+from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
 from cdcr_ctl.sim.tracker import SimNatNetServer, true_transform
 
@@ -71,7 +73,13 @@ class LockstepRig:
     """The simulated world of ``loaded`` and the I/O of the controller config ``ctl`` (which may
     differ from the simulator's rig in its robot parameters, never in its devices)."""
 
-    def __init__(self, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "") -> None:
+    def __init__(
+        self,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_file: str = "",
+        truth_process: bool = True,
+    ) -> None:
         rig = loaded.rig
         for key, present in (
             ("sensors.attitude", ctl.sensors.attitude is not None),
@@ -102,6 +110,10 @@ class LockstepRig:
         self.truth_cpu_s = 0.0
         self.truth_steps = 0
         self._solved_counts: list[int] = []
+        #: The truth solved in a worker process one period behind (:mod:`.truthproc`), or None:
+        #: solved here, right after the SYNC.
+        self.truth_proc: TruthProcess | None = None
+        self._truth_process = truth_process
         self._closers: list[Any] = []
         self.can = CanLink()
         by_cable = {d.cable: d for d in rig.drives}
@@ -121,10 +133,13 @@ class LockstepRig:
         self.tip: Any = NoTip()
 
     @classmethod
-    def open(cls, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "") -> LockstepRig:
+    def open(
+        cls, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "", truth_process: bool = True
+    ) -> LockstepRig:
         """Build the world, boot the nodes, open and configure the controller's drives and
-        sensors (nothing is enabled); closed again if any step fails."""
-        rig = cls(loaded, ctl, ctl_file)
+        sensors (nothing is enabled); closed again if any step fails. ``truth_process``: solve
+        the truth in a worker process, one period behind (:mod:`.truthproc`)."""
+        rig = cls(loaded, ctl, ctl_file, truth_process)
         try:
             rig._open(ctl_file)
         except BaseException:
@@ -245,6 +260,11 @@ class LockstepRig:
         real rig's sensors run from the moment they are opened)."""
         self._solved_counts = self.positions()
         self.truth.step(self._solved_counts)
+        if self._truth_process:
+            self.truth_proc = TruthProcess(str(self.loaded.path), self.truth)
+            self._closers.append(self.truth_proc.close)
+            self.truth_proc.submit(self._solved_counts)  # the worker's truth starts alike
+            self.truth_proc.collect()
         for sched in (self.loadcells, self.tracker):
             if sched is not None:
                 sched.advance(0.0, PRIME_S)
@@ -260,11 +280,17 @@ class LockstepRig:
         drives' positions (one solve when a physics tick falls in the period: the positions
         change only at SYNC; none when no drive moved by a count since the last solve), then
         the sensors' transactions and frames of the period."""
+        proc = self.truth_proc
+        if proc is not None and proc.pending:
+            proc.collect()  # the positions of the previous period, solved meanwhile
         if self._physics_next_s <= t1:
             c0 = time.thread_time()
             counts = self.positions()
             if counts != self._solved_counts:  # a world at rest stays where it is
-                self.truth.step(counts)
+                if proc is not None:
+                    proc.submit(counts)
+                else:
+                    self.truth.step(counts)
                 self._solved_counts = counts
                 self.truth_steps += 1
             self.truth_cpu_s += time.thread_time() - c0
@@ -276,10 +302,12 @@ class LockstepRig:
             self.tracker.advance(t0, t1)
 
     def cpu_breakdown_s(self) -> dict[str, float]:
-        """CPU time (s) spent so far in the simulated parts: truth, drives (node handling of
-        the frames, steps at SYNC), TPDO decoding, load cells and tracker (both sides)."""
+        """CPU time (s) spent so far in the simulated parts: truth (here; ``truth_worker``: in
+        the worker process), drives (node handling of the frames, steps at SYNC), TPDO
+        decoding, load cells and tracker (both sides)."""
         return {
             "truth": self.truth_cpu_s,
+            "truth_worker": self.truth_proc.cpu_s if self.truth_proc else 0.0,
             "sim_drives": self.can.node_time_s,
             "tpdo_decode": self.can.decode_time_s,
             "loadcells_modbus": self.loadcells.cpu_s if self.loadcells else 0.0,

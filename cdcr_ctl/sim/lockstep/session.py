@@ -37,14 +37,19 @@ class LockstepSession:
     lock-step world ``loaded``; run logs below ``log_dir``. Enabled and homed on :meth:`open`."""
 
     def __init__(
-        self, loaded: LoadedSim, ctl: RigConfig, ctl_path: str | Path, log_dir: str | Path
+        self,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_path: str | Path,
+        log_dir: str | Path,
+        truth_process: bool = True,
     ) -> None:
         self.cfg = ctl
         self.model = build_model(ctl, source=str(ctl_path))
         self.sinks = RunLogFactory.from_config(
             ctl, ctl_path, base_dir=log_dir, max_queued_rows=QUEUE_ROWS
         )
-        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path))
+        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process)
         assert self.rig.drives is not None
         self.drives = self.rig.drives
         by_cable = {d.cable: d for d in ctl.drives}
@@ -72,9 +77,14 @@ class LockstepSession:
 
     @classmethod
     def open(
-        cls, loaded: LoadedSim, ctl: RigConfig, ctl_path: str | Path, log_dir: str | Path
+        cls,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_path: str | Path,
+        log_dir: str | Path,
+        truth_process: bool = True,
     ) -> LockstepSession:
-        s = cls(loaded, ctl, ctl_path, log_dir)
+        s = cls(loaded, ctl, ctl_path, log_dir, truth_process)
         try:
             s.loop.start()
             s.drives.enable()
