@@ -91,19 +91,46 @@ def daemon(obj: Ctx, verbose: bool) -> None:
     default=None,
     help="Serve the fault-injection channel (cdcr_ctl.sim.faults) on this Unix socket.",
 )
+@click.option(
+    "--lockstep",
+    is_flag=True,
+    help="Lock-step: run the daemon (--config, default the simulator's rig) in this process on "
+    "simulated time, as fast as the CPU allows (cdcr_ctl.sim.lockstep). Default: real time.",
+)
 @click.option("--verbose", "-v", is_flag=True)
-def sim(sim_config: str, duration_s: float | None, faults_path: str | None, verbose: bool) -> None:
+@click.pass_obj
+def sim(
+    obj: Ctx,
+    sim_config: str,
+    duration_s: float | None,
+    faults_path: str | None,
+    lockstep: bool,
+    verbose: bool,
+) -> None:
     """Run the simulated rig of SIM_CONFIG in this process until SIGTERM/SIGINT.
 
     Prints one JSON line with the connection points, then serves: EPOS nodes behind an slcan
     pseudo-terminal, load cells on a serial pseudo-terminal, tracker on 127.0.0.1, and with
     --faults a Unix socket that injects faults (drive EMCY, heartbeat loss, bus off, adapter
     unplugged, load-cell disconnect/garbage, tracker dropout, tension spike).
+
+    With --lockstep the rig and the daemon run together on simulated time (one SYNC period per
+    loop cycle, seeded noise: the same commands give the same logs byte for byte); the daemon's
+    socket is that of --config (or --socket).
     """
     from cdcr_ctl.sim.rig import SimRig
     from cdcr_ctl.sim.simconfig import load_sim_config
 
     _setup_logging(verbose)
+    if lockstep:
+        if faults_path or duration_s is not None:
+            raise click.UsageError("--lockstep runs until shutdown; --faults is real time only")
+        from cdcr_ctl.cli.lockstep import serve_lockstep
+
+        ctl = obj.config or str(load_sim_config(sim_config).rig_path)
+        reason = serve_lockstep(sim_config, ctl, obj._socket)
+        click.echo(f"lock-step daemon stopped: {reason}", err=True)
+        return
     loaded = load_sim_config(sim_config)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -149,14 +149,24 @@ def running(
 
 
 @contextlib.contextmanager
-def rig_running(sim_path: Path, rig_path: Path, sock: Path, logs: Path) -> Iterator[None]:
+def rig_running(
+    sim_path: Path, rig_path: Path, sock: Path, logs: Path, lockstep: bool = False
+) -> Iterator[None]:
     """``cdcr-ctl sim`` and ``cdcr-ctl daemon`` as processes (logs ``sim.log``, ``daemon.log`` in
-    ``logs``), the drives enabled and homed; both stopped on exit."""
-    with (
-        running(_cli("sim", str(sim_path)), logs / "sim.log", ready='"ready"'),
-        running(_cli("--config", str(rig_path), "daemon"), logs / "daemon.log") as d,
-    ):
-        wait_for_socket(sock, d, logs / "daemon.log")
+    ``logs``), the drives enabled and homed; both stopped on exit. ``lockstep``: one process,
+    ``cdcr-ctl sim --lockstep`` (log ``lockstep.log``), the daemon on simulated time."""
+    with contextlib.ExitStack() as procs:
+        if lockstep:
+            log = logs / "lockstep.log"
+            cmd = _cli("--config", str(rig_path), "sim", str(sim_path), "--lockstep")
+            d = procs.enter_context(running(cmd, log, ready='"ready"'))
+        else:
+            log = logs / "daemon.log"
+            procs.enter_context(
+                running(_cli("sim", str(sim_path)), logs / "sim.log", ready='"ready"')
+            )
+            d = procs.enter_context(running(_cli("--config", str(rig_path), "daemon"), log))
+        wait_for_socket(sock, d, log)
         with ControlClient(sock) as c:
             c.call("enable")
             c.call("home")
@@ -288,8 +298,16 @@ def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
     "--out", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-output")
 )
 @click.option("--quick", is_flag=True, help="Shorter experiments (for tests).")
+@click.option(
+    "--lockstep",
+    is_flag=True,
+    help="Run the simulated rig and the daemon in one process on simulated time, as fast as "
+    "the CPU allows (default: real time, the rig at its real pace).",
+)
 @click.pass_obj
-def demo(obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool) -> None:
+def demo(
+    obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool, lockstep: bool
+) -> None:
     """Simulated rig + daemon: a paper's experiments, without and with compensation."""
     from cdcr_ctl.analysis import tip_errors
     from cdcr_ctl.config import load_rig_config
@@ -309,7 +327,7 @@ def demo(obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool)
     experiments = experiments_for(design, rig_cfg, quick)
     rows: list[dict[str, Any]] = []
     click.echo(f"demo session: {session}", err=True)
-    with rig_running(sim_path, rig_path, sock, session):
+    with rig_running(sim_path, rig_path, sock, session, lockstep):
         for exp, traj in experiments.items():
             for comp in ("off", "model"):
                 for _attempt in range(2):

@@ -58,7 +58,13 @@ def run_trajectory(
     raise RigError(f"run {name} did not finish within {res['duration_s'] + RUN_SLACK_S:.0f} s")
 
 
-def run_sweep(sock: str | Path, n_segments: int, bend_limit_rad: float, quick: bool) -> list[Path]:
+def run_sweep(
+    sock: str | Path,
+    n_segments: int,
+    bend_limit_rad: float,
+    quick: bool,
+    betas_deg: tuple[float, ...] | None = None,
+) -> list[Path]:
     """Run the calibration sweep (compensation off), one run per bending plane beta; return
     the log directories.
 
@@ -81,7 +87,7 @@ def run_sweep(sock: str | Path, n_segments: int, bend_limit_rad: float, quick: b
         if not c.call("status").get("enabled"):
             c.call("enable")
     out: list[Path] = []
-    for beta in spec.betas_deg:
+    for beta in spec.betas_deg if betas_deg is None else betas_deg:
         part = calibration_sweep(n_segments, replace(spec, betas_deg=(beta,)), bend_limit_rad)
         res: dict[str, Any] = {}
         for _attempt in range(ATTEMPTS):
@@ -178,8 +184,9 @@ def _experiments(quick: bool) -> dict[str, Any]:
     }
 
 
-def _session(sim_path: Path, rig_path: Path, log_dir: Path, tag: str):
-    """Context manager: simulator + daemon subprocesses for one config, enabled and homed."""
+def _session(sim_path: Path, rig_path: Path, log_dir: Path, tag: str, lockstep: bool = False):
+    """Context manager: simulator + daemon subprocesses for one config, enabled and homed
+    (``lockstep``: one process, the daemon on the simulator's simulated clock)."""
     import contextlib
 
     from cdcr_ctl.cli.demo import _cli, running, wait_for_socket
@@ -189,11 +196,18 @@ def _session(sim_path: Path, rig_path: Path, log_dir: Path, tag: str):
         from cdcr_ctl.config import load_rig_config
 
         sock = Path(load_rig_config(rig_path).daemon.socket_path)
-        with (
-            running(_cli("sim", str(sim_path)), log_dir / f"sim-{tag}.log", ready='"ready"'),
-            running(_cli("--config", str(rig_path), "daemon"), log_dir / f"daemon-{tag}.log") as d,
-        ):
-            wait_for_socket(sock, d, log_dir / f"daemon-{tag}.log")
+        with contextlib.ExitStack() as procs:
+            if lockstep:
+                log = log_dir / f"lockstep-{tag}.log"
+                cmd = _cli("--config", str(rig_path), "sim", str(sim_path), "--lockstep")
+                d = procs.enter_context(running(cmd, log, ready='"ready"'))
+            else:
+                log = log_dir / f"daemon-{tag}.log"
+                procs.enter_context(
+                    running(_cli("sim", str(sim_path)), log_dir / f"sim-{tag}.log", ready='"ready"')
+                )
+                d = procs.enter_context(running(_cli("--config", str(rig_path), "daemon"), log))
+            wait_for_socket(sock, d, log)
             with ControlClient(sock) as c:
                 c.call("enable")
                 c.call("home")
@@ -230,13 +244,17 @@ def _run_modes(
     modes: tuple[str, ...],
     quick: bool,
     rows: list[dict[str, Any]],
+    only: tuple[str, ...] | None = None,
 ) -> None:
-    """Run every experiment in every mode of ``modes``; append one result row per run."""
+    """Run every experiment (of ``only``, default all) in every mode of ``modes``; append one
+    result row per run."""
     from cdcr_ctl.analysis import tip_errors
     from cdcr_ctl.cli.demo import recover
 
     straight = [[t] + [0.0] * (2 * n_segments) for t in (0.0, 0.5)]
     for exp, traj in _experiments(quick).items():
+        if only is not None and exp not in only:
+            continue
         for comp in modes:
             label = comp if tag == "identified" else f"{comp} ({tag})"
             res: dict[str, Any] = {}
@@ -272,6 +290,16 @@ def _run_modes(
                 f"  max {summ['max_mm']:.3f} mm  ({res['state']})",
                 err=True,
             )
+
+
+def _parallel(jobs: int, in_session: Any, tasks: list[tuple[str, Any, Any]]) -> list[Any]:
+    """Run ``in_session(tag, overlay, body)`` for every task, ``jobs`` at a time (a thread per
+    task, each driving its own simulator process); results in task order, first error raised."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(in_session, tag, ovl, body) for tag, ovl, body in tasks]
+        return [f.result() for f in futures]
 
 
 def _controller_config(work: Path, name: str, rig: Path, band_mm: float, overlay: Path | None):
@@ -318,6 +346,20 @@ def _controller_config(work: Path, name: str, rig: Path, band_mm: float, overlay
     help="control.reversal_band_mm of the controller in these experiments.",
 )
 @click.option("--quick", is_flag=True, help="Coarser sweep and a faster circle (for tests).")
+@click.option(
+    "--realtime",
+    is_flag=True,
+    help="Run the simulated rig in real time (separate simulator and daemon processes) instead "
+    "of lock-step (one process on simulated time, as fast as the CPU allows; the default).",
+)
+@click.option(
+    "--jobs",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Independent sessions side by side: each sweep plane and each (experiment, mode) on "
+    "its own simulated rig, N at a time (each starts straight instead of after the previous).",
+)
 @click.pass_obj
 def experiments_cmd(
     obj: Ctx,
@@ -327,6 +369,8 @@ def experiments_cmd(
     overlay: Path | None,
     reversal_band_mm: float,
     quick: bool,
+    realtime: bool,
+    jobs: int,
 ) -> None:
     """Simulated rig: identify, then planar bend and circle with every compensation mode."""
     from cdcr_ctl.cli.demo import make_session
@@ -343,28 +387,96 @@ def experiments_cmd(
     ctl_nominal = _controller_config(work, "ctl-nominal.yaml", rig_path, reversal_band_mm, None)
     S = len(load_rig_config(ctl_nominal).robot.segments)
     click.echo(f"experiments session: {session}", err=True)
+    click.echo(
+        f"clock: {'real time' if realtime else 'lock-step (simulated time)'}, jobs {jobs}", err=True
+    )
+    lockstep = not realtime
     rows: list[dict[str, Any]] = []
+    t_start = time.monotonic()
+
+    def in_session(tag: str, ovl: Path | None, body):
+        """``body(sock)`` on a fresh simulated rig of its own (work dir, ports, socket)."""
+        w = work / tag
+        w.mkdir(parents=True, exist_ok=True)
+        rig_i, sim_i = make_session(sim_config.resolve(), w, runs)
+        ctl_i = _controller_config(w, "ctl.yaml", rig_i, reversal_band_mm, ovl)
+        with _session(sim_i, ctl_i, session, tag, lockstep) as sock:
+            return body(sock)
+
     try:
         # 1. nominal controller: calibration sweep (and, optionally, nominal compensation)
         if overlay is None or nominal:
-            with _session(sim_path, ctl_nominal, session, "nominal") as sock:
+            limit = load_rig_config(ctl_nominal).limits.bend_rad
+            if jobs == 1:
+                with _session(sim_path, ctl_nominal, session, "nominal", lockstep) as sock:
+                    if overlay is None:
+                        sweep_dirs = run_sweep(sock, S, limit, quick)
+                    if nominal:
+                        _run_modes(sock, S, "nominal", ("model",), quick, rows)
+            else:
+                from cdcr_ctl.identify.sweep import SweepSpec
+
+                tasks = []
                 if overlay is None:
-                    cfg = load_rig_config(ctl_nominal)
-                    sweep_dirs = run_sweep(sock, S, cfg.limits.bend_rad, quick)
+                    for beta in SweepSpec().betas_deg:
+                        tasks.append(
+                            (
+                                f"sweep-beta{beta:g}",
+                                None,
+                                lambda sock, b=beta: run_sweep(sock, S, limit, quick, (b,)),
+                            )
+                        )
                 if nominal:
-                    _run_modes(sock, S, "nominal", ("model",), quick, rows)
+                    for exp in _experiments(quick):
+                        tasks.append(
+                            (
+                                f"nominal-{exp}",
+                                None,
+                                lambda sock, e=exp: _run_modes(
+                                    sock, S, "nominal", ("model",), quick, rows, (e,)
+                                ),
+                            )
+                        )
+                results = _parallel(jobs, in_session, tasks)
+                sweep_dirs = [d for r in results if isinstance(r, list) for d in r]
         # 2. fit offline (nothing else running)
+        t_fit = time.monotonic()
         if overlay is None:
             overlay = fit_and_write(ctl_nominal, sweep_dirs, session / "identification")
+        t_fit = time.monotonic() - t_fit
         ctl_ident = _controller_config(
             work, "ctl-identified.yaml", rig_path, reversal_band_mm, overlay
         )
         shutil.copy(ctl_ident, session / "ctl-identified.yaml")
         # 3. identified controller: every mode
-        with _session(sim_path, ctl_ident, session, "identified") as sock:
-            _run_modes(sock, S, "identified", MODES, quick, rows)
+        if jobs == 1:
+            with _session(sim_path, ctl_ident, session, "identified", lockstep) as sock:
+                _run_modes(sock, S, "identified", MODES, quick, rows)
+        else:
+            tasks = [
+                (
+                    f"identified-{exp}-{comp}",
+                    overlay,
+                    lambda sock, e=exp, m=comp: _run_modes(
+                        sock, S, "identified", (m,), quick, rows, (e,)
+                    ),
+                )
+                for exp in _experiments(quick)
+                for comp in MODES
+            ]
+            _parallel(jobs, in_session, tasks)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+    order = {
+        (e, m): i for i, (e, m) in enumerate((e, m) for e in _experiments(quick) for m in MODES)
+    }
+    rows.sort(key=lambda r: (r["params"] != "nominal", order.get((r["experiment"], r["mode"]), 0)))
+    wall = time.monotonic() - t_start
+    click.echo(
+        f"experiments: {wall:.0f} s wall ({'real time' if realtime else 'lock-step'}, "
+        f"jobs {jobs}; fit {t_fit:.0f} s)",
+        err=True,
+    )
     table = format_table(rows)
     (session / "results.md").write_text(table)
     (session / "results.json").write_text(json.dumps(rows, indent=2, default=str))

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from cdcr_ctl.control.clock import LoopClock, wall_clock
 from cdcr_ctl.control.ports import (
     DrivePort,
     RobotModelPort,
@@ -40,7 +41,6 @@ from cdcr_ctl.control.ports import (
     TipPort,
 )
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
-from cdcr_ctl.control.timing import Ticker
 from cdcr_ctl.errors import ModelError
 
 log = logging.getLogger(__name__)
@@ -262,7 +262,13 @@ class TipHistory:
 
 
 class ControlLoop:
-    """The fixed-rate loop. Start with :meth:`start`, stop with :meth:`stop` (joins the thread)."""
+    """The fixed-rate loop. Start with :meth:`start`, stop with :meth:`stop` (joins the thread).
+
+    ``clock`` paces the cycles (:class:`~cdcr_ctl.control.clock.LoopClock`): by default a fresh
+    wall clock (:func:`~cdcr_ctl.control.clock.wall_clock`) made when the loop starts; the
+    lock-step simulator passes its simulated clock. Every time the loop keeps (cycle time, run
+    time) is on that clock.
+    """
 
     def __init__(
         self,
@@ -274,6 +280,7 @@ class ControlLoop:
         supervisor: Supervisor,
         home_counts: Sequence[int] | None = None,
         on_trip: Callable[[Trip], None] | None = None,
+        clock: LoopClock | None = None,
     ) -> None:
         self.cfg = cfg
         self.model = model
@@ -286,7 +293,8 @@ class ControlLoop:
         self.home_counts = (
             np.zeros(K, dtype=np.int64) if home_counts is None else np.array(home_counts)
         )
-        self.ticker = Ticker(cfg.period_s)
+        self._clock = clock
+        self.ticker: LoopClock = clock if clock is not None else wall_clock(cfg.period_s)
         self.counters = LoopCounters()
         self._lock = threading.Lock()
         self._pending: list[_Command] = []
@@ -343,6 +351,19 @@ class ControlLoop:
     @property
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def busy(self) -> bool:
+        """Whether the loop has more to do than hold still: a run, a posted command not yet
+        taken up, a run ending, a cable offset still ramping, stopping. (The lock-step clock
+        advances only while it has: an idle simulated rig stands still.)"""
+        return (
+            self._run is not None
+            or self._has_pending
+            or self._end_after_cycle is not None
+            or bool((self._q_offset_target != self._q_offset).any())
+            or self._stop_evt.is_set()
+        )
 
     @property
     def current_run(self) -> RunInfo | None:
@@ -445,8 +466,9 @@ class ControlLoop:
         # allocates, this one included).
         gc.freeze()
         cpu0 = time.thread_time()
-        t_start = time.monotonic()
-        self.ticker = Ticker(self.cfg.period_s)
+        if self._clock is None:
+            self.ticker = wall_clock(self.cfg.period_s)
+        t_start = self.ticker.now()
         while not self._stop_evt.is_set():
             deadline, lateness = self.ticker.wait()
             t0 = time.perf_counter()
@@ -658,7 +680,7 @@ class ControlLoop:
             self.drives.quick_stop()
             self._stopped_drives = True
         if trip.reaction >= Reaction.HOLD:
-            self._source, self._t_source0 = Hold(self._psi_cmd), time.monotonic()
+            self._source, self._t_source0 = Hold(self._psi_cmd), self.ticker.now()
             self._q_offset_target = self._q_offset.copy()
             if self._run is not None:
                 state = "stopped" if trip.cause == OPERATOR_STOP else "tripped"
@@ -673,7 +695,7 @@ class ControlLoop:
             run.state, run.end_reason = state, reason
             self.history.append(run)
             if state != "completed":
-                self._source, self._t_source0 = Hold(self._psi_cmd), time.monotonic()
+                self._source, self._t_source0 = Hold(self._psi_cmd), self.ticker.now()
         if sink is not None:
             # Never wait for the writer's fsync on the loop thread.
             sink.close(reason, outcome=state, wait=False)

@@ -112,6 +112,10 @@ class Ticker:
     def next_deadline(self) -> float:
         return self._t0 + self._n * self.period_s
 
+    def now(self) -> float:
+        """The clock's time (s, ``time.monotonic``)."""
+        return time.monotonic()
+
     def wait(self) -> tuple[float, float]:
         deadline = self.next_deadline
         while True:

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.control.clock import LoopClock
 from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.ports import DrivePort, RobotModelPort, TensionPort, TipPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
@@ -67,9 +68,11 @@ class Daemon:
         trajectory_factory: Callable[..., Any],
         notifier: SystemdNotifier | None = None,
         joystick_opener: Callable[..., Any] | None = None,
+        clock: LoopClock | None = None,
     ) -> None:
         """``joystick_opener(JoystickConfig)`` opens the rig's joystick for a ``joystick``
-        session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`)."""
+        session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`). ``clock``: the
+        loop's clock (default the wall clock; the lock-step simulator passes its own)."""
         self.cfg = cfg
         self.config_path = config_path
         self.io = io
@@ -102,6 +105,7 @@ class Daemon:
             io.tip,
             self.supervisor,
             on_trip=self._on_trip,
+            clock=clock,
         )
         self.enabled = False
         self.homed = False

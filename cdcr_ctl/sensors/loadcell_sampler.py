@@ -277,6 +277,15 @@ class LoadCellSampler:
                 f"{self.port_name}: tare of cell {index} not done within {timeout_s} s"
             ) from exc
 
+    def publish(self, readings: Sequence[tuple[int, LoadCellReading]], t_s: float) -> None:
+        """Publish ``[(index, reading)]`` of one poll, acquired at ``t_s`` (s, the sampler's
+        clock). The thread does this after each poll; a caller that polls the link itself on
+        its own schedule (the lock-step simulator, without :meth:`start`) does it too."""
+        for index, reading in readings:
+            self._holders[index].publish(reading, t_s)
+        with self._published:
+            self._published.notify_all()
+
     # -- the thread ---------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -285,11 +294,7 @@ class LoadCellSampler:
                 self._run_commands()
                 got = self.link.poll()
                 if got:
-                    t = self._clock()
-                    for index, reading in got:
-                        self._holders[index].publish(reading, t)
-                    with self._published:
-                        self._published.notify_all()
+                    self.publish(got, self._clock())
         except SensorError as exc:
             self._fail(exc)
         except Exception as exc:  # a bug must not leave the loop reading fresh-looking data

@@ -1,6 +1,7 @@
-"""System: `cdcr-ctl demo --design ujoint --quick` - the simulated universal-joint rig (sim process
-with six EPOS nodes behind an slcan pty and the tracker on loopback) and the daemon as processes,
-Yang et al. 2022's go-and-return without and with section 3's compensation."""
+"""System: `cdcr-ctl demo --design ujoint --quick --lockstep` - the simulated universal-joint rig
+(six simulated EPOS nodes, the tracker) and the daemon in lock-step (one process, simulated time;
+the subject is the results, not the timing: issue 22), Yang et al. 2022's go-and-return without
+and with section 3's compensation."""
 
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ SIM_RIG = Path(__file__).resolve().parents[2] / "config" / "yang2022-sim.yaml"
 @pytest.mark.timeout(300)
 def test_ujoint_demo_completes_both_runs_and_the_compensation_reduces_the_tip_error(tmp_path):
     out = tmp_path / "out"
-    cmd = ["demo", "--design", "ujoint", "--quick", "--out", str(out)]
+    cmd = ["demo", "--design", "ujoint", "--quick", "--lockstep", "--out", str(out)]
     res = subprocess.run(
         [sys.executable, "-m", "cdcr_ctl", *cmd],
         capture_output=True,

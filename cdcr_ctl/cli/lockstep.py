@@ -1,0 +1,69 @@
+"""``cdcr-ctl sim --lockstep``: the simulated rig and the daemon in one process, on simulated time.
+
+The daemon is the production one (:class:`~cdcr_ctl.daemon.service.Daemon`: control socket,
+supervisor, loop, run logs); its I/O is the controller's protocol code on the lock-step rig
+(:class:`~cdcr_ctl.sim.lockstep.rig.LockstepRig`) and its loop runs on the rig's simulated clock,
+as fast as the CPU allows, only while it has work. Clients (``cdcr-ctl enable``, ``trajectory``,
+``experiments``) talk to it as to any daemon.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+
+import click
+
+#: Rows a run log may queue: in lock-step the loop outpaces the disk for a while; no row may be
+#: dropped (the logs must be the same on every run).
+LOCKSTEP_QUEUE_ROWS = 10_000_000
+
+
+def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: str | None) -> str:
+    """Build the lock-step rig of ``sim_config`` with the controller config ``ctl_config``,
+    serve the daemon until SIGTERM/SIGINT or ``shutdown``; returns why it stopped."""
+    from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.config.build_model import build_model
+    from cdcr_ctl.control import trajectory
+    from cdcr_ctl.daemon.service import Daemon, RigIO
+    from cdcr_ctl.runlog.writer import RunLogFactory
+    from cdcr_ctl.sim.lockstep.rig import LockstepRig
+    from cdcr_ctl.sim.simconfig import load_sim_config
+
+    loaded = load_sim_config(sim_config)
+    path = Path(ctl_config)
+    cfg = load_rig_config(path)  # a bad config stops here: nothing opened, nothing enabled
+    if socket_path:
+        cfg = cfg.model_copy(
+            update={"daemon": cfg.daemon.model_copy(update={"socket_path": socket_path})}
+        )
+    model = build_model(cfg, source=str(path))
+    sinks = RunLogFactory.from_config(cfg, path, max_queued_rows=LOCKSTEP_QUEUE_ROWS)
+    rig = LockstepRig.open(loaded, cfg, str(path))
+    assert rig.drives is not None
+    io = RigIO(drives=rig.drives, tensions=rig.tensions, tip=rig.tip, close=rig.close)
+    d = Daemon(cfg, path, io, model, sinks, trajectory, clock=rig.clock)
+    rig.clock.busy = lambda: d.loop.busy
+    try:
+        d.start()
+    except BaseException:
+        d.shutdown("start-up failed")
+        raise
+    click.echo(
+        json.dumps(
+            {
+                "ready": True,
+                "clock": "lockstep",
+                "socket": cfg.daemon.socket_path,
+                "rate_hz": cfg.control.rate_hz,
+            }
+        )
+    )
+    sys.stdout.flush()
+    reason = d.serve()
+    logging.getLogger(__name__).info(
+        "lock-step: %d cycles, %.1f s simulated", rig.clock.cycles, rig.clock.now()
+    )
+    return reason

@@ -1,0 +1,122 @@
+"""An in-process CAN bus between the controller's drive layer and the simulated EPOS nodes, for
+lock-step: every frame is delivered the moment it is sent, on the sender's thread.
+
+:class:`HostBus` is the python-can bus the controller's
+:class:`~cdcr_ctl.drives.group.DriveGroup` gets; the nodes sit on a canopen ``Network`` over
+:class:`NodeBus`. Host -> nodes: ``HostBus.send`` hands the frame to the nodes' network at once
+(a SYNC steps every node by its interpolation period and their TPDOs come back inside the same
+call). Nodes -> host: the cyclic TPDOs go straight to the group's decoder through the frame hook
+(:meth:`HostBus.set_frame_hook`, what :class:`~cdcr_ctl.drives.slcan.SlcanBus` offers), so the
+loop's next cycle sees them whatever the machine load; everything else (SDO answers, boot-up,
+heartbeats, EMCY) is queued for the group's bus listener thread, as on a real bus.
+
+The bytes are the real ones: the group builds and parses them with the production PDO/SDO code
+and the nodes with theirs; only the wire and its timing are gone (a SYNC's answers arrive within
+its cycle, as they do on a real bus at these rates).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import can
+import canopen
+
+FrameHook = Callable[[int, bytes, float], None]
+
+
+class NodeBus(can.BusABC):
+    """The nodes' side: what a node sends goes to the host (hooked TPDOs at once, the rest
+    queued for the host's listener)."""
+
+    def __init__(self, link: CanLink, **kwargs: Any) -> None:
+        self._link = link
+        super().__init__(channel="cdcr-lockstep-nodes", **kwargs)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._link.to_host(msg)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        raise can.CanOperationError("the lock-step link delivers frames to the nodes itself")
+
+
+class HostBus(can.BusABC):
+    """The controller's side (give it to :class:`~cdcr_ctl.drives.group.DriveGroup`)."""
+
+    def __init__(self, link: CanLink, **kwargs: Any) -> None:
+        self._link = link
+        self._queue: queue.SimpleQueue[can.Message] = link.host_queue
+        super().__init__(channel="cdcr-lockstep", **kwargs)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._link.to_nodes(msg)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        try:
+            return self._queue.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    def set_frame_hook(self, can_ids: Sequence[int], hook: FrameHook) -> None:
+        """Hand these COB-IDs (the cyclic TPDOs) to ``hook(can_id, data, t)`` without a Message,
+        on the sender's thread."""
+        self._link.hooked = frozenset(can_ids)
+        self._link.hook = hook
+
+
+class CanLink:
+    """The two ends of the lock-step bus and the nodes' canopen network.
+
+    ``node_time_s`` (s, CPU of the nodes' handling, the decoding of their answers excluded) and
+    ``decode_time_s`` (s, CPU of the host's TPDO decoding) are for the benchmark.
+    """
+
+    def __init__(self) -> None:
+        self.host_queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self.hooked: frozenset[int] = frozenset()
+        self.hook: FrameHook | None = None
+        self.host = HostBus(self)
+        self.node_bus = NodeBus(self)
+        self.network = canopen.Network(self.node_bus)
+        self._lock = threading.RLock()
+        self.node_time_s = 0.0
+        self.decode_time_s = 0.0
+        self.frames_to_nodes = 0
+        self.frames_to_host = 0
+
+    def to_nodes(self, msg: can.Message) -> None:
+        """A frame from the host, handled by every node now (as canopen's listener would)."""
+        if msg.is_error_frame or msg.is_remote_frame:
+            return
+        c0 = time.thread_time()
+        d0 = self.decode_time_s
+        with self._lock:
+            self.frames_to_nodes += 1
+            self.network.notify(msg.arbitration_id, bytearray(msg.data), 0.0)
+        self.node_time_s += time.thread_time() - c0 - (self.decode_time_s - d0)
+
+    def to_host(self, msg: can.Message) -> None:
+        """A frame from a node: hooked TPDOs decoded now, the rest queued for the listener."""
+        self.frames_to_host += 1
+        hook = self.hook
+        if hook is not None and msg.arbitration_id in self.hooked:
+            c0 = time.thread_time()
+            hook(msg.arbitration_id, bytes(msg.data), 0.0)
+            self.decode_time_s += time.thread_time() - c0
+            return
+        self.host_queue.put(
+            can.Message(
+                arbitration_id=msg.arbitration_id,
+                data=bytes(msg.data),
+                is_extended_id=msg.is_extended_id,
+                is_remote_frame=msg.is_remote_frame,
+                timestamp=time.time(),
+            )
+        )
+
+
+__all__ = ["CanLink", "HostBus", "NodeBus"]

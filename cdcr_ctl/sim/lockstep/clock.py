@@ -1,0 +1,90 @@
+"""Simulated time for the lock-step rig: one SYNC period per loop cycle, from the cycle count.
+
+:class:`SimClock` is a :class:`~cdcr_ctl.control.clock.LoopClock`. Its time is ``n * period_s``
+after ``n`` cycles, never the wall clock, so a run's timing is the same on an idle machine and
+under ``stress-ng``. Before each cycle it advances the world by one period (``advance(t0, t1)``:
+the truth, the sensors' schedules) and returns at once: nothing sleeps.
+
+The clock moves only while the loop has work (``busy()``: a run, a posted command, an offset
+ramping; :attr:`cdcr_ctl.control.loop.ControlLoop.busy`). An idle simulated rig stands still, so
+how long a client takes between two requests changes nothing in the world or in the logs. While
+idle the loop thread waits for the next command (it polls ``busy`` every
+:data:`IDLE_POLL_S` of wall time or at once on :meth:`SimClock.wake`); that is waiting for work,
+not pacing simulated time.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from cdcr_ctl.control.timing import LatenessStats
+
+#: While the loop is idle, look for new work this often (s, wall clock).
+IDLE_POLL_S = 0.002
+
+Advance = Callable[[float, float], None]
+
+
+class SimClock:
+    """Loop clock on simulated time (s), starting at ``t0_s``. ``advance(t0, t1)`` moves the
+    world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always)."""
+
+    def __init__(
+        self,
+        period_s: float,
+        advance: Advance | None = None,
+        busy: Callable[[], bool] | None = None,
+        t0_s: float = 0.0,
+    ) -> None:
+        if not period_s > 0:
+            raise ValueError("period_s must be positive")
+        self.period_s = float(period_s)
+        self.advance = advance
+        self.busy = busy
+        self.stats = LatenessStats()
+        self.cycles = 0
+        self.t0_s = float(t0_s)
+        self._t = self.t0_s
+        self._wake = threading.Event()
+        self._closed = False
+
+    def now(self) -> float:
+        """Simulated time (s) of the present cycle: ``t0_s`` + cycles so far times the period."""
+        return self._t
+
+    def wait(self) -> tuple[float, float]:
+        """Wait for work (never for time), advance the world one period; (deadline, 0). The
+        first cycle is at ``t0_s`` and advances nothing."""
+        busy = self.busy
+        if busy is not None:
+            while not busy() and not self._closed:
+                self._wake.wait(IDLE_POLL_S)
+                self._wake.clear()
+        if self.cycles > 0:
+            t0, t1 = self._t, self.t0_s + self.cycles * self.period_s
+            if self.advance is not None:
+                self.advance(t0, t1)
+            self._t = t1
+        self.cycles += 1
+        self.stats.add(0.0)
+        return self._t, 0.0
+
+    def done(self) -> None:
+        """Nothing to schedule: the next cycle is due as soon as there is work."""
+
+    def reset_stats(self) -> LatenessStats:
+        old, self.stats = self.stats, LatenessStats()
+        return old
+
+    def wake(self) -> None:
+        """Look for work now (a command was posted)."""
+        self._wake.set()
+
+    def close(self) -> None:
+        """Stop waiting for work (the loop is stopping)."""
+        self._closed = True
+        self._wake.set()
+
+
+__all__ = ["IDLE_POLL_S", "SimClock"]

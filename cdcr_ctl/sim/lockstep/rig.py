@@ -1,0 +1,362 @@
+"""The lock-step simulated rig: the world and the controller's I/O in one process, on one
+simulated clock, as fast as the CPU allows and the same on every run.
+
+What is real: the controller's protocol code. Its :class:`~cdcr_ctl.drives.group.DriveGroup`
+talks CANopen (SDO set-up, RPDO set-points, SYNC, TPDO feedback, heartbeats) to the simulated EPOS
+nodes (:class:`~cdcr_ctl.sim.epos.node.SimEpos`) over :mod:`.canlink`; its Modbus RTU reader
+polls the simulated transmitters and its NatNet parser reads the simulated tracker's datagrams
+(:mod:`.sensors`). What is simulated: time (:class:`~.clock.SimClock`, one SYNC period per loop
+cycle) and the scheduling: each cycle's SYNC steps the nodes by one period inside the loop's send;
+then, before the next cycle, :meth:`LockstepRig.advance` steps the truth at its physics rate (by
+default in a worker process, one period behind the drives: :mod:`.truthproc`), runs the
+load-cell transactions whose replies arrive in that period and delivers the tracker frames due
+in it. Every rate and latency is in simulated time; the random streams are seeded
+(``seed`` of the simulator YAML), so one seed, one world and one command sequence give the same
+logs byte for byte whatever the machine load.
+
+Set-up (boot, SDO configuration, enable, homing) uses the drive layer's own SYNCs and timeouts
+on the wall clock, with the simulated world standing still (the truth and the sensors move only
+with the loop's clock); it changes no state a run depends on. Not simulated in lock-step: the
+attitude sensors (vertebra arm) and the network joystick; a rig config with them is refused.
+
+Build with :meth:`LockstepRig.open`; hand :attr:`clock`, :attr:`drives`, :attr:`tensions` and
+:attr:`tip` to the loop (the daemon's ``RigIO``); set :attr:`SimClock.busy` to the loop's
+``busy``; :meth:`close` at the end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import socket
+import time
+from typing import Any
+
+import numpy as np
+
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.control.io import DriveGroupPort, LoadCellTension, TrackerTip, cell_order
+from cdcr_ctl.control.ports import NoTension, NoTip
+from cdcr_ctl.drives.group import DriveGroup
+from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.sensors.loadcell import Calibration
+from cdcr_ctl.sensors.loadcell_modbus import ModbusLoadCellBus, spec_silence_s
+from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler
+from cdcr_ctl.sensors.natnet import pack_server_info
+from cdcr_ctl.sensors.tracker import NatNetTracker, TrackerTransform
+from cdcr_ctl.sim.design_truth import make_truth
+from cdcr_ctl.sim.epos.node import SimEpos
+from cdcr_ctl.sim.epos.plant import MotorParams
+from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
+from cdcr_ctl.sim.lockstep.canlink import CanLink
+from cdcr_ctl.sim.lockstep.clock import SimClock
+from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
+from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
+from cdcr_ctl.sim.simconfig import LoadedSim
+from cdcr_ctl.sim.tracker import SimNatNetServer, true_transform
+
+log = logging.getLogger(__name__)
+
+#: Heartbeats (CANopen's liveness checks, producer and consumer on the wall clock) between the
+#: drive layer and the nodes: in lock-step both sit in this process and every frame is delivered
+#: synchronously, so there is no link whose death they could detect; only a starved thread (a
+#: loaded machine, the loop running flat out) could make one late. Their periods are relaxed to
+#: these (ms) so that it never does; the frames still go out and are checked.
+LOCKSTEP_HEARTBEAT_MS = 1000
+LOCKSTEP_HEARTBEAT_CONSUMER_MS = 5000
+
+#: Sensor traffic simulated before the loop's first cycle (s), see :meth:`LockstepRig._prime`.
+PRIME_S = 0.1
+
+
+class LockstepRig:
+    """The simulated world of ``loaded`` and the I/O of the controller config ``ctl`` (which may
+    differ from the simulator's rig in its robot parameters, never in its devices)."""
+
+    def __init__(
+        self,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_file: str = "",
+        truth_process: bool = True,
+    ) -> None:
+        rig = loaded.rig
+        for key, present in (
+            ("sensors.attitude", ctl.sensors.attitude is not None),
+            ("sensors.joystick", ctl.sensors.joystick is not None),
+        ):
+            if present:
+                raise ConfigError(ctl_file, key, "not simulated in lock-step (run real time)")
+        if ctl.sensors.tracker is not None and ctl.sensors.tracker.kind != "natnet":
+            raise ConfigError(
+                ctl_file,
+                "sensors.tracker.kind",
+                "lock-step simulates NatNet only",
+                ctl.sensors.tracker.kind,
+            )
+        if ctl.sensors.load_cells is not None and ctl.sensors.load_cells.protocol != "modbus_rtu":
+            raise ConfigError(
+                ctl_file,
+                "sensors.load_cells.protocol",
+                "lock-step simulates Modbus RTU only",
+                ctl.sensors.load_cells.protocol,
+            )
+        self.loaded = loaded
+        self.ctl = ctl
+        self.clock = SimClock(1.0 / ctl.control.rate_hz, advance=self.advance, t0_s=PRIME_S)
+        self.truth = make_truth(loaded)
+        self.physics_period_s = 1.0 / loaded.sim.physics_rate_hz
+        self._physics_next_s = 0.0
+        self.truth_cpu_s = 0.0
+        self.truth_steps = 0
+        self._solved_counts: list[int] = []
+        #: The truth solved in a worker process one period behind (:mod:`.truthproc`), or None:
+        #: solved here, right after the SYNC.
+        self.truth_proc: TruthProcess | None = None
+        self._truth_process = truth_process
+        self._closers: list[Any] = []
+        self.can = CanLink()
+        by_cable = {d.cable: d for d in rig.drives}
+        self.nodes = [
+            SimEpos(
+                self.can.network,
+                d.node_id,
+                d.type,
+                MotorParams(counts_per_rev=d.encoder_counts_per_rev),
+            )
+            for d in (by_cable[c.name] for c in rig.robot.cables)
+        ]
+        self.loadcells: LoadCellSchedule | None = None
+        self.tracker: TrackerSchedule | None = None
+        self.drives: DriveGroupPort | None = None
+        self.tensions: Any = NoTension(len(ctl.robot.cables))
+        self.tip: Any = NoTip()
+
+    @classmethod
+    def open(
+        cls, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "", truth_process: bool = True
+    ) -> LockstepRig:
+        """Build the world, boot the nodes, open and configure the controller's drives and
+        sensors (nothing is enabled); closed again if any step fails. ``truth_process``: solve
+        the truth in a worker process, one period behind (:mod:`.truthproc`)."""
+        rig = cls(loaded, ctl, ctl_file, truth_process)
+        try:
+            rig._open(ctl_file)
+        except BaseException:
+            rig.close()
+            raise
+        return rig
+
+    def _open(self, ctl_file: str) -> None:
+        ctl, sim = self.ctl, self.loaded.sim
+        for n in self.nodes:
+            n.boot()
+        self._closers.append(self._stop_nodes)
+        ctl = relaxed_heartbeats(ctl)
+        by_cable = {d.cable: d for d in ctl.drives}
+        group = DriveGroup(
+            self.can.host,
+            ctl.can,
+            [by_cable[c.name] for c in ctl.robot.cables],
+            file=ctl_file,
+        )
+        self.drives = DriveGroupPort(group)
+        self._closers.insert(0, self.drives.close)
+        group.boot()
+        group.configure()
+        names = [c.name for c in ctl.robot.cables]
+        lc = ctl.sensors.load_cells
+        if lc is not None:
+            assert self.loaded.rig.sensors.load_cells is not None
+            world_lc = self.loaded.rig.sensors.load_cells
+            noise = sim.noise
+            device = ModbusLoadCellSim(
+                self.truth.cell_tensions,
+                [c.slave for c in world_lc.cells],
+                world_lc.register_map,
+                baudrate=world_lc.serial.baudrate,
+                emulate_baud=False,
+                noise=SensorNoise(
+                    noise.load_cell_N,
+                    noise.load_cell_drift_N_per_s,
+                    noise.load_cell_dropout,
+                    sim.seed,
+                ),
+                clock=self.clock.now,
+            )
+            self._closers.append(device.stop)
+            s = lc.serial
+            port = SerialLoopback(
+                device,
+                self.clock.now,
+                port=s.port,
+                baudrate=s.baudrate,
+                parity=s.parity,
+                stopbits=s.stopbits,
+            )
+            # The bus silence is kept in simulated time by the schedule, not slept by the link.
+            link = ModbusLoadCellBus(
+                port,
+                [c.slave for c in lc.cells],
+                lc.register_map,
+                response_timeout_s=s.timeout_s,
+                inter_frame_s=0.0,
+                port_name=s.port,
+            )
+            sampler = LoadCellSampler(
+                link,
+                [Calibration(zero_N=c.zero_N, span=c.span) for c in lc.cells],
+                stale_after_s=lc.stale_after_s,
+                clock=self.clock.now,
+            )
+            silence = (
+                spec_silence_s(s.baudrate, s.parity, s.stopbits)
+                if lc.inter_frame_s is None
+                else lc.inter_frame_s
+            )
+            self.loadcells = LoadCellSchedule(sampler, link, silence)
+            self.tensions = LoadCellTension(sampler, cell_order(lc, names, ctl_file))
+            self._closers.append(sampler.close)
+        tr = ctl.sensors.tracker
+        if tr is not None:
+            world_tr = self.loaded.rig.sensors.tracker
+            assert world_tr is not None
+            server = SimNatNetServer(
+                self.truth.tip_pose,
+                transform=true_transform(world_tr, sim.effects.tracker_offset),
+                truth_frame="base",
+                rigid_body_id=world_tr.rigid_body_id,
+                host="127.0.0.1",
+                rate_hz=sim.tracker.rate_hz,
+                latency_s=sim.tracker.latency_s,
+                noise_mm=sim.noise.tracker_mm,
+                dropout=sim.tracker.dropout,
+                seed=sim.seed,
+            )
+            self._closers.append(server.close)
+            server._t0 = 0.0  # frame timestamps on simulated time
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+            reader = NatNetTracker(
+                sock,
+                server.command_address,
+                TrackerTransform.from_config(tr),
+                tr.rigid_body_id,
+                stale_after_s=tr.stale_after_s,
+                lost_after_s=tr.lost_after_s,
+                clock=self.clock.now,
+            )
+            self._closers.append(reader.close)
+            reader.handle_datagram(
+                pack_server_info(server.server_info()), server.command_address, 0.0
+            )
+            self.tracker = TrackerSchedule(server, reader)
+            self.tip = TrackerTip(reader)
+        self._prime()
+
+    def _prime(self) -> None:
+        """The world before the loop's first cycle (at ``PRIME_S``): the truth at the drives'
+        positions and :data:`PRIME_S` of sensor traffic, so that cycle has fresh samples (a
+        real rig's sensors run from the moment they are opened)."""
+        self._solved_counts = self.positions()
+        self.truth.step(self._solved_counts)
+        if self._truth_process:
+            self.truth_proc = TruthProcess(str(self.loaded.path), self.truth)
+            self._closers.append(self.truth_proc.close)
+            self.truth_proc.submit(self._solved_counts)  # the worker's truth starts alike
+            self.truth_proc.collect()
+        for sched in (self.loadcells, self.tracker):
+            if sched is not None:
+                sched.advance(0.0, PRIME_S)
+        self._physics_next_s = PRIME_S + self.physics_period_s
+
+    # ------------------------------------------------------------------ time
+    def positions(self) -> list[int]:
+        """The nodes' actual positions (counts, cable order)."""
+        return [n.position_counts for n in self.nodes]
+
+    def advance(self, t0: float, t1: float) -> None:
+        """The world from ``t0`` to ``t1`` (s, simulated): the truth at its physics rate on the
+        drives' positions (one solve when a physics tick falls in the period: the positions
+        change only at SYNC; none when no drive moved by a count since the last solve), then
+        the sensors' transactions and frames of the period."""
+        proc = self.truth_proc
+        if proc is not None and proc.pending:
+            proc.collect()  # the positions of the previous period, solved meanwhile
+        if self._physics_next_s <= t1:
+            c0 = time.thread_time()
+            counts = self.positions()
+            if counts != self._solved_counts:  # a world at rest stays where it is
+                if proc is not None:
+                    proc.submit(counts)
+                else:
+                    self.truth.step(counts)
+                self._solved_counts = counts
+                self.truth_steps += 1
+            self.truth_cpu_s += time.thread_time() - c0
+            while self._physics_next_s <= t1:
+                self._physics_next_s += self.physics_period_s
+        if self.loadcells is not None:
+            self.loadcells.advance(t0, t1)
+        if self.tracker is not None:
+            self.tracker.advance(t0, t1)
+
+    def cpu_breakdown_s(self) -> dict[str, float]:
+        """CPU time (s) spent so far in the simulated parts: truth (here; ``truth_worker``: in
+        the worker process), drives (node handling of the frames, steps at SYNC), TPDO
+        decoding, load cells and tracker (both sides)."""
+        return {
+            "truth": self.truth_cpu_s,
+            "truth_worker": self.truth_proc.cpu_s if self.truth_proc else 0.0,
+            "sim_drives": self.can.node_time_s,
+            "tpdo_decode": self.can.decode_time_s,
+            "loadcells_modbus": self.loadcells.cpu_s if self.loadcells else 0.0,
+            "tracker_natnet": self.tracker.cpu_s if self.tracker else 0.0,
+        }
+
+    # ------------------------------------------------------------------ life cycle
+    def _stop_nodes(self) -> None:
+        for n in self.nodes:
+            n.node.nmt.stop_heartbeat()
+
+    def close(self) -> None:
+        """Make the drives safe and close everything (every step runs)."""
+        self.clock.close()
+        for close in self._closers:
+            with contextlib.suppress(Exception):
+                close()
+        self._closers.clear()
+
+    def __enter__(self) -> LockstepRig:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def relaxed_heartbeats(cfg: RigConfig) -> RigConfig:
+    """``cfg`` with the heartbeat periods of :data:`LOCKSTEP_HEARTBEAT_MS` (drives that produce
+    or consume none keep 0)."""
+    can = cfg.can.model_copy(
+        update={"master_heartbeat_ms": LOCKSTEP_HEARTBEAT_MS if cfg.can.master_heartbeat_ms else 0}
+    )
+    drives = [
+        d.model_copy(
+            update={
+                "heartbeat_producer_ms": LOCKSTEP_HEARTBEAT_MS if d.heartbeat_producer_ms else 0,
+                "heartbeat_consumer_ms": (
+                    LOCKSTEP_HEARTBEAT_CONSUMER_MS if d.heartbeat_consumer_ms else 0
+                ),
+            }
+        )
+        for d in cfg.drives
+    ]
+    return cfg.model_copy(update={"can": can, "drives": drives})
+
+
+def tip_true_mm(rig: LockstepRig) -> np.ndarray:
+    """The truth's tip (mm, base frame) now (tests)."""
+    return np.asarray(rig.truth.tip_pose()[1], dtype=float)
+
+
+__all__ = ["LockstepRig", "tip_true_mm"]

@@ -1,0 +1,134 @@
+"""A lock-step rig with its control loop in this process, driven by the caller (benchmarks,
+tests, sweeps that need no control socket).
+
+:class:`LockstepSession` wires what the daemon wires (model, supervisor, loop, run logs) over a
+:class:`~cdcr_ctl.sim.lockstep.rig.LockstepRig`; :meth:`LockstepSession.run` follows one
+trajectory (with the daemon's lead-in from the commanded pose) and returns when the loop has
+ended it, in simulated time, as fast as the CPU allows.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
+from cdcr_ctl.control.supervisor import Supervisor
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.sim.lockstep.rig import LockstepRig
+from cdcr_ctl.sim.simconfig import LoadedSim
+
+#: Rows a run log may queue (no row may be dropped: the logs must be the same on every run).
+QUEUE_ROWS = 10_000_000
+#: Longest wall time a run may take per simulated second before it counts as stuck (s/s).
+STUCK_WALL_PER_SIM_S = 20.0
+
+
+class LockstepSession:
+    """Rig, model, supervisor and loop of controller config ``ctl`` (file ``ctl_path``) on the
+    lock-step world ``loaded``; run logs below ``log_dir``. Enabled and homed on :meth:`open`."""
+
+    def __init__(
+        self,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_path: str | Path,
+        log_dir: str | Path,
+        truth_process: bool = True,
+    ) -> None:
+        self.cfg = ctl
+        self.model = build_model(ctl, source=str(ctl_path))
+        self.sinks = RunLogFactory.from_config(
+            ctl, ctl_path, base_dir=log_dir, max_queued_rows=QUEUE_ROWS
+        )
+        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process)
+        assert self.rig.drives is not None
+        self.drives = self.rig.drives
+        by_cable = {d.cable: d for d in ctl.drives}
+        self.supervisor = Supervisor(
+            ctl.limits,
+            use_tension=ctl.sensors.load_cells is not None,
+            use_tracker=ctl.sensors.tracker is not None,
+        )
+        self.loop = ControlLoop(
+            LoopConfig(
+                period_s=1.0 / ctl.control.rate_hz,
+                counts_per_mm=np.array([by_cable[c.name].counts_per_mm for c in ctl.robot.cables]),
+                compensation=ctl.control.compensation,
+                cable_velocity_mm_s=ctl.limits.cable_velocity_mm_s,
+            ),
+            self.model,
+            self.drives,
+            self.rig.tensions,
+            self.rig.tip,
+            self.supervisor,
+            clock=self.rig.clock,
+        )
+        self.rig.clock.busy = lambda: self.loop.busy
+        self._ended = threading.Event()
+
+    @classmethod
+    def open(
+        cls,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_path: str | Path,
+        log_dir: str | Path,
+        truth_process: bool = True,
+    ) -> LockstepSession:
+        s = cls(loaded, ctl, ctl_path, log_dir, truth_process)
+        try:
+            s.loop.start()
+            s.drives.enable()
+            s.loop.drives_reenabled()
+            s.loop.pause(True)
+            try:
+                home = s.drives.home()
+            finally:
+                s.loop.pause(False)
+            s.loop.set_home(home)
+        except BaseException:
+            s.close()
+            raise
+        return s
+
+    def run(
+        self, traj: Any, name: str, compensation: str | None = None, log: bool = True
+    ) -> RunInfo:
+        """Follow ``traj`` (after a lead-in from the commanded pose) and wait until the loop
+        ends it; the run's record (``log_dir`` is its run directory when ``log``)."""
+        lead = tj.with_lead_in(self.loop.psi_cmd, traj)
+        comp = compensation or self.loop.cfg.compensation
+        sink = self.sinks(name, comp) if log else None
+        run = self.loop.follow(lead, name, compensation, sink)
+        self.rig.clock.wake()
+        limit = time.monotonic() + 60.0 + STUCK_WALL_PER_SIM_S * lead.duration_s
+        while run.state == "running" or self.loop.current_run is run:
+            if time.monotonic() > limit or not self.loop.running:
+                raise RigError(f"lock-step run {name} did not end (state {run.state})")
+            time.sleep(0.005)  # the caller waits on the wall clock; the loop does not
+        if sink is not None:
+            sink.wait_closed(60.0)
+        return run
+
+    def close(self) -> None:
+        self.rig.clock.close()
+        self.loop.stop()
+        self.rig.close()
+
+    def __enter__(self) -> LockstepSession:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+__all__ = ["LockstepSession"]

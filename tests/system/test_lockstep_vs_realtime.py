@@ -1,0 +1,71 @@
+"""System: the same trajectory on the simulated rig in real time (simulator and daemon processes,
+slcan pty, Modbus pty, NatNet on loopback) and in lock-step (`cdcr-ctl sim --lockstep`, one
+process on simulated time) gives the same tip errors.
+
+Tolerance: 5 % of the real-time value, for the mean and the max tip error, compensation off and
+model (issue 22's acceptance). The two differ only in timing: in real time the physics thread
+solves the truth at 200 Hz on the wall clock and every message crosses a process boundary; in
+lock-step the truth is solved right after each SYNC that moved a drive. A real-time run is a
+reference only if it kept its 250 Hz: when the machine is too busy for that (the loop skipped
+more than 1 % of its deadlines, so the real-time run itself is distorted), the comparison is
+skipped with the figures, not loosened.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import pytest
+from syshelp import client, session, start_daemon, start_sim, wait_for_socket
+
+from cdcr_ctl.analysis import tip_errors
+from cdcr_ctl.cli.demo import _cli, running
+from cdcr_ctl.cli.identify import run_trajectory
+from cdcr_ctl.control import trajectory as tj
+
+TOLERANCE = 0.05
+MODES = ("off", "model")
+
+
+def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, float]]:
+    """(mean, max tip error mm, fraction of the expected rows logged) per mode."""
+    traj = tj.planar_bend(theta_max_rad=math.pi / 2, rate_rad_s=math.pi / 10)
+    out = {}
+    with contextlib.ExitStack() as procs:
+        if lockstep:
+            cmd = _cli("--config", str(rig), "sim", str(sim), "--lockstep")
+            d = procs.enter_context(running(cmd, work / "lockstep.log", ready='"ready"'))
+        else:
+            procs.enter_context(start_sim(sim, work / "sim.log"))
+            d = procs.enter_context(start_daemon(rig, work / "daemon.log"))
+        wait_for_socket(work / "control.sock", d, work / "daemon.log")
+        with client(work) as c:
+            c.call("enable")
+            c.call("home")
+        for comp in MODES:
+            res = run_trajectory(work / "control.sock", f"bend-{comp}", traj.rows(), comp)
+            assert res["state"] == "completed", res
+            e = tip_errors(res["log_dir"], settle_s=0.0).summary()
+            kept = e["samples"] / (res["duration_s"] * 250.0)
+            out[comp] = (e["mean_mm"], e["max_mm"], kept)
+            run_trajectory(work / "control.sock", "return", [[0, 0, 0], [0.5, 0, 0]], comp, False)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(400)
+def test_lockstep_and_real_time_give_the_same_tip_errors(tmp_path):
+    with session(tmp_path) as (work, rig, sim, _runs):
+        lock = _measure(work, rig, sim, lockstep=True)
+    (tmp_path / "rt").mkdir()
+    with session(tmp_path / "rt") as (work, rig, sim, _runs):
+        real = _measure(work, rig, sim, lockstep=False)
+    figures = {m: {"lockstep": lock[m][:2], "realtime": real[m][:2]} for m in MODES}
+    assert all(lock[m][2] > 0.99 for m in MODES), figures  # lock-step never skips a cycle
+    if min(real[m][2] for m in MODES) < 0.99:
+        pytest.skip(f"the real-time run could not keep 250 Hz on this machine: {figures}")
+    for m in MODES:
+        for i, what in enumerate(("mean", "max")):
+            ls, rt = lock[m][i], real[m][i]
+            assert abs(ls - rt) <= TOLERANCE * rt, f"{m} {what}: {figures}"
