@@ -88,6 +88,7 @@ from cdcr_ctl.drives.epos import (
     target_payload,
 )
 from cdcr_ctl.drives.heartbeat import NMT_OPERATIONAL, HeartbeatConsumer
+from cdcr_ctl.drives.plan import check_writes, object_table, planned_writes
 from cdcr_ctl.drives.slcan import SlcanBus
 from cdcr_ctl.errors import CommError, DriveFault, RigError, RigTimeoutError
 
@@ -295,9 +296,16 @@ class DriveGroup:
             self.bus_load: BusLoad = check_drives_bus_load(
                 drives, bus_cfg.sync_period_s, bus_cfg.bitrate, bus_cfg.max_bus_load, file
             )
+            # Every SDO write the configuration plans, against the drive's device description
+            # or the shipped limits table: a refusal is a ConfigError before the first frame.
+            self._tables = {d.node_id: object_table(d, file) for d in drives}
             for d in drives:
-                if d.mode in ("csp", "ip", "pm"):
-                    epos.interpolation_period_ms(bus_cfg, file)
+                check_writes(
+                    d,
+                    planned_writes(d, bus_cfg, self._tables[d.node_id], file),
+                    self._tables[d.node_id],
+                    file,
+                )
         except RigError:
             bus.shutdown()
             raise
@@ -667,7 +675,7 @@ class DriveGroup:
             vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
             if vendor != epos.MAXON_VENDOR_ID:
                 raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
-            writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file)
+            writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file, self._tables[d.id])
             for w in writes:
                 self._sdo_write(d, w)
             if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
