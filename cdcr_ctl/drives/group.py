@@ -9,9 +9,10 @@ The loop's path (never blocks on the bus, never waits for an answer):
 - :meth:`DriveGroup.build_cycle` -- every frame of one cycle, built first: each drive's set-point
   RPDO, then SYNC (COB-ID 0x080). Pure: it neither sends nor changes the group.
 - :meth:`DriveGroup.send_cycle` -- sends them as one burst (one write on an slcan adapter:
-  :meth:`~cdcr_ctl.drives.slcan.SlcanBus.send_frames`), then checks feedback ages (heartbeat
-  ages every :data:`WATCHDOG_PERIOD_S`); :meth:`DriveGroup.feedback` -- the latest TPDO of each
-  drive as :class:`Feedback`.
+  :meth:`~cdcr_ctl.drives.slcan.SlcanBus.send_frames`), then checks each drive's feedback
+  deadline and heartbeat deadline, every SYNC, in O(1) while nothing is overdue (the earliest
+  deadline is kept; the drives are scanned only once it has passed);
+  :meth:`DriveGroup.feedback` -- the latest TPDO of each drive as :class:`Feedback`.
 - :meth:`DriveGroup.quick_stop_all` -- controlword 0x0002 to every drive at once; never raises.
 
 Reception: the group's dispatcher is the bus listener's only listener (canopen's
@@ -155,6 +156,10 @@ class GroupFault:
     ``pdo_length:node1``, ``bus:send``, ``bus:rx``), ``node`` the
     node at fault (0: the bus), ``code`` the EMCY code (0 when none), ``description`` what
     happened, ``at_sync`` the SYNC count when it was seen, ``frames`` the last frames on the bus.
+    ``due_at_sync`` is the SYNC count when the fault became a fact: the EMCY's arrival, the
+    SYNCs sent before a heartbeat or feedback deadline passed (the group's SYNC count is the
+    number of SYNCs sent); the quick stop's delay is ``quick_stop_at_sync - due_at_sync``.
+    ``diagnosis`` is what the drive's own records said (0x603F, 0x1003), read after the fault.
     """
 
     cause: str
@@ -164,6 +169,8 @@ class GroupFault:
     t_s: float
     at_sync: int
     frame_records: tuple[tuple[float, str, int, bytes], ...]
+    due_at_sync: int | None = None
+    diagnosis: str = ""
 
     @property
     def frames(self) -> str:
@@ -172,7 +179,8 @@ class GroupFault:
 
     @property
     def text(self) -> str:
-        return f"node {self.node}: {self.description}" if self.node else self.description
+        text = f"node {self.node}: {self.description}" if self.node else self.description
+        return f"{text} [{self.diagnosis}]" if self.diagnosis else text
 
     def error(self) -> RigError:
         """The exception to raise for this fault (DriveFault for a node, CommError for the bus),
@@ -343,7 +351,10 @@ class DriveGroup:
         self.quick_stop_at_sync: int | None = None
         self._last_cycle_s = float("-inf")
         self._last_sync_s = float("-inf")
-        self._next_hb_check_s = float("-inf")
+        #: Send times of the last SYNCs (SYNC count after it, time): deadlines -> SYNC counts.
+        self._sync_times: collections.deque[tuple[int, float]] = collections.deque(maxlen=256)
+        #: No drive's last TPDO came before this SYNC count (a lower bound; module docstring).
+        self._oldest_tpdo_sync = 0
         self._next_self_sync_s = float("-inf")
         self._sync_source: Callable[[], None] | None = None
         self._hb_period_s = bus_cfg.master_heartbeat_ms / 1e3
@@ -583,19 +594,23 @@ class DriveGroup:
             self._latch(f"nmt:node{d.id}", d.id, 0, anomaly)
 
     # ================================================================== faults
-    def _latch(self, cause: str, node: int, code: int, description: str) -> None:
+    def _latch(
+        self, cause: str, node: int, code: int, description: str, due_at_sync: int | None = None
+    ) -> None:
         """Record the first fault and quick-stop every drive (from whichever thread saw it)."""
         with self._fault_lock:
             if self._fault is not None or self._closed:
                 return
+            at = self.sync_count
             fault = GroupFault(
                 cause,
                 node,
                 code,
                 description,
                 self.clock(),
-                self.sync_count,
+                at,
                 tuple(self._frames),
+                at if due_at_sync is None else min(due_at_sync, at),
             )
             self._fault = fault
             self.fault_at_sync = self.sync_count
@@ -694,6 +709,7 @@ class DriveGroup:
             d.tpdo_sync = self.sync_count
             d.reset_stream()
             self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
+        self._oldest_tpdo_sync = self.sync_count
         self._heartbeats.arm(now)
         self._started = True
         self._confirm_operational()
@@ -817,6 +833,7 @@ class DriveGroup:
                     d.controlword |= CW_IP_ENABLE_BIT
                 d.ip_active = active
             self.sync_count += 1
+            self._sync_times.append((self.sync_count, now))
             self._last_cycle_s = now
         self._supervise(now)
 
@@ -833,6 +850,7 @@ class DriveGroup:
             except CommError:
                 return
             self.sync_count += 1
+            self._sync_times.append((self.sync_count, now))
         self._supervise(self.clock())
 
     def _sync_starts(self, now: float) -> None:
@@ -845,6 +863,7 @@ class DriveGroup:
             for d in self._drives:
                 d.tpdo_sync = self.sync_count
                 d.last_tpdo_s = max(d.last_tpdo_s, now)
+            self._oldest_tpdo_sync = self.sync_count
         self._last_sync_s = now
 
     def _send_pending_quick_stop(self) -> None:
@@ -854,9 +873,37 @@ class DriveGroup:
         if pending and self._started and self.react_to_faults:
             self.quick_stop_all()
 
+    def syncs_before(self, t_s: float) -> int:
+        """How many SYNCs had been sent by time ``t_s`` (the group's clock; from the ring of the
+        last SYNC send times)."""
+        count = self.sync_count
+        for n, t in reversed(self._sync_times):
+            if t <= t_s:
+                return n
+            count = n - 1
+        return count
+
     def _supervise(self, now: float) -> None:
+        """Every SYNC: feedback deadlines, then heartbeat deadlines. O(1) while none passed."""
         if not self._started or self._fault is not None:
             return
+        if self.sync_count - self._oldest_tpdo_sync > TPDO_MISSES:
+            self._oldest_tpdo_sync = min((d.tpdo_sync for d in self._drives), default=0)
+            if self.sync_count - self._oldest_tpdo_sync > TPDO_MISSES:
+                self._check_feedback(now)
+                if self._fault is not None:
+                    return
+        self._check_heartbeats(now)
+
+    def _feedback_due(self, d: _Drive) -> int:
+        """SYNCs sent when drive ``d``'s feedback became overdue: it had left
+        :data:`TPDO_MISSES` SYNCs unanswered and the feedback timeout had passed."""
+        return max(
+            d.tpdo_sync + TPDO_MISSES,
+            self.syncs_before(d.last_tpdo_s + self.feedback_timeout_s),
+        )
+
+    def _check_feedback(self, now: float) -> None:
         silent = [
             d
             for d in self._drives
@@ -879,6 +926,7 @@ class DriveGroup:
                 0,
                 f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}: no TPDO from any drive "
                 f"for {now - oldest:.3f} s: bus not answering",
+                due_at_sync=min(self._feedback_due(d) for d in silent),
             )
             return
         for d in silent:
@@ -889,16 +937,12 @@ class DriveGroup:
                 0,
                 f"no TPDO for {self.sync_count - d.tpdo_sync} SYNCs "
                 f"({now - d.last_tpdo_s:.3f} s): drive not answering",
+                due_at_sync=self._feedback_due(d),
             )
             return
-        if now >= self._next_hb_check_s:
-            # Heartbeat timeouts are 3 producer periods (tens of ms): every WATCHDOG_PERIOD_S
-            # is soon enough, and spares a 1 kHz cycle the lock and the scan.
-            self._next_hb_check_s = now + WATCHDOG_PERIOD_S
-            self._check_heartbeats(now)
 
     def _check_heartbeats(self, now: float) -> None:
-        for node, age in self._heartbeats.expired(now):
+        for node, age in self._heartbeats.overdue(now):
             d = self._by_node[node]
             d.fault_text = "heartbeat lost"
             self._latch(
@@ -907,6 +951,7 @@ class DriveGroup:
                 0,
                 f"heartbeat lost (none for {age:.3f} s; producer time "
                 f"{d.cfg.heartbeat_producer_ms} ms)",
+                due_at_sync=self.syncs_before(self._heartbeats.deadline_s(node)),
             )
             return
 
