@@ -440,9 +440,10 @@ class Daemon:
     def _cmd_reset_fault(self, args: Any) -> dict[str, Any]:
         if not args.confirm:
             raise ProtocolError("set confirm: true to reset a fault", field="args.confirm")
-        self.io.drives.reset_faults()
+        notes = self.io.drives.reset_faults() or []
         self.supervisor.reset()
-        return {"fault": None}
+        # A drive that rebooted mid-run was reconfigured before it may be enabled: say so.
+        return {"fault": None, "reconfigured": list(notes)}
 
     def _cmd_shutdown(self, args: Any) -> dict[str, Any]:
         self.request_stop("shutdown requested")

@@ -216,6 +216,8 @@ class _Drive:
         self.fault_tpdos = 0
         self.booted = threading.Event()
         self.present = False
+        #: A boot-up message came after configuration: the drive lost its SDO configuration.
+        self.rebooted = False
         self.last_emcy: Emcy | None = None
         self.fault_text = ""
         # set-point streams (pp: set/clear of bit 4; ip: PVT points)
@@ -588,6 +590,8 @@ class DriveGroup:
             return
         if data[0] == 0:
             d.booted.set()
+            if self._started:
+                d.rebooted = True
         anomaly = self._heartbeats.beat(d.id, data[0], self.clock())
         if anomaly is not None and self._started:
             d.fault_text = anomaly
@@ -687,20 +691,7 @@ class DriveGroup:
         following error, interpolation period, heartbeats, PDO mapping), start the master
         heartbeat, NMT-start every drive and confirm OPERATIONAL from its heartbeat."""
         for d in self._drives:
-            vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
-            if vendor != epos.MAXON_VENDOR_ID:
-                raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
-            writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file, self._tables[d.id])
-            for w in writes:
-                self._sdo_write(d, w)
-            if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
-                raw = self._sdo_read(d, epos.INTERPOLATION_PERIOD, 2)
-                index = struct.unpack("<b", raw[:1])[0]
-                if index != -3:
-                    raise DriveFault(
-                        d.id, 0, f"0x60C2:2 interpolation time index is {index}, expected -3 (ms)"
-                    )
-            d.present = True
+            self._configure_drive(d)
         self._hb_next_s = self.clock()
         self._hb_on = self._hb_period_s > 0
         now = self.clock()
@@ -714,8 +705,49 @@ class DriveGroup:
         self._started = True
         self._confirm_operational()
 
-    def _confirm_operational(self) -> None:
-        watched = [d for d in self._drives if d.cfg.heartbeat_producer_ms > 0]
+    def _configure_drive(self, d: _Drive) -> int:
+        """Check drive ``d`` is a maxon drive and write its SDO configuration; the writes."""
+        vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
+        if vendor != epos.MAXON_VENDOR_ID:
+            raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
+        writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file, self._tables[d.id])
+        for w in writes:
+            self._sdo_write(d, w)
+        if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
+            raw = self._sdo_read(d, epos.INTERPOLATION_PERIOD, 2)
+            index = struct.unpack("<b", raw[:1])[0]
+            if index != -3:
+                raise DriveFault(
+                    d.id, 0, f"0x60C2:2 interpolation time index is {index}, expected -3 (ms)"
+                )
+        d.present = True
+        d.rebooted = False
+        return len(writes)
+
+    def reconfigure(self, node_id: int) -> str:
+        """Configure one drive again (a drive that rebooted lost its SDO configuration: PDO
+        mapping, limits, heartbeats): the same writes as :meth:`configure`, then NMT start and
+        its OPERATIONAL heartbeat. Not on the loop's path. Returns what was done, as text."""
+        self._require_started()
+        d = self._by_node[node_id]
+        n = self._configure_drive(d)
+        now = self.clock()
+        d.last_tpdo_s, d.tpdo_sync = now, self.sync_count
+        d.reset_stream()
+        self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
+        self._confirm_operational([d])
+        return (
+            f"node {d.id}: rebooted (its configuration was lost): reconfigured with {n} SDO "
+            "writes and started; its position restarted from 0, home it again"
+        )
+
+    @property
+    def rebooted_nodes(self) -> list[int]:
+        """Drives seen to boot (boot-up message) since :meth:`configure`: not configured."""
+        return [d.id for d in self._drives if d.rebooted]
+
+    def _confirm_operational(self, drives: Sequence[_Drive] | None = None) -> None:
+        watched = [d for d in drives or self._drives if d.cfg.heartbeat_producer_ms > 0]
         if not watched:
             return
         timeout_s = max(3 * max(d.cfg.heartbeat_producer_ms for d in watched) / 1e3, 0.5)
@@ -1142,12 +1174,22 @@ class DriveGroup:
         for d in self._drives:
             d.reset_stream()
 
-    def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> None:
+    def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> list[str]:
         """Fault reset (controlword 0x80 rising edge) of every drive in FAULT, confirmed by its
         statusword leaving FAULT within ``timeout_s``; then check every drive answers (TPDO and
-        heartbeat) and clear the latched fault. Raises DriveFault naming the node when a reset
-        does not take or a drive does not answer."""
+        heartbeat) and clear the latched fault. A drive that rebooted since configuration is
+        reconfigured first (:meth:`reconfigure`). Returns what was done beyond the reset, one
+        line per drive (the reconfigured ones). Raises DriveFault naming the node when a reset
+        does not take, a reconfiguration fails or a drive does not answer."""
         self._require_started()
+        notes = []
+        for node in self.rebooted_nodes:
+            try:
+                notes.append(self.reconfigure(node))
+            except RigError as exc:
+                raise DriveFault(
+                    node, 0, f"rebooted and lost its configuration; reconfiguring failed: {exc}"
+                ) from exc
         faulted = [
             d
             for d in self._drives
@@ -1194,6 +1236,7 @@ class DriveGroup:
                 d.fault_text, d.last_emcy, d.fault_tpdos = "", None, 0
                 d.feedback = dataclasses.replace(d.feedback, fault="")
                 d.reset_stream()
+        return notes
 
     def home(
         self, sync: Callable[[], None] | None = None, timeout_s: float | None = None

@@ -206,6 +206,7 @@ class SimEpos:
         #: The limits the drive enforces on writes (maxon's files, via the shipped table).
         self.limits = shipped_table(kind)
         self.silent = False
+        self._rebooting = False
         #: Fault hook: False drops EMCY frames (the master must notice the FAULT statusword).
         self.emcy_enabled = True
         # statistics (tests and benchmarks read these)
@@ -446,7 +447,7 @@ class SimEpos:
         self._pdo_dirty = False
 
     def _operational(self) -> bool:
-        return not self.silent and self.node.nmt.state == "OPERATIONAL"
+        return not self.silent and not self._rebooting and self.node.nmt.state == "OPERATIONAL"
 
     def _on_rpdo(self, can_id: int, data: bytearray, ts: float) -> None:
         if not self._operational():
@@ -611,6 +612,7 @@ class SimEpos:
         """Reset node (NMT 0x81) or power off and on: application and communication objects
         back to their defaults, SWITCH ON DISABLED, the incremental encoder restarts at 0,
         boot-up message. Also a fault hook (a drive that restarts behind the master's back)."""
+        self._rebooting = True  # no PDO is processed while the drive restarts
         with self._lock:
             self.state = State.SWITCH_ON_DISABLED
             self.controlword = 0
@@ -621,8 +623,9 @@ class SimEpos:
             for index in [i for i in self.node.data_store if i >= 0x2000]:
                 del self.node.data_store[index]
             self._params.clear()
-        self._reset_communication()
-        self.boot()
+            self._reset_communication()
+            self.boot()
+            self._rebooting = False
 
     def _reset_communication(self) -> None:
         for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
