@@ -225,14 +225,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         discrepancy,  # noqa: F401  registers discrepancy
         identify,  # noqa: F401  registers identify, experiments
         joystick,  # noqa: F401  registers joystick
+        scan,  # noqa: F401  registers scan
     )
 
     try:
-        cli.main(
+        rv = cli.main(
             args=list(argv) if argv is not None else None,
             prog_name="cdcr-ctl",
             standalone_mode=False,
         )
+        if isinstance(rv, int) and not isinstance(rv, bool):
+            return rv  # a command's click.exceptions.Exit(code) (click returns the code here)
     except click.exceptions.Exit as exc:
         return int(exc.exit_code or 0)
     except click.ClickException as exc:
