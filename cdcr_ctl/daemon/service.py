@@ -474,6 +474,8 @@ class Daemon:
             out["drives"] = {
                 "sync_count": group.sync_count,
                 "fault": None if fault is None else fault.text,
+                # the faulted drive's 0x603F and 0x1003, read after the fault ('' until then)
+                "diagnosis": None if fault is None else getattr(fault, "diagnosis", ""),
                 "fault_at_sync": group.fault_at_sync,
                 "quick_stop_at_sync": group.quick_stop_at_sync,
                 "traffic_log_failure": getattr(group, "traffic_failure", None),

@@ -79,6 +79,12 @@ from cdcr_ctl.drives.cia402 import (
     next_controlword,
     state_of,
 )
+from cdcr_ctl.drives.diagnosis import (
+    DIAGNOSIS_SDO_TIMEOUT_S,
+    ERROR_CODE,
+    ERROR_HISTORY,
+    Diagnosis,
+)
 from cdcr_ctl.drives.emcy import Emcy, decode_emcy
 from cdcr_ctl.drives.epos import (
     controlword_payload,
@@ -190,6 +196,8 @@ class GroupFault:
             if self.node
             else CommError(self.description)
         )
+        if self.diagnosis:
+            err.add_note(f"node {self.node}'s own records: {self.diagnosis}")
         err.add_note(f"last CAN frames (t_s dir id [dlc] data):\n{self.frames}")
         return err
 
@@ -340,6 +348,8 @@ class DriveGroup:
         #: Why the traffic log stopped on its own (a write error), or None.
         self.traffic_failure: str | None = None
         self._cycle_lock = threading.RLock()
+        #: One SDO transfer at a time (the diagnosis thread and the caller's thread).
+        self._sdo_lock = threading.RLock()
         self._fault_lock = threading.Lock()
         self._fb_cond = threading.Condition()
         self._fb_waiters = 0
@@ -621,6 +631,43 @@ class DriveGroup:
         if self.react_to_faults and self._started:
             self.quick_stop_all()  # first; the log (formatting 256 frames) can wait
         log.error("drive fault: %s; last frames:\n%s", fault.text, fault.frames)
+        if node and self._started and not self._closed:
+            # The drive's own records (0x603F, 0x1003), by SDO: off every thread that the
+            # loop or the bus listener needs (the answers arrive on the listener's thread).
+            threading.Thread(
+                target=self._diagnose_fault, args=(fault,), name="drives-diagnosis", daemon=True
+            ).start()
+
+    def diagnose(self, node_id: int) -> Diagnosis:
+        """Read drive ``node_id``'s error code 0x603F (when its family has it) and its error
+        history 0x1003 by SDO (blocking, short timeouts; not on the loop's path)."""
+        d = self._by_node[node_id]
+        table = self._tables[d.id]
+        code: int | None = None
+        history: list[int] = []
+        timeout = d.node.sdo.RESPONSE_TIMEOUT
+        d.node.sdo.RESPONSE_TIMEOUT = DIAGNOSIS_SDO_TIMEOUT_S
+        try:
+            if table.has(ERROR_CODE, 0):
+                code = self._sdo_read_u32(d, ERROR_CODE, 0)
+            n = self._sdo_read_u32(d, ERROR_HISTORY, 0) & 0xFF
+            for sub in range(1, n + 1):
+                history.append(self._sdo_read_u32(d, ERROR_HISTORY, sub))
+        except RigError as exc:
+            return Diagnosis(d.id, code, tuple(history), d.cfg.type, f"reading stopped: {exc}")
+        finally:
+            d.node.sdo.RESPONSE_TIMEOUT = timeout
+        return Diagnosis(d.id, code, tuple(history), d.cfg.type)
+
+    def _diagnose_fault(self, fault: GroupFault) -> None:
+        try:
+            text = self.diagnose(fault.node).text
+        except Exception as exc:  # a diagnosis must never take the group down
+            text = f"diagnosis failed: {exc}"
+        with self._fault_lock:
+            if self._fault is fault:
+                self._fault = dataclasses.replace(fault, diagnosis=text)
+        log.error("node %d diagnosis: %s", fault.node, text)
 
     def first_fault(self) -> tuple[str, str] | None:
         """(cause, text) of the first fault since the last reset, or None. Never blocks."""
@@ -765,7 +812,8 @@ class DriveGroup:
 
     def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:
         try:
-            return d.node.sdo.upload(index, sub)
+            with self._sdo_lock:
+                return d.node.sdo.upload(index, sub)
         except SdoAbortedError as exc:
             raise DriveFault(
                 d.id, exc.code, f"SDO read 0x{index:04X}:{sub:02X} refused: {exc}"
@@ -781,7 +829,8 @@ class DriveGroup:
 
     def _sdo_write(self, d: _Drive, w: epos.SdoWrite) -> None:
         try:
-            d.node.sdo.download(w.index, w.sub, w.data)
+            with self._sdo_lock:
+                d.node.sdo.download(w.index, w.sub, w.data)
         except SdoAbortedError as exc:
             raise DriveFault(
                 d.id, exc.code, f"SDO write 0x{w.index:04X}:{w.sub:02X} ({w.what}) refused: {exc}"
