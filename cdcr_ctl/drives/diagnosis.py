@@ -17,7 +17,7 @@ from cdcr_ctl.drives.emcy import Family, emcy_text
 ERROR_CODE = 0x603F
 ERROR_HISTORY = 0x1003
 #: SDO timeout of the diagnosis reads (s): a drive that does not answer is named as such.
-DIAGNOSIS_SDO_TIMEOUT_S = 0.2
+DIAGNOSIS_SDO_TIMEOUT_S = 0.5
 
 
 @dataclass(frozen=True)

@@ -571,6 +571,7 @@ class DriveGroup:
                     d.id,
                     0,
                     f"statusword 0x{sw:04X} reports FAULT (no EMCY seen)",
+                    due_at_sync=self.sync_count - (FAULT_TPDOS - 1),
                 )
         else:
             d.fault_tpdos = 0
@@ -1242,16 +1243,26 @@ class DriveGroup:
         faulted = [
             d
             for d in self._drives
+            # FAULT in its feedback, or an EMCY whose FAULT statusword is still on its way (the
+            # drive samples its statusword at the SYNC: the feedback lags a cycle)
             if d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+            or d.last_emcy is not None
         ]
         with self._cycle_lock:
             for d in faulted:
                 self._send_controlword(d, CW_DISABLE_VOLTAGE)
                 self._send_controlword(d, CW_FAULT_RESET)
+            start = self.sync_count
         deadline = self.clock() + timeout_s
-        while any(d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE) for d in faulted):
+
+        def still_faulted(d: _Drive) -> bool:
+            # confirmed only by feedback sampled at a SYNC sent after the reset
+            faulty = d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+            return faulty or d.tpdo_sync <= start
+
+        while any(still_faulted(d) for d in faulted):
             if self.clock() > deadline:
-                d = next(d for d in faulted if d.feedback.state is State.FAULT)
+                d = next(d for d in faulted if still_faulted(d))
                 code = d.last_emcy.code if d.last_emcy else 0
                 raise DriveFault(
                     d.id,

@@ -955,7 +955,8 @@ class SimEpos:
                 if old is not None:
                     store[s] = old
             store[0] = bytes((min(n_hist, 1 + sum(o is not None for o in history)),))
-        self._emcy(code)
+            # Still under the lock: the EMCY goes out before any TPDO showing FAULT.
+            self._emcy(code)
 
     def _emcy(self, code: int) -> None:
         self.emcy_sent.append(code)
