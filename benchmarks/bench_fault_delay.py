@@ -107,8 +107,7 @@ def recover(sim: SimDriveBus, kind: str, node: int) -> None:
 
 def run(trials: int, period_s: float, feedback_timeout_s: float) -> dict[str, list[int]]:
     drives = [
-        DriveConfig(name=f"m{i}", cable=f"c{i}", node_id=i, counts_per_mm=1238.6)
-        for i in (1, 2, 3)
+        DriveConfig(name=f"m{i}", cable=f"c{i}", node_id=i, counts_per_mm=1238.6) for i in (1, 2, 3)
     ]
     bus = CanBusConfig(
         interface="virtual",
