@@ -89,10 +89,13 @@ def cli(ctx: click.Context, socket: str | None, config: str | None, as_json: boo
 @click.argument("path", type=click.Path(dir_okay=False))
 @click.pass_obj
 def check_config(obj: Ctx, path: str) -> None:
-    """Validate a rig config and print a summary (nothing is opened or moved)."""
+    """Validate a rig config and print a summary (nothing is opened or moved). Every SDO write
+    the drives' configuration plans is checked against their device descriptions too."""
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.drives.plan import check_plans
 
     cfg = load_rig_config(path)
+    check_plans(cfg.drives, cfg.can, path)
     summary = {
         "name": cfg.name,
         "design": cfg.design,

@@ -226,3 +226,20 @@ def test_epos2_home_with_offset_and_home_position_byte_by_byte():
         assert not [f for f in frames if f[0] == 0x601 and f[1][1:3] in (b"\xb0\x30", b"\xb1\x30")]
     finally:
         r.close()
+
+
+def test_check_config_refuses_what_the_drive_would(tmp_path, capsys):
+    from drivesim import ROOT
+
+    from cdcr_ctl.cli.main import main
+
+    cfg = tmp_path / "rig.yaml"
+    drives = "\n".join(
+        f"  - {{name: m{i}, cable: c{i}, node_id: {i}, counts_per_mm: 1238.6"
+        + (", following_error_timeout_ms: 10}" if i == 2 else "}")
+        for i in (1, 2, 3)
+    )
+    cfg.write_text(f"extends: {ROOT / 'config' / 'qi2023.yaml'}\ndrives:\n{drives}\n")
+    assert main(["check-config", str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert f"{cfg}: drives[name=m2].following_error_timeout_ms" in err and "0x6066:00" in err
