@@ -648,12 +648,22 @@ class DriveGroup:
         history: list[int] = []
         timeout = d.node.sdo.RESPONSE_TIMEOUT
         d.node.sdo.RESPONSE_TIMEOUT = DIAGNOSIS_SDO_TIMEOUT_S
+
+        def read(index: int, sub: int) -> int:
+            # Once more after a stray answer: the quick stop goes by SDO to a drive that is not
+            # OPERATIONAL, and its confirmation may arrive while this read waits.
+            try:
+                return self._sdo_read_u32(d, index, sub)
+            except CommError:
+                time.sleep(DIAGNOSIS_SDO_TIMEOUT_S / 10)
+                return self._sdo_read_u32(d, index, sub)
+
         try:
             if table.has(ERROR_CODE, 0):
-                code = self._sdo_read_u32(d, ERROR_CODE, 0)
-            n = self._sdo_read_u32(d, ERROR_HISTORY, 0) & 0xFF
+                code = read(ERROR_CODE, 0)
+            n = read(ERROR_HISTORY, 0) & 0xFF
             for sub in range(1, n + 1):
-                history.append(self._sdo_read_u32(d, ERROR_HISTORY, sub))
+                history.append(read(ERROR_HISTORY, sub))
         except RigError as exc:
             return Diagnosis(d.id, code, tuple(history), d.cfg.type, f"reading stopped: {exc}")
         finally:
