@@ -21,7 +21,9 @@ timeout). ``quick_stop_at_sync`` is the SYNC count when the quick stops went out
 rather than seconds makes the figure independent of how late a loaded machine runs the thread:
 the question is how many cycles pass before the drives are told to stop. The goal is <= 2.
 
-Prints a histogram per kind and the maximum; ``--json`` writes the raw delays. Exit status 1 when
+A trial in which the group latched a fault before the injection (this process stalled long
+enough for the drives' feedback to look overdue: a loaded machine) is printed as SKIPPED and tried
+again, up to 3 times. Prints a histogram per kind and the maximum; ``--json`` writes the raw delays. Exit status 1 when
 the maximum exceeds 2 (a measurement, not a test: run it on a quiet machine to compare figures).
 
 Run: ``.venv/bin/python benchmarks/bench_fault_delay.py [--trials 100] [--period-s 0.001]``.
@@ -46,6 +48,8 @@ from cdcr_ctl.sim.epos.rig import SimDriveBus
 KINDS = ("heartbeat", "silent", "emcy")
 #: A trial that shows no quick stop within this long failed (s).
 TRIAL_TIMEOUT_S = 5.0
+#: Tries of one trial when a fault comes before the injection (a stall of this process).
+ATTEMPTS = 3
 
 
 class Cycler:
@@ -58,15 +62,15 @@ class Cycler:
         self._thread = threading.Thread(target=self._run, name="bench-cycle", daemon=True)
 
     def _run(self) -> None:
-        t0, n = time.monotonic(), 0
+        deadline = time.monotonic()
         while not self._stop.is_set():
             self.group.send_cycle(self.targets)
-            n += 1
-            delay = t0 + n * self.period_s - time.monotonic()
+            deadline += self.period_s
+            delay = deadline - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
-            elif delay < -0.05:
-                t0, n = time.monotonic(), 0  # far behind: start a new schedule
+            else:
+                deadline = time.monotonic()  # late: skip the missed deadlines, no burst
 
     def __enter__(self) -> Cycler:
         self._thread.start()
@@ -119,37 +123,52 @@ def run(trials: int, period_s: float, feedback_timeout_s: float) -> dict[str, li
     group = DriveGroup(can.Bus(interface="virtual", channel=bus.channel), bus, drives)
     delays: dict[str, list[int]] = {k: [] for k in KINDS}
     failures: list[str] = []
+    spurious: list[str] = []
     try:
         group.boot()
         group.configure()
         with Cycler(group, period_s):
             for t in range(trials):
                 for kind in KINDS:
-                    node = 1 + (t % 3)
-                    group.enable(timeout_s=2.0)
-                    time.sleep(0.02)  # a few cycles of normal running
-                    inject(sim, kind, node)
-                    ok = wait_until(lambda: group.quick_stop_at_sync is not None, TRIAL_TIMEOUT_S)
-                    f = group.fault()
-                    if not ok or f is None or f.due_at_sync is None:
-                        failures.append(f"{kind} trial {t}: no quick stop")
-                    else:
-                        if not f.cause.startswith(
-                            {"heartbeat": "heartbeat", "silent": "no_feedback", "emcy": "emcy"}[
-                                kind
-                            ]
-                        ):
-                            failures.append(f"{kind} trial {t}: fault {f.cause}")
-                        delays[kind].append(group.quick_stop_at_sync - f.due_at_sync)
-                    recover(sim, kind, node)
-                    time.sleep(0.02)
-                    wait_until(lambda: _reset(group), 5.0)
+                    for _attempt in range(ATTEMPTS):
+                        if trial(group, sim, kind, 1 + (t % 3), t, delays, failures, spurious):
+                            break
     finally:
         group.close()
         sim.stop()
     for line in failures:
         print("FAILED", line)
+    for line in spurious:
+        print("SKIPPED (fault before the injection)", line.splitlines()[0])
     return delays
+
+
+def trial(group, sim, kind, node, t, delays, failures, spurious) -> bool:
+    """One trial; False when a fault came before the injection (a stall of this loaded
+    process, not the fault under test): the caller tries again."""
+    try:
+        group.enable(timeout_s=2.0)
+        time.sleep(0.02)  # a few cycles of normal running
+        if group.fault() is not None:
+            raise RuntimeError(group.fault().text)
+    except Exception as exc:
+        spurious.append(f"{kind} trial {t}: before the injection: {exc}")
+        wait_until(lambda: _reset(group), 5.0)
+        return False
+    inject(sim, kind, node)
+    ok = wait_until(lambda: group.quick_stop_at_sync is not None, TRIAL_TIMEOUT_S)
+    f = group.fault()
+    if not ok or f is None or f.due_at_sync is None:
+        failures.append(f"{kind} trial {t}: no quick stop")
+    else:
+        expected = {"heartbeat": "heartbeat", "silent": "no_feedback", "emcy": "emcy"}[kind]
+        if not f.cause.startswith(expected):
+            failures.append(f"{kind} trial {t}: fault {f.cause}")
+        delays[kind].append(group.quick_stop_at_sync - f.due_at_sync)
+    recover(sim, kind, node)
+    time.sleep(0.02)
+    wait_until(lambda: _reset(group), 5.0)
+    return True
 
 
 def _reset(group: DriveGroup) -> bool:
