@@ -23,8 +23,9 @@ the question is how many cycles pass before the drives are told to stop. The goa
 
 A trial in which the group latched a fault before the injection (this process stalled long
 enough for the drives' feedback to look overdue: a loaded machine) is printed as SKIPPED and tried
-again, up to 3 times. Prints a histogram per kind and the maximum; ``--json`` writes the raw delays. Exit status 1 when
-the maximum exceeds 2 (a measurement, not a test: run it on a quiet machine to compare figures).
+again, up to 3 times. Prints a histogram per kind and the maximum; ``--json`` writes the raw
+delays. Exit status 1 when the maximum exceeds 2 (a measurement, not a test: run it on a quiet
+machine to compare figures).
 
 Run: ``.venv/bin/python benchmarks/bench_fault_delay.py [--trials 100] [--period-s 0.001]``.
 """
