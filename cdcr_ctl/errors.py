@@ -59,7 +59,9 @@ class DriveFault(RigError):
         self.node = node
         self.code = code
         self.text = text
-        super().__init__(f"node {node}: 0x{code:04X} {text}")
+        # EMCY codes are 16 bit, SDO abort codes 32 bit: always all their digits (0x06090011).
+        shown = f"0x{code:04X}" if code <= 0xFFFF else f"0x{code:08X}"
+        super().__init__(f"node {node}: {shown} {text}")
 
 
 class SensorError(RigError):

@@ -89,10 +89,13 @@ def cli(ctx: click.Context, socket: str | None, config: str | None, as_json: boo
 @click.argument("path", type=click.Path(dir_okay=False))
 @click.pass_obj
 def check_config(obj: Ctx, path: str) -> None:
-    """Validate a rig config and print a summary (nothing is opened or moved)."""
+    """Validate a rig config and print a summary (nothing is opened or moved). Every SDO write
+    the drives' configuration plans is checked against their device descriptions too."""
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.drives.plan import check_plans
 
     cfg = load_rig_config(path)
+    check_plans(cfg.drives, cfg.can, path)
     summary = {
         "name": cfg.name,
         "design": cfg.design,
@@ -226,15 +229,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         identify,  # noqa: F401  registers identify, experiments
         joystick,  # noqa: F401  registers joystick
         runlogs,  # noqa: F401  registers export
+        scan,  # noqa: F401  registers scan
         watch,  # noqa: F401  registers watch
     )
 
     try:
-        cli.main(
+        rv = cli.main(
             args=list(argv) if argv is not None else None,
             prog_name="cdcr-ctl",
             standalone_mode=False,
         )
+        if isinstance(rv, int) and not isinstance(rv, bool):
+            return rv  # a command's click.exceptions.Exit(code) (click returns the code here)
     except click.exceptions.Exit as exc:
         return int(exc.exit_code or 0)
     except click.ClickException as exc:

@@ -62,8 +62,9 @@ class HomingConfig(Section):
     """CiA 402 homing (0x6098 method). 37 = actual position, -3/-4 = current threshold.
 
     ``current_threshold_mA`` goes to 0x30B2 (EPOS4) / 0x2080 (EPOS2) for methods -1..-4;
-    ``offset_counts`` is the home offset move distance (0x30B0 EPOS4 / 0x607C EPOS2): how far the
-    drive backs off the hard stop before it sets ``home_position_counts`` (0x30B1 / 0x2081).
+    ``offset_counts`` is the home offset move distance (0x30B1 EPOS4 / 0x607C EPOS2): how far the
+    drive backs off the hard stop before it sets ``home_position_counts`` (0x30B0 / 0x2081), as
+    maxon's device descriptions define the objects.
     Speeds go to 0x6099 (switch search, zero search), the acceleration to 0x609A.
     """
 
@@ -89,9 +90,15 @@ class DriveConfig(Section):
     Velocities are motor rpm and accelerations motor rpm/s (the EPOS default units);
     ``encoder_counts_per_rev`` (quadrature counts per motor turn) converts counts/s to rpm where
     the protocol needs it (EPOS2 PVT velocities). The following error window is counts, its
-    timeout (0x6066) ms. ``quick_stop_option_code`` (0x605A): 2 = stop on the quick-stop ramp, then
-    power off (SWITCH ON DISABLED); 6 = stop on the ramp and hold position powered (QUICK STOP
-    ACTIVE).
+    timeout (0x6066) ms: maxon's EPOS4 file gives 0x6066 the range 0..0 (the drive faults as soon
+    as the error leaves the window), so the default is 0; the EPOS2 has no 0x6066 (not written
+    unless set). ``quick_stop_option_code`` (0x605A; not on the EPOS2, whose quick stop ends
+    powered off): 2 = stop on the quick-stop ramp, then power off (SWITCH ON DISABLED); 6 = stop on
+    the ramp and hold position powered (QUICK STOP ACTIVE).
+
+    ``eds``: the drive's device description (EDS, DCF or XDD; relative to the config file). Every
+    SDO write the configuration plans is checked against it before the first CAN frame; without
+    it, against the project's EPOS4/EPOS2 limits table (:mod:`cdcr_ctl.drives.limits`).
     """
 
     name: Name
@@ -102,7 +109,7 @@ class DriveConfig(Section):
     counts_per_mm: float
     encoder_counts_per_rev: Annotated[int, Field(gt=0, le=2**24)] = 2048
     following_error_window_counts: Annotated[int, Field(ge=0, le=2**31 - 1)] = 20_000
-    following_error_timeout_ms: Annotated[int, Field(ge=0, le=65535)] = 10
+    following_error_timeout_ms: Annotated[int, Field(ge=0, le=65535)] = 0
     software_limits_counts: Annotated[list[int], Field(min_length=2, max_length=2)] = Field(
         default_factory=lambda: [-2_000_000, 2_000_000]
     )
@@ -113,6 +120,7 @@ class DriveConfig(Section):
     heartbeat_producer_ms: Annotated[int, Field(ge=0, le=65535)] = 50
     heartbeat_consumer_ms: Annotated[int, Field(ge=0, le=65535)] = 300
     homing: HomingConfig = Field(default_factory=HomingConfig)
+    eds: Annotated[str, Field(min_length=1)] | None = None
 
     @model_validator(mode="after")
     def _checks(self) -> DriveConfig:

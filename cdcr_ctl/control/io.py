@@ -144,8 +144,9 @@ class DriveGroupPort:
     def home(self) -> list[int]:
         return self.group.home(sync=lambda: self.group.send_sync())
 
-    def reset_faults(self) -> None:
-        self.group.reset_faults()
+    def reset_faults(self) -> list[str]:
+        """Reset; the lines say which drives were reconfigured after a reboot."""
+        return self.group.reset_faults()
 
     def log_traffic(self, path: str | Path | None, tap: Any = None) -> None:
         """Raw CAN traffic of the following cycles to ``path`` (python-can ASC) and to ``tap``

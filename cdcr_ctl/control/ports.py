@@ -46,7 +46,8 @@ class DrivePort(Protocol):
     def home(self) -> list[int]:
         """Home every drive (blocking, not on the loop's path); return the home counts."""
 
-    def reset_faults(self) -> None: ...
+    def reset_faults(self) -> list[str] | None:
+        """Reset drive faults; lines naming drives reconfigured after a reboot (or None)."""
 
     def close(self) -> None: ...
 

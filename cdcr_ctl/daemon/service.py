@@ -30,6 +30,7 @@ from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.protocol import ProtocolError, Request
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.annotate import annotate_when_ended
 from cdcr_ctl.runlog.live import LiveView, live_view_for
 
 log = logging.getLogger(__name__)
@@ -455,9 +456,10 @@ class Daemon:
     def _cmd_reset_fault(self, args: Any) -> dict[str, Any]:
         if not args.confirm:
             raise ProtocolError("set confirm: true to reset a fault", field="args.confirm")
-        self.io.drives.reset_faults()
+        notes = self.io.drives.reset_faults() or []
         self.supervisor.reset()
-        return {"fault": None}
+        # A drive that rebooted mid-run was reconfigured before it may be enabled: say so.
+        return {"fault": None, "reconfigured": list(notes)}
 
     def _cmd_shutdown(self, args: Any) -> dict[str, Any]:
         self.request_stop("shutdown requested")
@@ -477,6 +479,18 @@ class Daemon:
             self.enabled = False
             self.state = "fault"
         self.notifier.status(f"TRIP {trip.cause}: {trip.detail}")
+        # A drive fault ending a logged run: its 0x603F/0x1003 come later (read by SDO after
+        # the fault); record them in the run's run.yaml once both are there (own thread).
+        group = getattr(self.io.drives, "group", None)
+        fault = group.fault() if group is not None else None
+        run = getattr(self.loop, "_run", None)
+        if fault is not None and fault.cause == trip.cause and getattr(run, "log_dir", ""):
+            threading.Thread(
+                target=record_drive_fault,
+                args=(group, fault, run.log_dir),
+                name="drive-fault-record",
+                daemon=True,
+            ).start()
 
     def _safety_status(self) -> dict[str, Any]:
         """What the layers below the supervisor latched: the drive group's first fault with the
@@ -489,6 +503,8 @@ class Daemon:
             out["drives"] = {
                 "sync_count": group.sync_count,
                 "fault": None if fault is None else fault.text,
+                # the faulted drive's 0x603F and 0x1003, read after the fault ('' until then)
+                "diagnosis": None if fault is None else getattr(fault, "diagnosis", ""),
                 "fault_at_sync": group.fault_at_sync,
                 "quick_stop_at_sync": group.quick_stop_at_sync,
                 "traffic_log_failure": getattr(group, "traffic_failure", None),
@@ -512,6 +528,36 @@ class Daemon:
         if trip:
             parts.append(f"trip {trip.cause}")
         return ", ".join(parts)
+
+
+#: How long the run.yaml record of a drive fault waits for the drive's diagnosis (s).
+DIAGNOSIS_WAIT_S = 3.0
+
+
+def record_drive_fault(group: Any, fault: Any, run_dir: str) -> None:
+    """``drive_fault`` in ``run_dir``/run.yaml: the group's fault with the faulted drive's
+    0x603F and 0x1003 (waits up to :data:`DIAGNOSIS_WAIT_S` for them). Never raises."""
+    try:
+        end = time.monotonic() + DIAGNOSIS_WAIT_S
+        while time.monotonic() < end:
+            f = group.fault()
+            if f is not fault and (f is None or f.cause != fault.cause):
+                break  # reset meanwhile: keep what was seen
+            fault = f
+            if f.diagnosis:
+                break
+            time.sleep(0.05)
+        record = {
+            "cause": fault.cause,
+            "node": fault.node,
+            "code": f"0x{fault.code:04X}",
+            "text": fault.text,
+            "diagnosis": fault.diagnosis or None,
+            "fault_at_sync": fault.at_sync,
+        }
+        annotate_when_ended(run_dir, "drive_fault", record)
+    except Exception:  # a record must never take the daemon down
+        log.exception("recording the drive fault in %s failed", run_dir)
 
 
 def _trip_dict(t: Trip) -> dict[str, Any]:

@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
 from cdcr_ctl.drives.cia402 import MODE_BY_NAME, Mode
+from cdcr_ctl.drives.limits import ObjectTable, shipped_table
 from cdcr_ctl.errors import ConfigError
 
 # CiA 301 communication objects
@@ -57,16 +58,17 @@ HOMING_ACCELERATION = 0x609A
 INTERPOLATION_PERIOD = 0x60C2
 IP_DATA_CONFIGURATION = 0x60C4
 SUPPORTED_DRIVE_MODES = 0x6502
-# EPOS4 only
-EPOS4_HOME_OFFSET_MOVE = 0x30B0
-EPOS4_HOME_POSITION = 0x30B1
+# EPOS4 only (maxon's EPOS4 device description: 0x30B0 Home position, 0x30B1 Home offset move
+# distance; see cdcr_ctl.drives.limits for the source)
+EPOS4_HOME_POSITION = 0x30B0
+EPOS4_HOME_OFFSET_MOVE = 0x30B1
 EPOS4_HOMING_CURRENT_THRESHOLD = 0x30B2
 # EPOS2 only
 EPOS2_POSITION_MODE_SETPOINT = 0x2062
 EPOS2_HOMING_CURRENT_THRESHOLD = 0x2080
 EPOS2_HOME_POSITION = 0x2081
-EPOS2_HOME_OFFSET = 0x607C  # CiA 402 home offset; EPOS4 uses 0x30B0 instead
-EPOS2_IP_SUBMODE = 0x20C0
+EPOS2_HOME_OFFSET = 0x607C  # CiA 402 home offset; EPOS4 uses 0x30B1 instead
+EPOS2_IP_SUBMODE = 0x60C0  # interpolation sub mode selection (CiA 402 index; -1 = PVT)
 EPOS2_IP_DATA_RECORD = 0x20C1
 EPOS2_IP_BUFFER_STATUS = 0x20C4
 
@@ -139,12 +141,14 @@ def pdo_layout(node_id: int, mode: Mode) -> PdoLayout:
 
 
 class SdoWrite(NamedTuple):
-    """One expedited SDO download: object, subindex, little-endian data, and what it sets."""
+    """One expedited SDO download: object, subindex, little-endian data, what it sets, and the
+    config key path whose value it carries (for errors; "" when no key made it)."""
 
     index: int
     sub: int
     data: bytes
     what: str = ""
+    key: str = ""
 
 
 def _u8(v: int) -> bytes:
@@ -204,7 +208,7 @@ def pdo_mapping_writes(node_id: int, mode: Mode = Mode.CYCLIC_SYNC_POSITION) -> 
 
 
 #: Modes that interpolate between SYNC-periodic set-points (0x60C2 = SYNC period is required).
-SYNCED_MODES = (Mode.CYCLIC_SYNC_POSITION, Mode.INTERPOLATED_POSITION, Mode.POSITION_MODE)
+SYNCED_MODES = (Mode.CYCLIC_SYNC_POSITION,)
 
 
 def _whole_ms(period_s: float) -> bool:
@@ -212,87 +216,172 @@ def _whole_ms(period_s: float) -> bool:
     return abs(ms - round(ms)) <= 1e-6 and 1 <= round(ms) <= 255
 
 
-def interpolation_period_ms(bus: CanBusConfig, file: str = "") -> int:
-    """The SYNC period as the whole milliseconds 0x60C2:1 takes (index -3), or ConfigError."""
+def interpolation_period_ms(
+    bus: CanBusConfig, file: str = "", table: ObjectTable | None = None
+) -> int:
+    """The SYNC period as the whole milliseconds 0x60C2:1 takes (index -3), or ConfigError when
+    it is not whole milliseconds or outside the range ``table`` gives 0x60C2:1 (EPOS4: 0-100)."""
     period_ms = bus.sync_period_s * 1e3
     whole = round(period_ms)
     if abs(period_ms - whole) > 1e-6 or not 1 <= whole <= 255:
         raise ConfigError(
             file,
             "can.sync_period_s",
-            "the EPOS interpolation period (0x60C2, index -3) takes whole milliseconds 1-255",
+            "the EPOS interpolation period (0x60C2, index -3) takes whole milliseconds",
+            bus.sync_period_s,
+        )
+    if table is not None and not table.accepts(INTERPOLATION_PERIOD, 1, whole):
+        o = table.get(INTERPOLATION_PERIOD, 1)
+        span = "no such object" if o is None else f"range {o.low}..{o.high} ms"
+        raise ConfigError(
+            file,
+            "can.sync_period_s",
+            f"the interpolation period 0x60C2:1 of a cyclic mode is the SYNC period; "
+            f"{table.source} gives it {span}",
             bus.sync_period_s,
         )
     return whole
 
 
-def configuration_writes(d: DriveConfig, bus: CanBusConfig, file: str = "") -> list[SdoWrite]:
-    """Every SDO write that configures drive ``d`` from the rig config, in order."""
+def _unset_and_absent(d: DriveConfig, field: str, table: ObjectTable, index: int) -> bool:
+    """The drive has no object ``index`` and the config left ``field`` at its default: the
+    write is left out (a value set on purpose is planned, and refused by the check)."""
+    return not table.has(index, 0) and field not in d.model_fields_set
+
+
+def configuration_writes(
+    d: DriveConfig,
+    bus: CanBusConfig,
+    file: str = "",
+    table: ObjectTable | None = None,
+    key: str = "",
+) -> list[SdoWrite]:
+    """Every SDO write that configures drive ``d`` from the rig config, in order, each with the
+    config key path its value comes from. ``table`` (default: the shipped table of ``d.type``)
+    decides the writes the drive family may lack: 0x6066 and 0x605A (absent on the EPOS2) are
+    planned only when the drive has them or the config sets them; 0x60C2 is planned for ``csp``
+    (required: the SYNC period must be in its range) and otherwise only when in range."""
+    table = table or shipped_table(d.type)
+    k = key or f"drives[name={d.name}]"
     mode = MODE_BY_NAME[d.mode]
     lo, hi = d.software_limits_counts
     w = [
-        SdoWrite(MODES_OF_OPERATION, 0, _i8(int(mode)), "modes of operation"),
+        SdoWrite(MODES_OF_OPERATION, 0, _i8(int(mode)), "modes of operation", f"{k}.mode"),
         SdoWrite(
             FOLLOWING_ERROR_WINDOW,
             0,
             _u32(d.following_error_window_counts),
             "following error window",
+            f"{k}.following_error_window_counts",
         ),
+    ]
+    if not _unset_and_absent(d, "following_error_timeout_ms", table, FOLLOWING_ERROR_TIMEOUT):
+        w.append(
+            SdoWrite(
+                FOLLOWING_ERROR_TIMEOUT,
+                0,
+                _u16(d.following_error_timeout_ms),
+                "following error time out",
+                f"{k}.following_error_timeout_ms",
+            )
+        )
+    lim = f"{k}.software_limits_counts"
+    w += [
+        SdoWrite(SOFTWARE_POSITION_LIMIT, 1, _i32(lo), "software position limit min", lim),
+        SdoWrite(SOFTWARE_POSITION_LIMIT, 2, _i32(hi), "software position limit max", lim),
         SdoWrite(
-            FOLLOWING_ERROR_TIMEOUT,
+            PROFILE_VELOCITY,
             0,
-            _u16(d.following_error_timeout_ms),
-            "following error time out",
-        ),
-        SdoWrite(SOFTWARE_POSITION_LIMIT, 1, _i32(lo), "software position limit min"),
-        SdoWrite(SOFTWARE_POSITION_LIMIT, 2, _i32(hi), "software position limit max"),
-        SdoWrite(PROFILE_VELOCITY, 0, _u32(d.max_profile_velocity_rpm), "profile velocity"),
-        SdoWrite(
-            PROFILE_ACCELERATION, 0, _u32(d.profile_acceleration_rpm_s), "profile acceleration"
+            _u32(d.max_profile_velocity_rpm),
+            "profile velocity",
+            f"{k}.max_profile_velocity_rpm",
         ),
         SdoWrite(
-            PROFILE_DECELERATION, 0, _u32(d.profile_acceleration_rpm_s), "profile deceleration"
+            PROFILE_ACCELERATION,
+            0,
+            _u32(d.profile_acceleration_rpm_s),
+            "profile acceleration",
+            f"{k}.profile_acceleration_rpm_s",
+        ),
+        SdoWrite(
+            PROFILE_DECELERATION,
+            0,
+            _u32(d.profile_acceleration_rpm_s),
+            "profile deceleration",
+            f"{k}.profile_acceleration_rpm_s",
         ),
         SdoWrite(
             QUICK_STOP_DECELERATION,
             0,
             _u32(d.quick_stop_deceleration_rpm_s),
             "quick stop deceleration",
+            f"{k}.quick_stop_deceleration_rpm_s",
         ),
-        SdoWrite(QUICK_STOP_OPTION, 0, _i16(d.quick_stop_option_code), "quick stop option code"),
     ]
-    if mode in SYNCED_MODES or _whole_ms(bus.sync_period_s):
-        # The SYNC period; cyclic modes need it, profile position ignores it (written anyway
-        # when it is whole milliseconds, so every drive knows the period of its SYNCs).
+    if not _unset_and_absent(d, "quick_stop_option_code", table, QUICK_STOP_OPTION):
+        w.append(
+            SdoWrite(
+                QUICK_STOP_OPTION,
+                0,
+                _i16(d.quick_stop_option_code),
+                "quick stop option code",
+                f"{k}.quick_stop_option_code",
+            )
+        )
+    if mode in SYNCED_MODES:
+        period = interpolation_period_ms(bus, file, table)
+    elif _whole_ms(bus.sync_period_s) and table.accepts(
+        INTERPOLATION_PERIOD, 1, round(bus.sync_period_s * 1e3)
+    ):
+        # Profile position ignores it, EPOS2 modes take their time elsewhere: written when the
+        # drive accepts it, so every drive knows the period of its SYNCs.
+        period = round(bus.sync_period_s * 1e3)
+    else:
+        period = None
+    if period is not None:
         w.append(
             SdoWrite(
                 INTERPOLATION_PERIOD,
                 1,
-                _u8(interpolation_period_ms(bus, file)),
+                _u8(period),
                 "interpolation time period (ms)",
+                "can.sync_period_s",
             )
         )
     if mode is Mode.INTERPOLATED_POSITION:
         w += [
-            SdoWrite(EPOS2_IP_SUBMODE, 0, _i16(IP_SUBMODE_PVT), "interpolation sub mode PVT"),
-            SdoWrite(IP_DATA_CONFIGURATION, 6, _u8(0), "IP buffer clear"),
-            SdoWrite(IP_DATA_CONFIGURATION, 6, _u8(1), "IP buffer enable"),
+            SdoWrite(
+                EPOS2_IP_SUBMODE, 0, _i16(IP_SUBMODE_PVT), "interpolation sub mode PVT", f"{k}.mode"
+            ),
+            SdoWrite(IP_DATA_CONFIGURATION, 6, _u8(0), "IP buffer clear", f"{k}.mode"),
+            SdoWrite(IP_DATA_CONFIGURATION, 6, _u8(1), "IP buffer enable", f"{k}.mode"),
         ]
     w += [
-        SdoWrite(HEARTBEAT_PRODUCER, 0, _u16(d.heartbeat_producer_ms), "heartbeat producer time"),
+        SdoWrite(
+            HEARTBEAT_PRODUCER,
+            0,
+            _u16(d.heartbeat_producer_ms),
+            "heartbeat producer time",
+            f"{k}.heartbeat_producer_ms",
+        ),
         SdoWrite(
             HEARTBEAT_CONSUMER,
             1,
             _u32((bus.master_node_id << 16) | d.heartbeat_consumer_ms),
             "heartbeat consumer of the master",
+            f"{k}.heartbeat_consumer_ms",
         ),
     ]
-    return w + pdo_mapping_writes(d.node_id, mode)
+    return w + [w_._replace(key=f"{k}.mode") for w_ in pdo_mapping_writes(d.node_id, mode)]
 
 
-def homing_writes(d: DriveConfig) -> list[SdoWrite]:
-    """SDO writes that prepare homing with ``d.homing`` (mode 6 is set by the caller)."""
+def homing_writes(d: DriveConfig, key: str = "") -> list[SdoWrite]:
+    """SDO writes that prepare homing with ``d.homing`` (mode 6 is set by the caller).
+
+    EPOS4: home position 0x30B0, home offset move distance 0x30B1, current threshold 0x30B2;
+    EPOS2: home position 0x2081, home offset 0x607C, current threshold 0x2080 (maxon's files)."""
     h = d.homing
+    k = f"{key or f'drives[name={d.name}]'}.homing"
     if d.type == "epos4":
         threshold, offset, home = (
             EPOS4_HOMING_CURRENT_THRESHOLD,
@@ -306,15 +395,33 @@ def homing_writes(d: DriveConfig) -> list[SdoWrite]:
             EPOS2_HOME_POSITION,
         )
     w = [
-        SdoWrite(HOMING_METHOD, 0, _i8(h.method), "homing method"),
-        SdoWrite(HOMING_SPEEDS, 1, _u32(h.speed_rpm), "speed for switch search"),
-        SdoWrite(HOMING_SPEEDS, 2, _u32(h.speed_rpm), "speed for zero search"),
-        SdoWrite(HOMING_ACCELERATION, 0, _u32(h.acceleration_rpm_s), "homing acceleration"),
-        SdoWrite(offset, 0, _i32(h.offset_counts), "home offset move distance"),
-        SdoWrite(home, 0, _i32(h.home_position_counts), "home position"),
+        SdoWrite(HOMING_METHOD, 0, _i8(h.method), "homing method", f"{k}.method"),
+        SdoWrite(HOMING_SPEEDS, 1, _u32(h.speed_rpm), "speed for switch search", f"{k}.speed_rpm"),
+        SdoWrite(HOMING_SPEEDS, 2, _u32(h.speed_rpm), "speed for zero search", f"{k}.speed_rpm"),
+        SdoWrite(
+            HOMING_ACCELERATION,
+            0,
+            _u32(h.acceleration_rpm_s),
+            "homing acceleration",
+            f"{k}.acceleration_rpm_s",
+        ),
+        SdoWrite(
+            offset, 0, _i32(h.offset_counts), "home offset move distance", f"{k}.offset_counts"
+        ),
+        SdoWrite(
+            home, 0, _i32(h.home_position_counts), "home position", f"{k}.home_position_counts"
+        ),
     ]
     if h.method in (-1, -2, -3, -4):
-        w.append(SdoWrite(threshold, 0, _u16(h.current_threshold_mA), "homing current threshold"))
+        w.append(
+            SdoWrite(
+                threshold,
+                0,
+                _u16(h.current_threshold_mA),
+                "homing current threshold",
+                f"{k}.current_threshold_mA",
+            )
+        )
     return w
 
 

@@ -9,9 +9,10 @@ The loop's path (never blocks on the bus, never waits for an answer):
 - :meth:`DriveGroup.build_cycle` -- every frame of one cycle, built first: each drive's set-point
   RPDO, then SYNC (COB-ID 0x080). Pure: it neither sends nor changes the group.
 - :meth:`DriveGroup.send_cycle` -- sends them as one burst (one write on an slcan adapter:
-  :meth:`~cdcr_ctl.drives.slcan.SlcanBus.send_frames`), then checks feedback ages (heartbeat
-  ages every :data:`WATCHDOG_PERIOD_S`); :meth:`DriveGroup.feedback` -- the latest TPDO of each
-  drive as :class:`Feedback`.
+  :meth:`~cdcr_ctl.drives.slcan.SlcanBus.send_frames`), then checks each drive's feedback
+  deadline and heartbeat deadline, every SYNC, in O(1) while nothing is overdue (the earliest
+  deadline is kept; the drives are scanned only once it has passed);
+  :meth:`DriveGroup.feedback` -- the latest TPDO of each drive as :class:`Feedback`.
 - :meth:`DriveGroup.quick_stop_all` -- controlword 0x0002 to every drive at once; never raises.
 
 Reception: the group's dispatcher is the bus listener's only listener (canopen's
@@ -78,6 +79,12 @@ from cdcr_ctl.drives.cia402 import (
     next_controlword,
     state_of,
 )
+from cdcr_ctl.drives.diagnosis import (
+    DIAGNOSIS_SDO_TIMEOUT_S,
+    ERROR_CODE,
+    ERROR_HISTORY,
+    Diagnosis,
+)
 from cdcr_ctl.drives.emcy import Emcy, decode_emcy
 from cdcr_ctl.drives.epos import (
     controlword_payload,
@@ -88,6 +95,7 @@ from cdcr_ctl.drives.epos import (
     target_payload,
 )
 from cdcr_ctl.drives.heartbeat import NMT_OPERATIONAL, HeartbeatConsumer
+from cdcr_ctl.drives.plan import check_writes, object_table, planned_writes
 from cdcr_ctl.drives.slcan import SlcanBus
 from cdcr_ctl.errors import CommError, DriveFault, RigError, RigTimeoutError
 
@@ -171,6 +179,10 @@ class GroupFault:
     ``pdo_length:node1``, ``bus:send``, ``bus:rx``), ``node`` the
     node at fault (0: the bus), ``code`` the EMCY code (0 when none), ``description`` what
     happened, ``at_sync`` the SYNC count when it was seen, ``frames`` the last frames on the bus.
+    ``due_at_sync`` is the SYNC count when the fault became a fact: the EMCY's arrival, the
+    SYNCs sent before a heartbeat or feedback deadline passed (the group's SYNC count is the
+    number of SYNCs sent); the quick stop's delay is ``quick_stop_at_sync - due_at_sync``.
+    ``diagnosis`` is what the drive's own records said (0x603F, 0x1003), read after the fault.
     """
 
     cause: str
@@ -180,6 +192,8 @@ class GroupFault:
     t_s: float
     at_sync: int
     frame_records: tuple[tuple[float, str, int, bytes], ...]
+    due_at_sync: int | None = None
+    diagnosis: str = ""
 
     @property
     def frames(self) -> str:
@@ -188,7 +202,8 @@ class GroupFault:
 
     @property
     def text(self) -> str:
-        return f"node {self.node}: {self.description}" if self.node else self.description
+        text = f"node {self.node}: {self.description}" if self.node else self.description
+        return f"{text} [{self.diagnosis}]" if self.diagnosis else text
 
     def error(self) -> RigError:
         """The exception to raise for this fault (DriveFault for a node, CommError for the bus),
@@ -198,6 +213,8 @@ class GroupFault:
             if self.node
             else CommError(self.description)
         )
+        if self.diagnosis:
+            err.add_note(f"node {self.node}'s own records: {self.diagnosis}")
         err.add_note(f"last CAN frames (t_s dir id [dlc] data):\n{self.frames}")
         return err
 
@@ -224,6 +241,8 @@ class _Drive:
         self.fault_tpdos = 0
         self.booted = threading.Event()
         self.present = False
+        #: A boot-up message came after configuration: the drive lost its SDO configuration.
+        self.rebooted = False
         self.last_emcy: Emcy | None = None
         self.fault_text = ""
         # set-point streams (pp: set/clear of bit 4; ip: PVT points)
@@ -312,9 +331,16 @@ class DriveGroup:
             self.bus_load: BusLoad = check_drives_bus_load(
                 drives, bus_cfg.sync_period_s, bus_cfg.bitrate, bus_cfg.max_bus_load, file
             )
+            # Every SDO write the configuration plans, against the drive's device description
+            # or the shipped limits table: a refusal is a ConfigError before the first frame.
+            self._tables = {d.node_id: object_table(d, file) for d in drives}
             for d in drives:
-                if d.mode in ("csp", "ip", "pm"):
-                    epos.interpolation_period_ms(bus_cfg, file)
+                check_writes(
+                    d,
+                    planned_writes(d, bus_cfg, self._tables[d.node_id], file),
+                    self._tables[d.node_id],
+                    file,
+                )
         except RigError:
             bus.shutdown()
             raise
@@ -339,6 +365,8 @@ class DriveGroup:
         #: Why the traffic log stopped on its own (a write error), or None.
         self.traffic_failure: str | None = None
         self._cycle_lock = threading.RLock()
+        #: One SDO transfer at a time (the diagnosis thread and the caller's thread).
+        self._sdo_lock = threading.RLock()
         self._fault_lock = threading.Lock()
         self._fb_cond = threading.Condition()
         self._fb_waiters = 0
@@ -352,7 +380,10 @@ class DriveGroup:
         self.quick_stop_at_sync: int | None = None
         self._last_cycle_s = float("-inf")
         self._last_sync_s = float("-inf")
-        self._next_hb_check_s = float("-inf")
+        #: Send times of the last SYNCs (SYNC count after it, time): deadlines -> SYNC counts.
+        self._sync_times: collections.deque[tuple[int, float]] = collections.deque(maxlen=256)
+        #: No drive's last TPDO came before this SYNC count (a lower bound; module docstring).
+        self._oldest_tpdo_sync = 0
         self._next_self_sync_s = float("-inf")
         self._sync_source: Callable[[], None] | None = None
         self._hb_period_s = bus_cfg.master_heartbeat_ms / 1e3
@@ -557,6 +588,7 @@ class DriveGroup:
                     d.id,
                     0,
                     f"statusword 0x{sw:04X} reports FAULT (no EMCY seen)",
+                    due_at_sync=self.sync_count - (FAULT_TPDOS - 1),
                 )
         else:
             d.fault_tpdos = 0
@@ -586,31 +618,84 @@ class DriveGroup:
             return
         if data[0] == 0:
             d.booted.set()
+            if self._started:
+                d.rebooted = True
         anomaly = self._heartbeats.beat(d.id, data[0], self.clock())
         if anomaly is not None and self._started:
             d.fault_text = anomaly
             self._latch(f"nmt:node{d.id}", d.id, 0, anomaly)
 
     # ================================================================== faults
-    def _latch(self, cause: str, node: int, code: int, description: str) -> None:
+    def _latch(
+        self, cause: str, node: int, code: int, description: str, due_at_sync: int | None = None
+    ) -> None:
         """Record the first fault and quick-stop every drive (from whichever thread saw it)."""
         with self._fault_lock:
             if self._fault is not None or self._closed:
                 return
+            at = self.sync_count
             fault = GroupFault(
                 cause,
                 node,
                 code,
                 description,
                 self.clock(),
-                self.sync_count,
+                at,
                 tuple(self._frames),
+                at if due_at_sync is None else min(due_at_sync, at),
             )
             self._fault = fault
             self.fault_at_sync = self.sync_count
         if self.react_to_faults and self._started:
             self.quick_stop_all()  # first; the log (formatting 256 frames) can wait
         log.error("drive fault: %s; last frames:\n%s", fault.text, fault.frames)
+        if node and self._started and not self._closed:
+            # The drive's own records (0x603F, 0x1003), by SDO: off every thread that the
+            # loop or the bus listener needs (the answers arrive on the listener's thread).
+            threading.Thread(
+                target=self._diagnose_fault, args=(fault,), name="drives-diagnosis", daemon=True
+            ).start()
+
+    def diagnose(self, node_id: int) -> Diagnosis:
+        """Read drive ``node_id``'s error code 0x603F (when its family has it) and its error
+        history 0x1003 by SDO (blocking, short timeouts; not on the loop's path)."""
+        d = self._by_node[node_id]
+        table = self._tables[d.id]
+        code: int | None = None
+        history: list[int] = []
+        timeout = d.node.sdo.RESPONSE_TIMEOUT
+        d.node.sdo.RESPONSE_TIMEOUT = DIAGNOSIS_SDO_TIMEOUT_S
+
+        def read(index: int, sub: int) -> int:
+            # Once more after a stray answer: the quick stop goes by SDO to a drive that is not
+            # OPERATIONAL, and its confirmation may arrive while this read waits.
+            try:
+                return self._sdo_read_u32(d, index, sub)
+            except CommError:
+                time.sleep(DIAGNOSIS_SDO_TIMEOUT_S / 10)
+                return self._sdo_read_u32(d, index, sub)
+
+        try:
+            if table.has(ERROR_CODE, 0):
+                code = read(ERROR_CODE, 0)
+            n = read(ERROR_HISTORY, 0) & 0xFF
+            for sub in range(1, n + 1):
+                history.append(read(ERROR_HISTORY, sub))
+        except RigError as exc:
+            return Diagnosis(d.id, code, tuple(history), d.cfg.type, f"reading stopped: {exc}")
+        finally:
+            d.node.sdo.RESPONSE_TIMEOUT = timeout
+        return Diagnosis(d.id, code, tuple(history), d.cfg.type)
+
+    def _diagnose_fault(self, fault: GroupFault) -> None:
+        try:
+            text = self.diagnose(fault.node).text
+        except Exception as exc:  # a diagnosis must never take the group down
+            text = f"diagnosis failed: {exc}"
+        with self._fault_lock:
+            if self._fault is fault:
+                self._fault = dataclasses.replace(fault, diagnosis=text)
+        log.error("node %d diagnosis: %s", fault.node, text)
 
     def first_fault(self) -> tuple[str, str] | None:
         """(cause, text) of the first fault since the last reset, or None. Never blocks."""
@@ -683,20 +768,7 @@ class DriveGroup:
         following error, interpolation period, heartbeats, PDO mapping), start the master
         heartbeat, NMT-start every drive and confirm OPERATIONAL from its heartbeat."""
         for d in self._drives:
-            vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
-            if vendor != epos.MAXON_VENDOR_ID:
-                raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
-            writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file)
-            for w in writes:
-                self._sdo_write(d, w)
-            if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
-                raw = self._sdo_read(d, epos.INTERPOLATION_PERIOD, 2)
-                index = struct.unpack("<b", raw[:1])[0]
-                if index != -3:
-                    raise DriveFault(
-                        d.id, 0, f"0x60C2:2 interpolation time index is {index}, expected -3 (ms)"
-                    )
-            d.present = True
+            self._configure_drive(d)
         self._hb_next_s = self.clock()
         self._hb_on = self._hb_period_s > 0
         now = self.clock()
@@ -705,12 +777,54 @@ class DriveGroup:
             d.tpdo_sync = self.sync_count
             d.reset_stream()
             self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
+        self._oldest_tpdo_sync = self.sync_count
         self._heartbeats.arm(now)
         self._started = True
         self._confirm_operational()
 
-    def _confirm_operational(self) -> None:
-        watched = [d for d in self._drives if d.cfg.heartbeat_producer_ms > 0]
+    def _configure_drive(self, d: _Drive) -> int:
+        """Check drive ``d`` is a maxon drive and write its SDO configuration; the writes."""
+        vendor = self._sdo_read_u32(d, epos.IDENTITY, 1)
+        if vendor != epos.MAXON_VENDOR_ID:
+            raise DriveFault(d.id, 0, f"0x1018:1 vendor id 0x{vendor:08X} is not maxon (0xFB)")
+        writes = epos.configuration_writes(d.cfg, self.bus_cfg, self.file, self._tables[d.id])
+        for w in writes:
+            self._sdo_write(d, w)
+        if any(w.index == epos.INTERPOLATION_PERIOD for w in writes):
+            raw = self._sdo_read(d, epos.INTERPOLATION_PERIOD, 2)
+            index = struct.unpack("<b", raw[:1])[0]
+            if index != -3:
+                raise DriveFault(
+                    d.id, 0, f"0x60C2:2 interpolation time index is {index}, expected -3 (ms)"
+                )
+        d.present = True
+        d.rebooted = False
+        return len(writes)
+
+    def reconfigure(self, node_id: int) -> str:
+        """Configure one drive again (a drive that rebooted lost its SDO configuration: PDO
+        mapping, limits, heartbeats): the same writes as :meth:`configure`, then NMT start and
+        its OPERATIONAL heartbeat. Not on the loop's path. Returns what was done, as text."""
+        self._require_started()
+        d = self._by_node[node_id]
+        n = self._configure_drive(d)
+        now = self.clock()
+        d.last_tpdo_s, d.tpdo_sync = now, self.sync_count
+        d.reset_stream()
+        self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
+        self._confirm_operational([d])
+        return (
+            f"node {d.id}: rebooted (its configuration was lost): reconfigured with {n} SDO "
+            "writes and started; its position restarted from 0, home it again"
+        )
+
+    @property
+    def rebooted_nodes(self) -> list[int]:
+        """Drives seen to boot (boot-up message) since :meth:`configure`: not configured."""
+        return [d.id for d in self._drives if d.rebooted]
+
+    def _confirm_operational(self, drives: Sequence[_Drive] | None = None) -> None:
+        watched = [d for d in drives or self._drives if d.cfg.heartbeat_producer_ms > 0]
         if not watched:
             return
         timeout_s = max(3 * max(d.cfg.heartbeat_producer_ms for d in watched) / 1e3, 0.5)
@@ -728,7 +842,8 @@ class DriveGroup:
 
     def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:
         try:
-            return d.node.sdo.upload(index, sub)
+            with self._sdo_lock:
+                return d.node.sdo.upload(index, sub)
         except SdoAbortedError as exc:
             raise DriveFault(
                 d.id, exc.code, f"SDO read 0x{index:04X}:{sub:02X} refused: {exc}"
@@ -744,7 +859,8 @@ class DriveGroup:
 
     def _sdo_write(self, d: _Drive, w: epos.SdoWrite) -> None:
         try:
-            d.node.sdo.download(w.index, w.sub, w.data)
+            with self._sdo_lock:
+                d.node.sdo.download(w.index, w.sub, w.data)
         except SdoAbortedError as exc:
             raise DriveFault(
                 d.id, exc.code, f"SDO write 0x{w.index:04X}:{w.sub:02X} ({w.what}) refused: {exc}"
@@ -828,6 +944,7 @@ class DriveGroup:
                     d.controlword |= CW_IP_ENABLE_BIT
                 d.ip_active = active
             self.sync_count += 1
+            self._sync_times.append((self.sync_count, now))
             self._last_cycle_s = now
         self._supervise(now)
 
@@ -844,6 +961,7 @@ class DriveGroup:
             except CommError:
                 return
             self.sync_count += 1
+            self._sync_times.append((self.sync_count, now))
         self._supervise(self.clock())
 
     def _sync_starts(self, now: float) -> None:
@@ -856,6 +974,7 @@ class DriveGroup:
             for d in self._drives:
                 d.tpdo_sync = self.sync_count
                 d.last_tpdo_s = max(d.last_tpdo_s, now)
+            self._oldest_tpdo_sync = self.sync_count
         self._last_sync_s = now
 
     def _send_pending_quick_stop(self) -> None:
@@ -865,9 +984,37 @@ class DriveGroup:
         if pending and self._started and self.react_to_faults:
             self.quick_stop_all()
 
+    def syncs_before(self, t_s: float) -> int:
+        """How many SYNCs had been sent by time ``t_s`` (the group's clock; from the ring of the
+        last SYNC send times)."""
+        count = self.sync_count
+        for n, t in reversed(self._sync_times):
+            if t <= t_s:
+                return n
+            count = n - 1
+        return count
+
     def _supervise(self, now: float) -> None:
+        """Every SYNC: feedback deadlines, then heartbeat deadlines. O(1) while none passed."""
         if not self._started or self._fault is not None:
             return
+        if self.sync_count - self._oldest_tpdo_sync > TPDO_MISSES:
+            self._oldest_tpdo_sync = min((d.tpdo_sync for d in self._drives), default=0)
+            if self.sync_count - self._oldest_tpdo_sync > TPDO_MISSES:
+                self._check_feedback(now)
+                if self._fault is not None:
+                    return
+        self._check_heartbeats(now)
+
+    def _feedback_due(self, d: _Drive) -> int:
+        """SYNCs sent when drive ``d``'s feedback became overdue: it had left
+        :data:`TPDO_MISSES` SYNCs unanswered and the feedback timeout had passed."""
+        return max(
+            d.tpdo_sync + TPDO_MISSES,
+            self.syncs_before(d.last_tpdo_s + self.feedback_timeout_s),
+        )
+
+    def _check_feedback(self, now: float) -> None:
         silent = [
             d
             for d in self._drives
@@ -890,6 +1037,7 @@ class DriveGroup:
                 0,
                 f"CAN {self.bus_cfg.interface}:{self.bus_cfg.channel}: no TPDO from any drive "
                 f"for {now - oldest:.3f} s: bus not answering",
+                due_at_sync=min(self._feedback_due(d) for d in silent),
             )
             return
         for d in silent:
@@ -900,16 +1048,12 @@ class DriveGroup:
                 0,
                 f"no TPDO for {self.sync_count - d.tpdo_sync} SYNCs "
                 f"({now - d.last_tpdo_s:.3f} s): drive not answering",
+                due_at_sync=self._feedback_due(d),
             )
             return
-        if now >= self._next_hb_check_s:
-            # Heartbeat timeouts are 3 producer periods (tens of ms): every WATCHDOG_PERIOD_S
-            # is soon enough, and spares a 1 kHz cycle the lock and the scan.
-            self._next_hb_check_s = now + WATCHDOG_PERIOD_S
-            self._check_heartbeats(now)
 
     def _check_heartbeats(self, now: float) -> None:
-        for node, age in self._heartbeats.expired(now):
+        for node, age in self._heartbeats.overdue(now):
             d = self._by_node[node]
             d.fault_text = "heartbeat lost"
             self._latch(
@@ -918,6 +1062,7 @@ class DriveGroup:
                 0,
                 f"heartbeat lost (none for {age:.3f} s; producer time "
                 f"{d.cfg.heartbeat_producer_ms} ms)",
+                due_at_sync=self.syncs_before(self._heartbeats.deadline_s(node)),
             )
             return
 
@@ -1108,25 +1253,45 @@ class DriveGroup:
         for d in self._drives:
             d.reset_stream()
 
-    def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> None:
+    def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> list[str]:
         """Fault reset (controlword 0x80 rising edge) of every drive in FAULT, confirmed by its
         statusword leaving FAULT within ``timeout_s``; then check every drive answers (TPDO and
-        heartbeat) and clear the latched fault. Raises DriveFault naming the node when a reset
-        does not take or a drive does not answer."""
+        heartbeat) and clear the latched fault. A drive that rebooted since configuration is
+        reconfigured first (:meth:`reconfigure`). Returns what was done beyond the reset, one
+        line per drive (the reconfigured ones). Raises DriveFault naming the node when a reset
+        does not take, a reconfiguration fails or a drive does not answer."""
         self._require_started()
+        notes = []
+        for node in self.rebooted_nodes:
+            try:
+                notes.append(self.reconfigure(node))
+            except RigError as exc:
+                raise DriveFault(
+                    node, 0, f"rebooted and lost its configuration; reconfiguring failed: {exc}"
+                ) from exc
         faulted = [
             d
             for d in self._drives
+            # FAULT in its feedback, or an EMCY whose FAULT statusword is still on its way (the
+            # drive samples its statusword at the SYNC: the feedback lags a cycle)
             if d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+            or d.last_emcy is not None
         ]
         with self._cycle_lock:
             for d in faulted:
                 self._send_controlword(d, CW_DISABLE_VOLTAGE)
                 self._send_controlword(d, CW_FAULT_RESET)
+            start = self.sync_count
         deadline = self.clock() + timeout_s
-        while any(d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE) for d in faulted):
+
+        def still_faulted(d: _Drive) -> bool:
+            # confirmed only by feedback sampled at a SYNC sent after the reset
+            faulty = d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE)
+            return faulty or d.tpdo_sync <= start
+
+        while any(still_faulted(d) for d in faulted):
             if self.clock() > deadline:
-                d = next(d for d in faulted if d.feedback.state is State.FAULT)
+                d = next(d for d in faulted if still_faulted(d))
                 code = d.last_emcy.code if d.last_emcy else 0
                 raise DriveFault(
                     d.id,
@@ -1160,6 +1325,7 @@ class DriveGroup:
                 d.fault_text, d.last_emcy, d.fault_tpdos = "", None, 0
                 d.feedback = dataclasses.replace(d.feedback, fault="")
                 d.reset_stream()
+        return notes
 
     def home(
         self, sync: Callable[[], None] | None = None, timeout_s: float | None = None

@@ -15,6 +15,7 @@ Faults (:data:`FAULTS`):
 
 - ``emcy`` ``node``, ``code`` (``following_error`` 0x8611, ``over_current`` 0x2310 or any EMCY
   code as an integer or ``"0x...."``): the drive faults (power stage off) and sends the EMCY;
+- ``drive_reboot`` ``node``: the drive restarts (boot-up message, factory configuration);
 - ``heartbeat_stop`` / ``heartbeat_start`` ``node``: the drive stops / resumes its heartbeat;
 - ``bus_off`` / ``bus_recover`` ``node``: the drive's CAN controller goes bus off (the drive
   faults and answers nothing) / comes back and reports it;
@@ -143,6 +144,10 @@ class FaultInjector:
     def heartbeat_start(self, args: dict[str, Any]) -> None:
         self._node(args).start_heartbeat()
 
+    def drive_reboot(self, args: dict[str, Any]) -> None:
+        """The drive restarts (power dip, watchdog): boot-up message, factory configuration."""
+        self._node(args).power_cycle()
+
     def bus_off(self, args: dict[str, Any]) -> None:
         self._node(args).enter_bus_off()
 
@@ -253,6 +258,7 @@ FAULTS = frozenset(
         "emcy",
         "heartbeat_stop",
         "heartbeat_start",
+        "drive_reboot",
         "bus_off",
         "bus_recover",
         "adapter_unplug",

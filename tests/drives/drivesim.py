@@ -68,7 +68,7 @@ def make_rig(drives: Sequence[DriveConfig] | None = None, start: bool = True, **
     drives = list(drives or drive_cfgs())
     ch = channel()
     cfg = bus_cfg(ch, **bus_kw)
-    sim = SimDriveBus(drives, "virtual", ch).start()
+    sim = SimDriveBus(drives, "virtual", ch, sync_period_s=cfg.sync_period_s).start()
     spy = can.Bus(interface="virtual", channel=ch)
     group = DriveGroup(can.Bus(interface="virtual", channel=ch), cfg, drives)
     rig = Rig(sim, group, spy, cfg, drives)

@@ -108,7 +108,7 @@ def test_halt_holds_and_resume_follows(rig):
 
 
 def test_homing_by_current_threshold_against_a_hard_stop():
-    """Method -3: run + until the current passes 0x30B2, back off 0x30B0, call it 0x30B1."""
+    """Method -3: run + until the current passes 0x30B2, back off 0x30B1, call it 0x30B0."""
     ch = channel()
     drives = [
         d.model_copy(

@@ -244,7 +244,10 @@ def test_epos2_ip_configuration_and_homing_objects():
     d = drive_cfgs(1, "epos2", "ip")[0]
     writes = epos.configuration_writes(d, bus_cfg("x", sync_period_s=0.005))
     w = {(x.index, x.sub): x.data for x in writes}
-    assert w[(0x6060, 0)] == b"\x07" and w[(0x20C0, 0)] == struct.pack("<h", -1)
+    # maxon's EPOS2 file: interpolation sub mode selection is 0x60C0 (-1 = PVT)
+    assert w[(0x6060, 0)] == b"\x07" and w[(0x60C0, 0)] == struct.pack("<h", -1)
+    # 5 ms is outside the EPOS2's 0x60C2:1 range (1..1): not written; no 0x6066/0x605A either
+    assert (0x60C2, 1) not in w and (0x6066, 0) not in w and (0x605A, 0) not in w
     assert [x.data for x in writes if x.index == 0x60C4] == [b"\x00", b"\x01"]  # clear, enable
     h = DriveConfig(
         name="m",

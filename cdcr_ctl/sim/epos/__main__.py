@@ -99,6 +99,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="advance the drives on the wall clock while no SYNC comes",
     )
+    ap.add_argument(
+        "--lag-cycles",
+        type=int,
+        default=1,
+        help="feedback lag of every drive in SYNCs (1: as a real EPOS; 0: none)",
+    )
     args = ap.parse_args(argv)
     if args.rig is None and not args.node:
         ap.error("give a rig config or at least one --node")
@@ -106,7 +112,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.tcp and args.link:
         ap.error("--link names a pty; a --tcp adapter has an address")
     drives = SimDriveBus(
-        specs, "slcan", link=args.link, bitrate=args.bitrate, free_run=args.free_run, tcp=args.tcp
+        specs,
+        "slcan",
+        link=args.link,
+        bitrate=args.bitrate,
+        free_run=args.free_run,
+        tcp=args.tcp,
+        lag_cycles=args.lag_cycles,
     ).start()
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):

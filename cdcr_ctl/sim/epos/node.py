@@ -17,8 +17,20 @@ module adds what LocalNode lacks, as a real drive does it:
   when the master goes silent), EMCY on every fault and an error reset EMCY on fault reset;
 - a motor with encoder and gearbox under a position loop (:mod:`.plant`).
 
-Time: on every SYNC the axis advances by the interpolation period 0x60C2 (``advance_on_sync``,
-default), so a run is reproducible frame for frame; :meth:`SimEpos.step` advances explicitly.
+Time: on every SYNC the axis advances by one SYNC period (``advance_on_sync``, default):
+:attr:`SimEpos.sync_period_s` when its owner set it, else the interpolation period 0x60C2; so a
+run is reproducible frame for frame. :meth:`SimEpos.step` advances explicitly.
+
+Lag, as on the real drive: the drive samples its actual position at the SYNC and applies the
+set-point that came with it after; so the TPDO sent after SYNC k shows the motor as it was when
+SYNC k came, before the target of SYNC k acted: one cycle of feedback lag
+(:attr:`SimEpos.lag_cycles`, default 1; n > 1 holds each sample back n - 1 further SYNCs; 0 is
+the old zero-lag drive whose TPDO already shows the target of its own SYNC).
+
+Refusals, as on the real drive: every SDO or PDO write is checked against the project's limits
+table of the family (:mod:`cdcr_ctl.drives.limits`, written from maxon's device descriptions):
+a missing object, a read-only one, a wrong length or a value out of range is answered with the
+abort code the drive gives.
 
 Coupling a plant (the simulated rig): read :attr:`SimEpos.position_counts` (the actual position
 the drive reports), set :attr:`SimEpos.load_torque_Nm` (torque at the gearbox output, + in the
@@ -82,7 +94,8 @@ from cdcr_ctl.drives.emcy import (
     encode_emcy,
     error_register_for,
 )
-from cdcr_ctl.sim.epos.od import ACCEPTED_MODES, IP_BUFFER_SIZE, build_od
+from cdcr_ctl.drives.limits import check_write, shipped_table
+from cdcr_ctl.sim.epos.od import ACCEPTED_MODES, ERROR_HISTORY, IP_BUFFER_SIZE, build_od
 from cdcr_ctl.sim.epos.plant import Motor, MotorParams, Profile, PvtBuffer
 
 log = logging.getLogger(__name__)
@@ -108,6 +121,11 @@ _LIVE = (
     epos.ERROR_REGISTER,
 )
 
+
+#: SYNCs between the position sample and its TPDO plus one (see the module docstring).
+DEFAULT_LAG_CYCLES = 1
+#: Quick stop option code of a drive without 0x605A (the EPOS2: stop on the ramp, power off).
+QUICK_STOP_OPTION_ABSENT = 2
 
 #: State changes each simulated drive keeps for the fault-matrix measurements.
 TRANSITIONS_KEPT = 256
@@ -177,9 +195,18 @@ class SimEpos:
         self.load_torque_Nm = 0.0
         #: Optional load: (position counts, velocity counts/s) -> output torque N·m, per sub-step.
         self.load_fn: Callable[[float, float], float] | None = None
-        #: Advance the axis by the interpolation period on every SYNC.
+        #: Advance the axis by one SYNC period on every SYNC.
         self.advance_on_sync = True
+        #: Time between two SYNCs (s) as the owner knows it (a real drive runs on its own clock);
+        #: None: the interpolation period 0x60C2.
+        self.sync_period_s: float | None = None
+        #: Feedback lag in SYNCs (module docstring): 1 as on the real drive.
+        self.lag_cycles = DEFAULT_LAG_CYCLES
+        self._samples: collections.deque[list[tuple[int, bytes]]] = collections.deque()
+        #: The limits the drive enforces on writes (maxon's files, via the shipped table).
+        self.limits = shipped_table(kind)
         self.silent = False
+        self._rebooting = False
         #: Fault hook: False drops EMCY frames (the master must notice the FAULT statusword).
         self.emcy_enabled = True
         # statistics (tests and benchmarks read these)
@@ -331,6 +358,11 @@ class SimEpos:
 
     # ================================================================== object writes
     def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        refusal = check_write(self.limits, index, subindex, bytes(data))
+        if refusal is not None and self.limits.has(index, subindex):
+            # Objects outside the table (the simulator's own extras) keep canopen's checks.
+            log.info("node %d: refused %s", self.node_id, refusal.text)
+            raise SdoAbortedError(refusal.code)
         self._apply_write(index, subindex, data)
         if getattr(od, "data_type", None) in NUMBER_TYPES:
             self._params[(index, subindex)] = int(od.decode_raw(data))  # type: ignore[attr-defined]
@@ -415,7 +447,7 @@ class SimEpos:
         self._pdo_dirty = False
 
     def _operational(self) -> bool:
-        return not self.silent and self.node.nmt.state == "OPERATIONAL"
+        return not self.silent and not self._rebooting and self.node.nmt.state == "OPERATIONAL"
 
     def _on_rpdo(self, can_id: int, data: bytearray, ts: float) -> None:
         if not self._operational():
@@ -501,6 +533,14 @@ class SimEpos:
             if self._pdo_dirty:
                 self._rebuild_pdos()
             operational = self._operational()
+            lag = self.lag_cycles
+            if operational and lag > 0:
+                # The position (and statusword) latched at this SYNC, before its set-point acts.
+                self._samples.append(self._sync_tpdos())
+                if len(self._samples) >= lag:
+                    out = self._samples.popleft()
+            elif not operational:
+                self._samples.clear()
             if operational:
                 for pdo in self._rpdos.values():
                     if pdo.pending is not None:
@@ -515,23 +555,33 @@ class SimEpos:
                 self.missed_setpoints += 1
             self._setpoint_since_sync = False
             if self.advance_on_sync:
-                self.step(self.interpolation_period_s)
-            if operational:
-                for pdo in self._tpdos:
-                    if 1 <= pdo.transmission <= 240:
-                        pdo.counter += 1
-                        if pdo.counter >= pdo.transmission:
-                            pdo.counter = 0
-                            out.append((pdo.cob_id, self._tpdo_payload(pdo)))
-                    elif pdo.transmission == 0:
-                        payload = self._tpdo_payload(pdo)
-                        if payload != pdo.last:
-                            pdo.last = payload
-                            out.append((pdo.cob_id, payload))
+                self.step(self.sync_period_s or self.interpolation_period_s)
+            if operational and lag <= 0:
+                out = self._sync_tpdos()
         for cob, payload in out:
             self._send(cob, payload)
         self._send_changed_tpdos()
         self.check_master_heartbeat(now)
+
+    def _sync_tpdos(self) -> list[tuple[int, bytes]]:
+        """The synchronous TPDOs due at this SYNC, with their data as of now (lock held)."""
+        out: list[tuple[int, bytes]] = []
+        for pdo in self._tpdos:
+            if 1 <= pdo.transmission <= 240:
+                pdo.counter += 1
+                if pdo.counter >= pdo.transmission:
+                    pdo.counter = 0
+                    out.append((pdo.cob_id, self._tpdo_payload(pdo)))
+            elif pdo.transmission == 0:
+                payload = self._tpdo_payload(pdo)
+                if payload != pdo.last:
+                    pdo.last = payload
+                    out.append((pdo.cob_id, payload))
+        return out
+
+    def _option(self, index: int, absent: int) -> int:
+        """Value of an object the family may lack (EPOS2: 0x605A, 0x6066): ``absent`` then."""
+        return self._value(index) if self.limits.has(index) else absent
 
     @property
     def interpolation_period_s(self) -> float:
@@ -562,6 +612,7 @@ class SimEpos:
         """Reset node (NMT 0x81) or power off and on: application and communication objects
         back to their defaults, SWITCH ON DISABLED, the incremental encoder restarts at 0,
         boot-up message. Also a fault hook (a drive that restarts behind the master's back)."""
+        self._rebooting = True  # no PDO is processed while the drive restarts
         with self._lock:
             self.state = State.SWITCH_ON_DISABLED
             self.controlword = 0
@@ -572,8 +623,9 @@ class SimEpos:
             for index in [i for i in self.node.data_store if i >= 0x2000]:
                 del self.node.data_store[index]
             self._params.clear()
-        self._reset_communication()
-        self.boot()
+            self._reset_communication()
+            self.boot()
+            self._rebooting = False
 
     def _reset_communication(self) -> None:
         for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
@@ -624,7 +676,7 @@ class SimEpos:
                 if s in (State.READY_TO_SWITCH_ON, State.OPERATION_ENABLED):
                     new = State.SWITCHED_ON
             elif cw & 0x0F == 0x0F:  # enable operation: 4, 16 (and 3+4 from READY TO SWITCH ON)
-                resume = s is State.QUICK_STOP_ACTIVE and self._value(epos.QUICK_STOP_OPTION) >= 5
+                resume = s is State.QUICK_STOP_ACTIVE and self._quick_stop_option() >= 5
                 if s in (State.SWITCHED_ON, State.READY_TO_SWITCH_ON) or resume:
                     new = State.OPERATION_ENABLED
             if new is not s:
@@ -727,6 +779,9 @@ class SimEpos:
             if not self.pvt.push(pos - self.offset, rpm * self.cpr / 60.0, t_ms / 1000.0):
                 self._fault(IP_MODE_ERROR)  # buffer overflow
 
+    def _quick_stop_option(self) -> int:
+        return self._option(epos.QUICK_STOP_OPTION, QUICK_STOP_OPTION_ABSENT)
+
     def _controlword_halted(self) -> bool:
         return bool(self.controlword & CW_HALT_BIT)
 
@@ -787,7 +842,7 @@ class SimEpos:
         if s is State.QUICK_STOP_ACTIVE:
             stopped = prof.stop(self._rpm(epos.QUICK_STOP_DECELERATION), h)
             at_rest = stopped and abs(self.motor.v) < AT_REST_COUNTS_S
-            if at_rest and self._value(epos.QUICK_STOP_OPTION) in (1, 2):
+            if at_rest and self._quick_stop_option() in (1, 2):
                 self._enter(State.SWITCH_ON_DISABLED)
                 powered = False
         elif s is State.OPERATION_ENABLED:
@@ -858,7 +913,7 @@ class SimEpos:
         if window != 0xFFFFFFFF and err > window and not searching:
             self.following_error = True
             self._ferr_s += h
-            if self._ferr_s * 1000.0 >= self._value(epos.FOLLOWING_ERROR_TIMEOUT):
+            if self._ferr_s * 1000.0 >= self._option(epos.FOLLOWING_ERROR_TIMEOUT, 0):
                 self._fault(FOLLOWING_ERROR)
                 return
         else:
@@ -892,14 +947,16 @@ class SimEpos:
             self._setpoint_ack = False
             self.motor.reset_controller()
             self.profile.set(self.motor.x, 0.0)
-            history = [self.node.data_store.get(0x1003, {}).get(s) for s in range(1, 8)]
+            n_hist = ERROR_HISTORY
+            history = [self.node.data_store.get(0x1003, {}).get(s) for s in range(1, n_hist)]
             store = self.node.data_store.setdefault(0x1003, {})
             store[1] = struct.pack("<I", code)
             for s, old in enumerate(history, start=2):
                 if old is not None:
                     store[s] = old
-            store[0] = bytes((min(8, 1 + sum(o is not None for o in history)),))
-        self._emcy(code)
+            store[0] = bytes((min(n_hist, 1 + sum(o is not None for o in history)),))
+            # Still under the lock: the EMCY goes out before any TPDO showing FAULT.
+            self._emcy(code)
 
     def _emcy(self, code: int) -> None:
         self.emcy_sent.append(code)

@@ -36,6 +36,11 @@ DEVICE_TYPE = 0x00020192
 SUPPORTED_MODES = {"epos4": 0x000003A5, "epos2": 0x00070065}
 #: Modes of operation (0x6060) each family accepts.
 ACCEPTED_MODES = {"epos4": {1, 3, 6, 8, 9, 10}, "epos2": {1, 3, 6, 7, -1, -2, -3, -5, -6}}
+#: Entries of the 0x1003 error history (both families' device descriptions give 5).
+ERROR_HISTORY = 5
+#: Objects maxon's EPOS2 description does not have (error code, quick stop option, following
+#: error timeout): the simulated EPOS2 lacks them too.
+EPOS2_ABSENT = (0x603F, epos.QUICK_STOP_OPTION, epos.FOLLOWING_ERROR_TIMEOUT)
 #: EPOS2 PVT buffer depth (0x60C4:1).
 IP_BUFFER_SIZE = 64
 
@@ -112,12 +117,12 @@ def build_od(node_id: int, kind: str) -> ObjectDictionary:
     od.device_information.product_name = kind.upper()
     _simple(od, epos.DEVICE_TYPE, "Device type", UNSIGNED32, DEVICE_TYPE, "ro")
     _simple(od, epos.ERROR_REGISTER, "Error register", UNSIGNED8, 0, "ro", mappable=True)
-    _array(od, 0x1003, "Pre-defined error field", 8, UNSIGNED32, 0, "ro", used=0)
+    _array(od, 0x1003, "Pre-defined error field", ERROR_HISTORY, UNSIGNED32, 0, "ro", used=0)
     _simple(od, 0x1005, "COB-ID SYNC", UNSIGNED32, 0x80)
     _simple(od, 0x1008, "Manufacturer device name", VISIBLE_STRING, kind.upper(), "const")
     _simple(od, 0x1014, "COB-ID EMCY", UNSIGNED32, 0x80 + node_id, "ro")
     _array(
-        od, epos.HEARTBEAT_CONSUMER, "Consumer heartbeat time", 1, UNSIGNED32, 0, count_access="ro"
+        od, epos.HEARTBEAT_CONSUMER, "Consumer heartbeat time", 2, UNSIGNED32, 0, count_access="ro"
     )
     _simple(od, epos.HEARTBEAT_PRODUCER, "Producer heartbeat time", UNSIGNED16, 0)
     _record(
@@ -217,6 +222,8 @@ def build_od(node_id: int, kind: str) -> ObjectDictionary:
             False,
         ),
     ):
+        if kind == "epos2" and index in EPOS2_ABSENT:
+            continue
         _simple(od, index, name, dtype, default, access, mappable)
     _record(
         od,

@@ -14,7 +14,7 @@ import canopen
 
 from cdcr_ctl.config.drives import DriveConfig
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.sim.epos.node import SimEpos
+from cdcr_ctl.sim.epos.node import DEFAULT_LAG_CYCLES, SimEpos
 from cdcr_ctl.sim.epos.plant import MotorParams
 from cdcr_ctl.sim.slcan_device import SlcanDevice
 
@@ -62,7 +62,9 @@ class SimDriveBus:
     :attr:`channel_path` ``socket://127.0.0.1:PORT``). ``motors`` overrides the motor parameters
     per node id. ``free_run``: advance the drives on the wall clock while no SYNC comes (a master
     that never sends SYNC still sees profile moves finish); off by default, so that time moves
-    only with SYNC and runs are reproducible.
+    only with SYNC and runs are reproducible. ``lag_cycles``: feedback lag of every node in SYNCs
+    (:attr:`SimEpos.lag_cycles`; 1 as on a real drive). ``sync_period_s``: the time between two
+    SYNCs (a rig config gives its ``can.sync_period_s``; None: each node's 0x60C2).
     """
 
     def __init__(
@@ -76,8 +78,13 @@ class SimDriveBus:
         motors: Mapping[int, MotorParams] | None = None,
         free_run: bool = False,
         tcp: bool = False,
+        lag_cycles: int = DEFAULT_LAG_CYCLES,
+        sync_period_s: float | None = None,
     ) -> None:
         specs, rate = _specs(drives)
+        if sync_period_s is None and isinstance(drives, RigConfig):
+            sync_period_s = drives.can.sync_period_s
+
         self.bitrate = bitrate or rate
         self.interface = interface
         self.device: SlcanDevice | None = None
@@ -106,6 +113,9 @@ class SimDriveBus:
             SimEpos(self.network, nid, kind, motors.get(nid, MotorParams(counts_per_rev=cpr)))
             for nid, kind, cpr in specs
         ]
+        for n in self.nodes:
+            n.lag_cycles = lag_cycles
+            n.sync_period_s = sync_period_s
         self.free_run = free_run
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._background, name="sim-epos", daemon=True)
