@@ -188,6 +188,11 @@ class LoopCounters:
     ``cpu_s``: the loop thread's CPU time when it stopped (waiting and spinning included)."""
 
     cycles: int = 0
+    #: Cycles whose work ran past the period; deadlines missed because of them (no cycle ran).
+    long_cycles: int = 0
+    missed_cycles: int = 0
+    #: Operator stops acted on from the stop flag (:class:`StopFlag`).
+    flag_stops: int = 0
     rows_logged: int = 0
     rows_dropped: int = 0
     trips: int = 0
@@ -225,6 +230,44 @@ class LoopCounters:
             total[name] += dt
             if dt * 1e6 > worst[name]:
                 worst[name] = dt * 1e6
+
+
+class StopFlag:
+    """The loop's stop path that bypasses every queue and lock (issue #21).
+
+    Any thread (or, over shared memory, another process) calls :meth:`request`; the loop reads
+    :attr:`requested` once per cycle, before anything else, and :meth:`acted` records the cycle
+    in which the quick stop (or halt) went out. Plain integer stores: no lock a loading or
+    planning thread could hold sits on this path. The values live in ``store`` (a 4-slot integer
+    array: requested sequence, reaction, acted sequence, acted cycle), so a shared-memory array
+    lets another process use the same flag.
+    """
+
+    REQUESTED, REACTION, ACTED, ACTED_CYCLE = range(4)
+
+    def __init__(self, store: Any = None) -> None:
+        self.store = store if store is not None else [0, 0, 0, -1]
+
+    def request(self, reaction: Reaction) -> int:
+        """Ask the loop to stop with ``reaction``; returns the sequence number to wait for."""
+        st = self.store
+        st[self.REACTION] = int(reaction)
+        seq = st[self.REQUESTED] + 1
+        st[self.REQUESTED] = seq
+        return seq
+
+    @property
+    def requested(self) -> int:
+        return self.store[self.REQUESTED]
+
+    def acted(self, seq: int, cycle: int) -> None:
+        self.store[self.ACTED_CYCLE] = cycle
+        self.store[self.ACTED] = seq
+
+    def acted_cycle(self, seq: int) -> int | None:
+        """The loop cycle that acted on request ``seq`` (or a later one), None while pending."""
+        st = self.store
+        return st[self.ACTED_CYCLE] if st[self.ACTED] >= seq else None
 
 
 class TipHistory:
@@ -293,6 +336,12 @@ class ControlLoop:
         #: Set (under the lock) with every posted command: the cycle looks at the lock only then.
         self._has_pending = False
         self._stop_evt = threading.Event()
+        #: Read first thing in every cycle; see :class:`StopFlag`.
+        self.stop_flag = StopFlag()
+        self._flag_seen = 0
+        self._missed_now = 0
+        #: An event of this cycle decided outside the checks (an operator stop) for its row.
+        self._row_event = ""
         self._thread: threading.Thread | None = None
         self._run_ids = itertools.count(1)
         # State owned by the loop thread.
@@ -416,6 +465,17 @@ class ControlLoop:
     def psi_cmd(self) -> np.ndarray:
         return self._psi_cmd.copy()
 
+    @property
+    def q_cmd(self) -> np.ndarray:
+        """The last command sent (mm, offset included)."""
+        return self._q_cmd.copy()
+
+    def adopt_pose(self, psi: np.ndarray) -> None:
+        """Hold at ``psi`` from the next cycle (the pose the arm was found in at start-up);
+        the rest between the drives and its command is absorbed on enable."""
+        with self._lock:
+            self._post("pose", np.array(psi, dtype=float))
+
     def snapshot(self) -> dict[str, Any]:
         """Status for the socket: last cycle's values, timing, current run."""
         run = self._run
@@ -456,7 +516,14 @@ class ControlLoop:
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
             self.counters.cycles += 1
+            if dt_us > self.cfg.period_s * 1e6:
+                self.counters.long_cycles += 1
+            skipped = self.ticker.stats.skipped
             self.ticker.done()
+            # Deadlines skipped after this cycle: the next row says so (its lateness counts
+            # from the first missed deadline) and so do the counters.
+            self._missed_now = self.ticker.stats.skipped - skipped
+            self.counters.missed_cycles += self._missed_now
         self.counters.cpu_s = time.thread_time() - cpu0
         self._finish_run("stopped", "loop stopped")
 
@@ -470,6 +537,14 @@ class ControlLoop:
             log.exception("reacting to a failed cycle failed")
 
     def _take_pending(self, now: float) -> None:
+        seq = self.stop_flag.requested
+        if seq != self._flag_seen:
+            self._flag_seen = seq
+            reaction = Reaction(self.stop_flag.store[StopFlag.REACTION])
+            self.counters.flag_stops += 1
+            self._row_event = OPERATOR_STOP
+            self._react(Trip(OPERATOR_STOP, reaction, "stop requested", now))
+            self.stop_flag.acted(seq, self.counters.cycles)
         if not self._has_pending:
             return
         with self._lock:
@@ -481,6 +556,7 @@ class ControlLoop:
     def _apply(self, kind: str, payload: Any, now: float) -> None:
         """One posted command, on the loop thread."""
         if kind == "stop":
+            self._row_event = OPERATOR_STOP
             self._react(Trip(OPERATOR_STOP, payload, "stop requested", now))
         elif kind == "follow":
             source, run, sink = payload
@@ -513,6 +589,10 @@ class ControlLoop:
             self._model_state = self.model.new_state()
         elif kind == "sink":
             self._manual_sink = payload
+        elif kind == "pose":
+            self._psi_cmd = payload
+            self._source, self._t_source0 = Hold(payload), now
+            self._model_state = self.model.new_state()
         else:  # pragma: no cover - a programming error
             raise ValueError(f"unknown loop command {kind!r}")
 
@@ -644,6 +724,15 @@ class ControlLoop:
         layout = self._row_layout
         # One fresh array: later cycles may reuse the arrays they were given.
         values = np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N, tip_mm))
+        if self._row_event:
+            event = f"{self._row_event}; {event}" if event else self._row_event
+            self._row_event = ""
+        missed = self._missed_now
+        if missed:
+            # The deadlines before this cycle were skipped: its lateness counts from the first.
+            lateness_s += missed * self.cfg.period_s
+            note = f"late: {missed} cycles missed"
+            event = f"{event}; {note}" if event else note
         return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)
 
     def _react(self, trip: Trip) -> None:
@@ -701,5 +790,6 @@ __all__ = [
     "LoopConfig",
     "RowLayout",
     "RunInfo",
+    "StopFlag",
     "field",
 ]
