@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,7 +20,7 @@ from cdcr_ctl.config.tracking import TrackerConfig
 from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
 from cdcr_ctl.drives.busload import check_drives_bus_load
 from cdcr_ctl.drives.group import DriveGroup, open_drive_group
-from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.errors import CommError, ConfigError
 from cdcr_ctl.sensors.attitude import AttitudeSensors, open_attitude_sensors
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
@@ -113,9 +113,22 @@ class DriveGroupPort:
     """:class:`~cdcr_ctl.control.ports.DrivePort` over a :class:`~cdcr_ctl.drives.group.DriveGroup`
     whose drives are in cable order."""
 
-    def __init__(self, group: DriveGroup) -> None:
+    def __init__(self, group: DriveGroup, reopen: Callable[[], DriveGroup] | None = None) -> None:
+        """``reopen()`` opens the bus and boots the drives again (see :meth:`reopen`)."""
         self.group = group
         self._clock = group.clock
+        self._reopen = reopen
+
+    def reopen(self) -> None:
+        """Close the bus and open it again, booting and configuring every drive (after the bus
+        or the drives were lost: a restarted rig, an adapter unplugged and back). The loop
+        must be paused meanwhile. Raises what opening raises; the old group is closed."""
+        if self._reopen is None:
+            raise CommError("this drive port cannot re-open its bus")
+        with contextlib.suppress(Exception):
+            self.group.close()
+        self.group = self._reopen()
+        self._clock = self.group.clock
 
     def send_cycle(self, targets_counts: Sequence[int]) -> None:
         self.group.send_cycle(targets_counts)
@@ -166,7 +179,7 @@ def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
         drives, cfg.can.sync_period_s, cfg.can.bitrate, cfg.can.max_bus_load, file
     )
     group = open_drive_group(cfg.can, drives, file=file)
-    return DriveGroupPort(group)
+    return DriveGroupPort(group, reopen=lambda: open_drive_group(cfg.can, drives, file=file))
 
 
 def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None = None) -> RigIO:
