@@ -590,9 +590,22 @@ class ControlLoop:
         elif kind == "sink":
             self._manual_sink = payload
         elif kind == "pose":
+            # Hold where the arm is: the command of the pose plus an offset that makes it the
+            # drives' actual positions, so no cycle (sent or only checked) steps.
             self._psi_cmd = payload
             self._source, self._t_source0 = Hold(payload), now
             self._model_state = self.model.new_state()
+            mode = "model" if self._mode == "measured" else self._mode
+            q_pose = self.model.q_command(
+                payload, self.model.q_nominal(payload), self._model_state, mode, None
+            )
+            fb = self.drives.feedback()
+            q_act = (
+                np.array([f.position_counts for f in fb]) - self.home_counts
+            ) / self.cfg.counts_per_mm
+            self._q_offset = q_act - q_pose
+            self._q_offset_target = self._q_offset.copy()
+            self._q_cmd = q_act.copy()
         else:  # pragma: no cover - a programming error
             raise ValueError(f"unknown loop command {kind!r}")
 
