@@ -483,6 +483,11 @@ class ControlLoop:
             "cycles": self.counters.cycles,
             "timing": self.ticker.stats.summary(),
             "cycle_time_max_us": round(self.counters.max_cycle_us, 1),
+            "long_cycles": self.counters.long_cycles,
+            "missed_cycles": self.counters.missed_cycles,
+            "flag_stops": self.counters.flag_stops,
+            "rows_logged": self.counters.rows_logged,
+            "rows_dropped": self.counters.rows_dropped,
             "cpu_s": round(self.counters.cpu_s, 3),
             "psi_cmd_rad": self._psi_cmd.tolist(),
             "last": {
