@@ -118,9 +118,7 @@ def test_disk_arm_lead_in_keeps_the_default_speed() -> None:
     target = tj.Trajectory([0.0, 1.0], np.zeros((2, 1, 2)), "hold", "<test>")
     plan = plan_lead_in(model, psi_now, None, target, "off", cfg.limits.cable_velocity_mm_s)
     assert plan.speed_rad_s == tj.LEAD_IN_SPEED_RAD_S
-    assert plan.trajectory.duration_s == pytest.approx(
-        tj.with_lead_in(psi_now, target).duration_s
-    )
+    assert plan.trajectory.duration_s == pytest.approx(tj.with_lead_in(psi_now, target).duration_s)
 
 
 @pytest.mark.parametrize("psi", [[0.0, 0.0], [0.8, 0.5], [1.3, -2.0]])

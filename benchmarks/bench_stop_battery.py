@@ -1,0 +1,67 @@
+"""Issue #21's full battery: while a trajectory runs at 1 kHz on the simulated rig, send 16 MB
+and 100 MB requests, a 10^6-row trajectory file, 200 concurrent clients, a slow client and
+tiny-speed jogs, with ``stop`` in the middle of each; print, per stressor, the stop's delay in
+loop cycles, the loop's long cycles and missed deadlines, and the lateness histogram.
+
+Run: ``nice -n 5 .venv/bin/python benchmarks/bench_stop_battery.py`` (about 3 minutes).
+How measured: the stop's reply names the loop cycle that sent the quick stop (the loop's stop
+flag, :class:`cdcr_ctl.control.loop.StopFlag`) and ``cycles_waited`` counts loop cycles from the
+request to it; long cycles and missed deadlines are the loop's own counters in ``status``
+(``loop.long_cycles``, ``loop.missed_cycles``), lateness the loop's histogram (cumulative over
+the daemon's life, printed after each stressor).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests" / "system"))
+
+from battery import (  # noqa: E402
+    big_request,
+    file_trajectory,
+    many_clients,
+    recover,
+    run_one,
+    slow_client,
+    tiny_jog,
+)
+from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E402
+
+
+def main() -> None:
+    tmp = Path(tempfile.mkdtemp(prefix="cdcr-battery-"))
+    stressors = [
+        ("16 MB request", big_request(16 * 1024 * 1024), 0.3),
+        ("100 MB request", big_request(100 * 1024 * 1024), 1.0),
+        ("10^6-row file", file_trajectory(1_000_000, tmp), 2.0),
+        ("200 clients", many_clients(200), 0.3),
+        ("slow client (5 s)", slow_client(5.0), 2.0),
+        ("jog speed 1e-4", tiny_jog(1e-4), 0.05),
+        ("jog speed 1e-300", tiny_jog(1e-300), 0.05),
+    ]
+    with session(tmp) as (work, rig, sim, _runs), start_sim(sim, tmp / "sim.log"):
+        with start_daemon(rig, tmp / "d.log") as d:
+            wait_for_socket(work / "control.sock", d, tmp / "d.log")
+            print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
+            last = None
+            for name, fn, after_s in stressors:
+                rec = run_one(work, name, fn, after_s)
+                print(
+                    f"{name:20s} {rec['cycles_waited']!s:>11s} {rec['long_cycles']:5d}"
+                    f" {rec['missed_cycles']:6d}  {rec['reply'][:90]!r}"
+                    + (f"  DRIVE FAULTS {rec['drive_faults']}" if rec["drive_faults"] else "")
+                )
+                last = rec
+                recover(work)
+            print("lateness histogram of the loop over the whole battery (us: cycles):")
+            for k, v in (last or {}).get("lateness_histogram", {}).items():
+                print(f"  {k:>16s}: {v}")
+            print(f"lateness max: {(last or {}).get('lateness_max_us')} us")
+
+
+if __name__ == "__main__":
+    main()
