@@ -43,8 +43,12 @@ def main() -> None:
         ("jog speed 1e-4", tiny_jog(1e-4), 0.05),
         ("jog speed 1e-300", tiny_jog(1e-300), 0.05),
     ]
-    with session(tmp) as (work, rig, sim, _runs), start_sim(sim, tmp / "sim.log"):
-        with start_daemon(rig, tmp / "d.log") as d:
+    with (
+        session(tmp) as (work, rig, sim, _runs),
+        start_sim(sim, tmp / "sim.log"),
+        start_daemon(rig, tmp / "d.log") as d,
+    ):
+        if True:
             wait_for_socket(work / "control.sock", d, tmp / "d.log")
             print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
             last = None

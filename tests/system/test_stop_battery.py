@@ -32,8 +32,12 @@ def test_stop_acts_within_two_cycles_under_every_stressor(tmp_path):
         ("slow client", slow_client(1.0), 0.3, None),
         ("jog speed 1e-300", tiny_jog(1e-300), 0.05, "limits.bend_rad"),
     ]
-    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
-        with start_daemon(rig, tmp_path / "d.log") as d:
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim(sim, tmp_path / "sim.log"),
+        start_daemon(rig, tmp_path / "d.log") as d,
+    ):
+        if True:
             wait_for_socket(work / "control.sock", d, tmp_path / "d.log")
             records = []
             for name, fn, after_s, limit in stressors:
