@@ -48,23 +48,22 @@ def main() -> None:
         start_sim(sim, tmp / "sim.log"),
         start_daemon(rig, tmp / "d.log") as d,
     ):
-        if True:
-            wait_for_socket(work / "control.sock", d, tmp / "d.log")
-            print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
-            last = None
-            for name, fn, after_s in stressors:
-                rec = run_one(work, name, fn, after_s)
-                print(
-                    f"{name:20s} {rec['cycles_waited']!s:>11s} {rec['long_cycles']:5d}"
-                    f" {rec['missed_cycles']:6d}  {rec['reply'][:90]!r}"
-                    + (f"  DRIVE FAULTS {rec['drive_faults']}" if rec["drive_faults"] else "")
-                )
-                last = rec
-                recover(work)
-            print("lateness histogram of the loop over the whole battery (us: cycles):")
-            for k, v in (last or {}).get("lateness_histogram", {}).items():
-                print(f"  {k:>16s}: {v}")
-            print(f"lateness max: {(last or {}).get('lateness_max_us')} us")
+        wait_for_socket(work / "control.sock", d, tmp / "d.log")
+        print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
+        last = None
+        for name, fn, after_s in stressors:
+            rec = run_one(work, name, fn, after_s)
+            print(
+                f"{name:20s} {rec['cycles_waited']!s:>11s} {rec['long_cycles']:5d}"
+                f" {rec['missed_cycles']:6d}  {rec['reply'][:90]!r}"
+                + (f"  DRIVE FAULTS {rec['drive_faults']}" if rec["drive_faults"] else "")
+            )
+            last = rec
+            recover(work)
+        print("lateness histogram of the loop over the whole battery (us: cycles):")
+        for k, v in (last or {}).get("lateness_histogram", {}).items():
+            print(f"  {k:>16s}: {v}")
+        print(f"lateness max: {(last or {}).get('lateness_max_us')} us")
 
 
 if __name__ == "__main__":

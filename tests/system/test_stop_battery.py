@@ -37,16 +37,15 @@ def test_stop_acts_within_two_cycles_under_every_stressor(tmp_path):
         start_sim(sim, tmp_path / "sim.log"),
         start_daemon(rig, tmp_path / "d.log") as d,
     ):
-        if True:
-            wait_for_socket(work / "control.sock", d, tmp_path / "d.log")
-            records = []
-            for name, fn, after_s, limit in stressors:
-                rec = run_one(work, name, fn, after_s)
-                print(rec)
-                records.append(rec)
-                assert rec["cycles_waited"] is not None and rec["cycles_waited"] <= 2, rec
-                assert not rec["drive_faults"], rec
-                if limit is not None:
-                    assert limit in rec["reply"], rec
-                recover(work)
-            assert records[2]["reply"] == "50/50 answered"
+        wait_for_socket(work / "control.sock", d, tmp_path / "d.log")
+        records = []
+        for name, fn, after_s, limit in stressors:
+            rec = run_one(work, name, fn, after_s)
+            print(rec)
+            records.append(rec)
+            assert rec["cycles_waited"] is not None and rec["cycles_waited"] <= 2, rec
+            assert not rec["drive_faults"], rec
+            if limit is not None:
+                assert limit in rec["reply"], rec
+            recover(work)
+        assert records[2]["reply"] == "50/50 answered"
