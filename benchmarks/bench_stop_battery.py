@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT / "tests" / "system"))
 from battery import (  # noqa: E402
     big_request,
     file_trajectory,
+    idle,
     many_clients,
     recover,
     run_one,
@@ -35,6 +36,7 @@ from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E
 def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="cdcr-battery-"))
     stressors = [
+        ("baseline (nothing)", idle(2.0), 1.0),
         ("16 MB request", big_request(16 * 1024 * 1024), 0.3),
         ("100 MB request", big_request(100 * 1024 * 1024), 1.0),
         ("10^6-row file", file_trajectory(1_000_000, tmp), 2.0),

@@ -36,8 +36,14 @@ class LoadCellTension:
     reported as NaN with infinite age).
     """
 
-    def __init__(self, sampler: LoadCellSampler, order: Sequence[int]) -> None:
+    def __init__(
+        self,
+        sampler: LoadCellSampler,
+        order: Sequence[int],
+        reopen: Callable[[], LoadCellSampler] | None = None,
+    ) -> None:
         self.sampler = sampler
+        self._reopen = reopen
         self._order = np.array(order, dtype=int)
         self._has = self._order >= 0
         self._idx = np.where(self._has, self._order, 0)
@@ -50,6 +56,17 @@ class LoadCellTension:
 
     def close(self) -> None:
         self.sampler.close()
+
+    def reopen(self) -> None:
+        """Close the serial port and open it again (a transmitter or pty that went away and came
+        back); :meth:`latest` reads the new sampler from the next call on."""
+        if self._reopen is None:
+            raise CommError("this load-cell port cannot re-open")
+        with contextlib.suppress(Exception):
+            self.sampler.close()
+        sampler = self._reopen()
+        sampler.start()
+        self.sampler = sampler
 
 
 def cell_order(lc: LoadCellsConfig, cable_names: Sequence[str], file: str = "") -> list[int]:
@@ -67,14 +84,15 @@ def open_tension(lc: LoadCellsConfig, cable_names: Sequence[str]) -> LoadCellTen
     """Open the load-cell bus and start sampling (raises SensorError naming the port)."""
     sampler = open_load_cells(lc)
     sampler.start()
-    return LoadCellTension(sampler, cell_order(lc, cable_names))
+    return LoadCellTension(sampler, cell_order(lc, cable_names), lambda: open_load_cells(lc))
 
 
 class TrackerTip:
     """:class:`~cdcr_ctl.control.ports.TipPort` over a tracker reader (NatNet or line stream)."""
 
-    def __init__(self, tracker: Any) -> None:
+    def __init__(self, tracker: Any, reopen: Callable[[], Any] | None = None) -> None:
         self.tracker = tracker
+        self._reopen = reopen
 
     def latest(self) -> tuple[np.ndarray, float]:
         p, age = self.tracker.position_and_age()
@@ -82,6 +100,15 @@ class TrackerTip:
 
     def close(self) -> None:
         self.tracker.close()
+
+    def reopen(self) -> None:
+        """Connect to the tracker again (a tracker server restarted does not know this client);
+        :meth:`latest` reads the new reader from the next call on."""
+        if self._reopen is None:
+            raise CommError("this tracker port cannot re-open")
+        with contextlib.suppress(Exception):
+            self.tracker.close()
+        self.tracker = self._reopen()
 
 
 class AttitudeAngles:
@@ -106,7 +133,7 @@ class AttitudeAngles:
 
 def open_tip(tracker_cfg: TrackerConfig) -> TrackerTip:
     """Connect to the tracker (raises SensorError naming host and port when it does not answer)."""
-    return TrackerTip(open_tracker(tracker_cfg))
+    return TrackerTip(open_tracker(tracker_cfg), lambda: open_tracker(tracker_cfg))
 
 
 class DriveGroupPort:

@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
@@ -181,5 +182,32 @@ def reset_fault(d: Daemon) -> dict[str, Any]:
             d.loop.pause(False)
         reopened = True
         drives.reset_faults()
+    sensors = _reopen_stale_sensors(d) if reopened else []
     d.supervisor.reset()
-    return {"fault": None, "bus_reopened": reopened}
+    return {"fault": None, "bus_reopened": reopened, "sensors_reopened": sensors}
+
+
+def _reopen_stale_sensors(d: Daemon) -> list[str]:
+    """After a lost bus the rest of the rig may have gone and come back too: re-open a load-cell
+    port whose samples are older than the sensor timeout, and wait (bounded) for fresh ones."""
+    out: list[str] = []
+    limit = d.cfg.limits.sensor_timeout_s
+    tensions = d.io.tensions
+    _, age = tensions.latest()
+    if np.any(np.isfinite(age) & (age > limit)) and hasattr(tensions, "reopen"):
+        log.warning("reset-fault: load cells silent for %.1f s; re-opening", float(np.max(age)))
+        tensions.reopen()
+        out.append("load_cells")
+        end = time.monotonic() + START_FEEDBACK_TIMEOUT_S
+        while time.monotonic() < end and np.any(tensions.latest()[1] > limit):
+            time.sleep(0.02)
+    tip = d.io.tip
+    _, tip_age = tip.latest()
+    if math.isfinite(tip_age) and tip_age > limit and hasattr(tip, "reopen"):
+        log.warning("reset-fault: tracker silent for %.1f s; re-connecting", tip_age)
+        tip.reopen()
+        out.append("tracker")
+        end = time.monotonic() + START_FEEDBACK_TIMEOUT_S
+        while time.monotonic() < end and not tip.latest()[1] <= limit:
+            time.sleep(0.02)
+    return out

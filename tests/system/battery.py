@@ -47,6 +47,16 @@ def _raw(work: Path, data: bytes, chunk: int = 1 << 20, pause_s: float = 0.0) ->
         s.close()
 
 
+def idle(seconds: float) -> Callable[[Path], str]:
+    """No stressor: the loop's counters under the machine's own load, for comparison."""
+
+    def send(work: Path) -> str:
+        time.sleep(seconds)
+        return "idle"
+
+    return send
+
+
 def big_request(n_bytes: int) -> Callable[[Path], str]:
     def send(work: Path) -> str:
         pad = b"0.0, " * (n_bytes // 5)
