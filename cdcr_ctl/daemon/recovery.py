@@ -42,6 +42,8 @@ START_FEEDBACK_TIMEOUT_S = 10.0
 STRAIGHT_TOLERANCE_MM = 0.05
 #: Slack beyond a straightening move's duration before homing gives up on it (s).
 STRAIGHTEN_SLACK_S = 10.0
+#: Tries of the fault reset after the bus was re-opened.
+REOPEN_RESET_ATTEMPTS = 3
 #: Feedback older than this many feedback timeouts is shown stale.
 STALE_FACTOR = 1.0
 
@@ -181,7 +183,15 @@ def reset_fault(d: Daemon) -> dict[str, Any]:
         finally:
             d.loop.pause(False)
         reopened = True
-        drives.reset_faults()
+        # Freshly booted drives may miss a heartbeat or two while the bus settles.
+        for attempt in range(REOPEN_RESET_ATTEMPTS):
+            try:
+                drives.reset_faults()
+                break
+            except RigError:
+                if attempt == REOPEN_RESET_ATTEMPTS - 1:
+                    raise
+                time.sleep(0.5)
     sensors = _reopen_stale_sensors(d) if reopened else []
     d.supervisor.reset()
     return {"fault": None, "bus_reopened": reopened, "sensors_reopened": sensors}
