@@ -240,6 +240,9 @@ class ControlServer:
         except Exception as exc:
             log.exception("control socket: intake failed")
             return self._send(conn, encode_reply(0, error=f"intake failed: {exc}"))
+        finally:
+            with contextlib.suppress(OSError):
+                path.unlink()
         return self._reply(conn, b"", req)
 
     def _reply(self, conn: socket.socket, line: bytes, parsed: Request | None = None) -> bool:
