@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -39,12 +40,33 @@ SWITCH_MARGIN_S = 0.05
 CHECK_SAMPLES = 400
 
 
+class Chain:
+    """A setpoint source: ``first``, then ``then`` (its times shifted by ``first``'s duration).
+
+    For long trajectories (a 10^6-row file) the lead-in goes in front this way instead of by
+    concatenating arrays: no copy of the long one in the loop's process."""
+
+    def __init__(self, first: tj.Trajectory, then: Any) -> None:
+        self.first, self.then = first, then
+        self._t1 = first.duration_s
+        self.name, self.source = then.name, then.source
+
+    @property
+    def duration_s(self) -> float:
+        return self._t1 + self.then.duration_s
+
+    def sample(self, t_s: float) -> np.ndarray:
+        if t_s < self._t1:
+            return self.first.sample(t_s)
+        return self.then.sample(t_s - self._t1)
+
+
 @dataclass(frozen=True)
 class LeadInPlan:
     """What :func:`plan_lead_in` decided: hold ``hold_s`` for the mode switch to ramp out, then
     a move at ``speed_rad_s`` whose fastest cable runs ``peak_mm_s`` (in the run's mode)."""
 
-    trajectory: tj.Trajectory
+    trajectory: Any  # tj.Trajectory, or a Chain for a long one
     hold_s: float
     speed_rad_s: float
     peak_mm_s: float
@@ -116,19 +138,29 @@ def plan_lead_in(
         hold_s = switch_hold_s(np.asarray(q_cmd_now_mm) - q_new, cable_velocity_mm_s)
     v_allowed = LEAD_IN_CABLE_FRACTION * cable_velocity_mm_s
     speed = tj.LEAD_IN_SPEED_RAD_S
-    lead = tj.with_lead_in(psi_now, traj, speed_rad_s=speed)
+    # The move alone (the trajectory's first sample as its goal): the long trajectory itself is
+    # never copied here.
+    head = tj.Trajectory([0.0], traj.psi[:1], traj.name, traj.source)
+    lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
     peak = 0.0
-    if lead is not traj:
+    if lead is not head:
         for _ in range(3):
             m = tj.move(psi_now, traj.psi[0], speed)
             peak = peak_cable_speed(model, m, mode, measured_N)
             if peak <= v_allowed:
                 break
             speed *= 0.98 * v_allowed / peak
-        lead = tj.with_lead_in(psi_now, traj, speed_rad_s=speed)
+        lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
     if hold_s > 0.0:
         lead = _hold_first(lead, psi_now, hold_s)
-    return LeadInPlan(lead, hold_s, speed, peak)
+    if lead.n_samples == 1:  # neither a hold nor a move
+        return LeadInPlan(traj, hold_s, speed, peak)
+    if traj.n_samples > tj.LIST_SAMPLES:
+        # The lead ends on the trajectory's first sample; the trajectory starts there.
+        return LeadInPlan(Chain(lead, traj), hold_s, speed, peak)
+    t = np.concatenate((lead.t_s[:-1], traj.t_s + lead.t_s[-1]))
+    psi = np.concatenate((lead.psi[:-1], traj.psi))
+    return LeadInPlan(tj.Trajectory(t, psi, traj.name, traj.source), hold_s, speed, peak)
 
 
 def _hold_first(traj: tj.Trajectory, psi_now: np.ndarray, hold_s: float) -> tj.Trajectory:
