@@ -3,7 +3,9 @@ and 100 MB requests, a 10^6-row trajectory file, 200 concurrent clients, a slow 
 tiny-speed jogs, with ``stop`` in the middle of each; print, per stressor, the stop's delay in
 loop cycles, the loop's long cycles and missed deadlines, and the lateness histogram.
 
-Run: ``nice -n 5 .venv/bin/python benchmarks/bench_stop_battery.py`` (about 3 minutes).
+Run: ``nice -n 5 .venv/bin/python benchmarks/bench_stop_battery.py [RATE_HZ]`` (about 3
+minutes; RATE_HZ 1000 by default: the loop and the SYNC period of the session's rig config are
+set to it, the shipped simulated rig runs 250 Hz).
 How measured: the stop's reply names the loop cycle that sent the quick stop (the loop's stop
 flag, :class:`cdcr_ctl.control.loop.StopFlag`) and ``cycles_waited`` counts loop cycles from the
 request to it; long cycles and missed deadlines are the loop's own counters in ``status``
@@ -13,9 +15,12 @@ the daemon's life, printed after each stressor).
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import tempfile
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
@@ -33,7 +38,15 @@ from battery import (  # noqa: E402
 from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E402
 
 
+def _set_rate(rig: Path, rate_hz: float) -> None:
+    doc = yaml.safe_load(rig.read_text())
+    doc.setdefault("control", {})["rate_hz"] = rate_hz
+    doc.setdefault("can", {})["sync_period_s"] = 1.0 / rate_hz
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
 def main() -> None:
+    rate_hz = float(sys.argv[1]) if len(sys.argv) > 1 else 1000.0
     tmp = Path(tempfile.mkdtemp(prefix="cdcr-battery-"))
     stressors = [
         ("baseline (nothing)", idle(2.0), 1.0),
@@ -48,9 +61,11 @@ def main() -> None:
     with (
         session(tmp) as (work, rig, sim, _runs),
         start_sim(sim, tmp / "sim.log"),
+        _with_rate(rig, rate_hz),
         start_daemon(rig, tmp / "d.log") as d,
     ):
         wait_for_socket(work / "control.sock", d, tmp / "d.log")
+        print(f"loop and SYNC at {rate_hz:g} Hz")
         print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
         last = None
         for name, fn, after_s in stressors:
@@ -66,6 +81,12 @@ def main() -> None:
         for k, v in (last or {}).get("lateness_histogram", {}).items():
             print(f"  {k:>16s}: {v}")
         print(f"lateness max: {(last or {}).get('lateness_max_us')} us")
+
+
+@contextlib.contextmanager
+def _with_rate(rig: Path, rate_hz: float):
+    _set_rate(rig, rate_hz)
+    yield
 
 
 if __name__ == "__main__":
