@@ -66,13 +66,18 @@ def main() -> None:
     ):
         wait_for_socket(work / "control.sock", d, tmp / "d.log")
         print(f"loop and SYNC at {rate_hz:g} Hz")
-        print(f"{'stressor':20s} {'stop cycles':>11s} {'long':>5s} {'missed':>6s}  reply")
+        print(
+            f"{'stressor':20s} {'stop cycles':>11s} {'window s':>8s} {'cycles':>7s}"
+            f" {'long':>5s} {'missed':>6s} {'missed %':>8s}  reply"
+        )
         last = None
         for name, fn, after_s in stressors:
             rec = run_one(work, name, fn, after_s)
+            share = rec["missed_cycles"] / max(rec["cycles"] + rec["missed_cycles"], 1)
             print(
-                f"{name:20s} {rec['cycles_waited']!s:>11s} {rec['long_cycles']:5d}"
-                f" {rec['missed_cycles']:6d}  {rec['reply'][:90]!r}"
+                f"{name:20s} {rec['cycles_waited']!s:>11s} {rec['window_s']:8.1f}"
+                f" {rec['cycles']:7d} {rec['long_cycles']:5d} {rec['missed_cycles']:6d}"
+                f" {100 * share:7.1f}%  {rec['reply'][:70]!r}"
                 + (f"  DRIVE FAULTS {rec['drive_faults']}" if rec["drive_faults"] else "")
             )
             last = rec

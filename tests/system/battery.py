@@ -150,6 +150,7 @@ def run_one(work: Path, name: str, stressor: Callable[[Path], str], stop_after_s
     time.sleep(0.5)
     with client(work) as c:
         before = c.call("status")
+    t_before = time.monotonic()
     result: dict[str, Any] = {}
     th = threading.Thread(target=lambda: result.update(reply=stressor(work)), daemon=True)
     th.start()
@@ -161,12 +162,15 @@ def run_one(work: Path, name: str, stressor: Callable[[Path], str], stop_after_s
     th.join(180)
     with client(work) as c:
         after = c.call("status")
+    window_s = time.monotonic() - t_before
     lb, la = before["loop"], after["loop"]
     return {
         "name": name,
         "reply": str(result.get("reply", "(no reply)"))[:160],
         "cycles_waited": stop["cycles_waited"],
         "stop_reply_s": round(stop_s, 4),
+        "window_s": round(window_s, 2),
+        "cycles": la["cycles"] - lb["cycles"],
         "long_cycles": la["long_cycles"] - lb["long_cycles"],
         "missed_cycles": la["missed_cycles"] - lb["missed_cycles"],
         "lateness_max_us": la["timing"]["lateness_max_us"],
