@@ -182,7 +182,7 @@ class Daemon:
         self.state = "stopping"
         self.notifier.stopping()
         steps: list[tuple[str, Callable[[], None]]] = [
-            ("halt", lambda: self.loop.request_stop(Reaction.HALT)),
+            ("halt", lambda: self.loop.stop_flag.request(Reaction.HALT)),
             ("settle", lambda: time.sleep(3 * self.loop.cfg.period_s)),
             ("joystick", lambda: self._session.shutdown() if self._session else None),
             ("manual log", self._close_manual_sink),
