@@ -35,6 +35,8 @@ from cdcr_ctl.control.ports import RobotModelPort
 LEAD_IN_CABLE_FRACTION = 0.5
 #: Extra hold after a mode-switch ramp (s): a few cycles of margin for the loop to finish it.
 SWITCH_MARGIN_S = 0.05
+#: A command step smaller than this (mm) needs no hold (friction-state and rounding noise).
+SWITCH_TOLERANCE_MM = 1e-3
 #: Samples of a planned move checked for cable speed at most (evenly spread; the move is a
 #: raised cosine, smooth on this scale).
 CHECK_SAMPLES = 400
@@ -108,7 +110,7 @@ def switch_hold_s(step_mm: np.ndarray, cable_velocity_mm_s: float) -> float:
     """How long the loop's offset ramp takes to take out a command step ``step_mm`` (K,) (s),
     plus :data:`SWITCH_MARGIN_S`; 0 for no step."""
     worst = float(np.max(np.abs(step_mm))) if len(step_mm) else 0.0
-    if worst <= 1e-9:
+    if worst <= SWITCH_TOLERANCE_MM:
         return 0.0
     return worst / (OFFSET_RAMP_FRACTION * cable_velocity_mm_s) + SWITCH_MARGIN_S
 
