@@ -186,8 +186,9 @@ class Intake:
         return self._pool
 
     def start(self) -> Intake:
-        """Start the worker now (a spawn costs ~1 s; better at start-up than on a request)."""
-        self._executor().submit(int, 0).result(INTAKE_TIMEOUT_S)
+        """Start the worker now, in the background (a spawn costs ~1 s: better at start-up
+        than on the first big request, which waits for it anyway)."""
+        self._executor().submit(int, 0)
         return self
 
     def new_spool(self) -> Path:
