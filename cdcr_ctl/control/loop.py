@@ -19,6 +19,7 @@ on them. :class:`LoopCounters` times each stage of the cycle (:data:`STAGES`) an
 
 from __future__ import annotations
 
+import copy
 import gc
 import itertools
 import logging
@@ -427,6 +428,11 @@ class ControlLoop:
     @property
     def psi_cmd(self) -> np.ndarray:
         return self._psi_cmd.copy()
+
+    def model_state(self) -> object:
+        """A copy of the model's friction memory (for planning from where the loop is; a copy
+        taken from another thread may mix two cycles' values: an estimate, not the state)."""
+        return copy.deepcopy(self._model_state)
 
     @property
     def q_cmd(self) -> np.ndarray:

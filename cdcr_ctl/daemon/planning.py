@@ -19,6 +19,7 @@ Units: rad (pose), mm (cable), s, mm/s.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -79,10 +80,12 @@ def command_path(
     psi: np.ndarray,
     mode: str,
     measured_N: np.ndarray | None = None,
+    state: Any = None,
 ) -> np.ndarray:
     """(N, K) commanded cable displacements (mm) along poses ``psi`` (N, S, 2) in ``mode``, with
-    the friction memory carried along the path from a fresh state."""
-    state = model.new_state()
+    the friction memory carried along the path from ``state`` (copied: the loop's memory, so a
+    path that reverses the last motion shows the friction flip) or a fresh one."""
+    state = model.new_state() if state is None else copy.deepcopy(state)
     out = np.empty((len(psi), model.n_cables))
     for i, p in enumerate(psi):
         q_nom = model.q_nominal(p)
@@ -95,13 +98,14 @@ def peak_cable_speed(
     traj: tj.Trajectory,
     mode: str,
     measured_N: np.ndarray | None = None,
+    state: Any = None,
 ) -> float:
     """Fastest cable speed (mm/s) of ``traj`` commanded in ``mode`` (at most
     :data:`CHECK_SAMPLES` samples, evenly spread, so a long move is checked quickly)."""
     if traj.n_samples < 2:
         return 0.0
     idx = np.unique(np.linspace(0, traj.n_samples - 1, CHECK_SAMPLES).astype(int))
-    q = command_path(model, traj.psi[idx], mode, measured_N)
+    q = command_path(model, traj.psi[idx], mode, measured_N, state)
     dt = np.diff(traj.t_s[idx])
     return float(np.max(np.abs(np.diff(q, axis=0)) / dt[:, None]))
 
@@ -123,6 +127,7 @@ def plan_lead_in(
     mode: str,
     cable_velocity_mm_s: float,
     measured_N: np.ndarray | None = None,
+    state: Any = None,
 ) -> LeadInPlan:
     """``traj`` preceded by a hold (for a mode switch's ramp) and a lead-in move, each within the
     velocity limit.
@@ -131,12 +136,13 @@ def plan_lead_in(
     out is its difference from ``mode``'s command at ``psi_now``. The lead-in move's speed is
     scaled down from ``tj.LEAD_IN_SPEED_RAD_S`` until its fastest cable, commanded in ``mode``,
     is within ``LEAD_IN_CABLE_FRACTION`` of the limit (cable speed is proportional to the
-    move's speed: one rescale, then checked again).
+    move's speed: one rescale, then checked again). ``state``: the loop's friction memory (see
+    :func:`command_path`); None plans from a fresh one.
     """
     psi_now = np.asarray(psi_now, dtype=float).reshape(-1, 2)
     hold_s = 0.0
     if q_cmd_now_mm is not None:
-        q_new = command_path(model, psi_now[None], mode, measured_N)[0]
+        q_new = command_path(model, psi_now[None], mode, measured_N, state)[0]
         hold_s = switch_hold_s(np.asarray(q_cmd_now_mm) - q_new, cable_velocity_mm_s)
     v_allowed = LEAD_IN_CABLE_FRACTION * cable_velocity_mm_s
     speed = tj.LEAD_IN_SPEED_RAD_S
@@ -148,7 +154,7 @@ def plan_lead_in(
     if lead is not head:
         for _ in range(3):
             m = tj.move(psi_now, traj.psi[0], speed)
-            peak = peak_cable_speed(model, m, mode, measured_N)
+            peak = peak_cable_speed(model, m, mode, measured_N, state)
             if peak <= v_allowed:
                 break
             speed *= 0.98 * v_allowed / peak

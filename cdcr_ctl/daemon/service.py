@@ -338,6 +338,7 @@ class Daemon:
             mode,
             self.cfg.limits.cable_velocity_mm_s,
             measured_N=force_N if np.isfinite(force_N).all() else None,
+            state=self.loop.model_state(),
         )
         if plan.hold_s or plan.speed_rad_s != self.new_trajectory.LEAD_IN_SPEED_RAD_S:
             log.info(

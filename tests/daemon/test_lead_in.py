@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdcr_ctl.cli.identify import REVERSAL_BAND_MM
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory as tj
@@ -38,12 +39,15 @@ STEP_S = 0.01
 RUN_S = 0.6
 
 
-def _replay_peak(model, plan_traj, lead_s, mode, q_prev_mm, v_limit, measured_N) -> float:
-    """Fastest cable (mm/s) of the loop's commands over ``plan_traj`` up to ``lead_s + RUN_S``."""
+def _replay_peak(
+    model, plan_traj, lead_s, mode, q_prev_mm, v_limit, measured_N, state=None
+) -> float:
+    """Fastest cable (mm/s) of the loop's commands over ``plan_traj`` up to ``lead_s + RUN_S``,
+    from the loop's friction memory ``state``."""
     t_end = min(plan_traj.duration_s, lead_s + RUN_S)
     times = np.arange(0.0, t_end + STEP_S / 2, STEP_S)
     psi = np.array([plan_traj.sample(t) for t in times])
-    q = command_path(model, psi, mode, measured_N)
+    q = command_path(model, psi, mode, measured_N, state)
     offset = q_prev_mm - q[0]  # the switch's step, taken into the offset at the first cycle
     step = OFFSET_RAMP_FRACTION * v_limit * STEP_S
     peak, last = 0.0, q_prev_mm
@@ -63,19 +67,44 @@ def _starts(S: int) -> dict[str, tj.Trajectory]:
     }
 
 
+def _state_after_bending_to(model, psi_now, mode, tension):
+    """The loop's friction memory after bending from straight to ``psi_now`` in ``mode`` (a
+    lead-in back reverses every cable: the compensation's friction flips)."""
+    state = model.new_state()
+    q = None
+    for p in tj.move(np.zeros_like(psi_now), psi_now).psi:
+        q = model.q_command(
+            p, model.q_nominal(p), state, mode, tension if mode == "measured" else None
+        )
+    return state, q
+
+
+@pytest.fixture(scope="module")
+def experiments_cfg(tmp_path_factory):
+    """The simulated rig with the experiments' friction reversal band (cdcr-ctl experiments)."""
+    path = tmp_path_factory.mktemp("cfg") / "rig.yaml"
+    path.write_text(
+        f"extends: {CONFIG / 'qi2023-sim.yaml'}\n"
+        f"control: {{reversal_band_mm: {REVERSAL_BAND_MM}}}\n"
+    )
+    return load_rig_config(path)
+
+
 @pytest.mark.parametrize(("before", "after"), list(itertools.product(MODES, MODES)))
-def test_every_mode_switch_and_lead_in_stays_within_the_velocity_limit(before, after):
-    cfg = load_rig_config(CONFIG / "qi2023-sim.yaml")
+def test_every_mode_switch_and_lead_in_stays_within_the_velocity_limit(
+    before, after, experiments_cfg
+):
+    cfg = experiments_cfg
     model = build_model(cfg)
     S, K = model.n_segments, model.n_cables
     v = cfg.limits.cable_velocity_mm_s
     tension = np.full(K, 2.5)  # a plausible load-cell reading for measured mode (N)
     poses = [np.zeros((S, 2)), np.tile([[1.2, 2.5]], (S, 1))]
     for psi_now, (name, traj) in itertools.product(poses, _starts(S).items()):
-        q_prev = command_path(model, psi_now[None], before, tension)[0]
-        plan = plan_lead_in(model, psi_now, q_prev, traj, after, v, measured_N=tension)
+        state, q_prev = _state_after_bending_to(model, psi_now, before, tension)
+        plan = plan_lead_in(model, psi_now, q_prev, traj, after, v, measured_N=tension, state=state)
         lead_s = plan.trajectory.duration_s - traj.duration_s
-        peak = _replay_peak(model, plan.trajectory, lead_s, after, q_prev, v, tension)
+        peak = _replay_peak(model, plan.trajectory, lead_s, after, q_prev, v, tension, state)
         assert peak <= v, f"{before}->{after} from {psi_now[0]} to {name}: {peak:.1f} mm/s"
 
 
