@@ -172,11 +172,14 @@ def trajectory_cmd(
     wait: bool,
 ) -> None:
     """Run a trajectory FILE (CSV or YAML of timed setpoints) or a built-in one."""
-    traj = build_trajectory(file, builtin, theta_deg, segments)
     run_name = name or (Path(file).stem if file else str(builtin))
-    res = obj.call(
-        "trajectory", name=run_name, samples=traj.rows(), compensation=compensation, log=True
-    )
+    if file is not None:
+        # A file goes as its path: the daemon reads and validates it in its intake process
+        # (no size limit of the request line applies).
+        source: dict[str, Any] = {"file": str(Path(file).resolve())}
+    else:
+        source = {"samples": build_trajectory(file, builtin, theta_deg, segments).rows()}
+    res = obj.call("trajectory", name=run_name, compensation=compensation, log=True, **source)
     if not wait:
         obj.emit(res)
         return

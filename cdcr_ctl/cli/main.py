@@ -145,6 +145,15 @@ def home(obj: Ctx) -> None:
 @click.pass_obj
 def jog(obj: Ctx, **args: Any) -> None:
     """Move one segment to (theta, phi) or one cable by delta, bounded by the rig's limits."""
+    if args.get("segment") is not None and obj.config:
+        # The daemon's bound, checked before sending: the refusal names the same limit.
+        from cdcr_ctl.config import load_rig_config
+        from cdcr_ctl.daemon.protocol import ProtocolError, check_jog_speed
+
+        try:
+            check_jog_speed(args["speed"], load_rig_config(obj.config).limits.bend_rad)
+        except ProtocolError as exc:
+            raise click.UsageError(f"--speed: {exc}") from exc
     obj.emit(obj.call("jog", **args))
 
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import ipaddress
+import math
 from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from cdcr_ctl.config.base import Section
-from cdcr_ctl.config.robot import PositiveFloat
+from cdcr_ctl.config.base import Section, Timeout
 
 
 class ControlConfig(Section):
@@ -37,19 +37,52 @@ class ControlConfig(Section):
     lock_memory: bool = False
 
 
-class LimitsConfig(Section):
-    """Safety limits, checked every cycle by the supervisor."""
+#: Physical bounds on the limits themselves: a limit beyond them is a typo, not a rig. Each says
+#: why; a limit is the supervisor's promise, and ``.inf`` or 1e6 promises nothing.
+#:
+#: Cable velocity (mm/s): 1 m/s is several times what a capstan or lead-screw drive of a continuum
+#: arm reaches (the shipped rigs use 10-50 mm/s); beyond it a runaway is not caught.
+CABLE_VELOCITY_MAX_MM_S = 1000.0
+#: Cable displacement (mm, either sign): 1 m is more than the cable travel of any arm this
+#: controller serves (the longest, the universal-joint arm, uses +-60 mm of its 2.9 m cables).
+CABLE_DISPLACEMENT_MAX_MM = 1000.0
+#: Cable tension (N): 5 kN is above the breaking load of 2 mm steel wire rope (~2.5-3 kN); the
+#: shipped rigs stop at 60-400 N.
+TENSION_MAX_N = 5000.0
+#: Segment bend (rad): a segment bends at most half a turn before it touches itself.
+BEND_MAX_RAD = math.pi
+#: Tracker divergence (mm): beyond 1 m the check cannot tell a wrong arm from a right one.
+DIVERGENCE_MAX_MM = 1000.0
 
-    cable_displacement_mm: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
-        default_factory=lambda: [-20.0, 20.0]
-    )
-    cable_velocity_mm_s: PositiveFloat = 50.0
-    tension_N: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
-        default_factory=lambda: [0.2, 60.0]
-    )
-    bend_rad: PositiveFloat = 2.0
-    tracker_divergence_mm: PositiveFloat = 30.0
-    sensor_timeout_s: PositiveFloat = 0.2
+
+class LimitsConfig(Section):
+    """Safety limits, checked every cycle by the supervisor (bounds: the constants above)."""
+
+    cable_displacement_mm: Annotated[
+        list[
+            Annotated[
+                float,
+                Field(
+                    ge=-CABLE_DISPLACEMENT_MAX_MM,
+                    le=CABLE_DISPLACEMENT_MAX_MM,
+                    allow_inf_nan=False,
+                ),
+            ]
+        ],
+        Field(min_length=2, max_length=2),
+    ] = Field(default_factory=lambda: [-20.0, 20.0])
+    cable_velocity_mm_s: Annotated[
+        float, Field(gt=0, le=CABLE_VELOCITY_MAX_MM_S, allow_inf_nan=False)
+    ] = 50.0
+    tension_N: Annotated[
+        list[Annotated[float, Field(ge=-TENSION_MAX_N, le=TENSION_MAX_N, allow_inf_nan=False)]],
+        Field(min_length=2, max_length=2),
+    ] = Field(default_factory=lambda: [0.2, 60.0])
+    bend_rad: Annotated[float, Field(gt=0, le=BEND_MAX_RAD, allow_inf_nan=False)] = 2.0
+    tracker_divergence_mm: Annotated[
+        float, Field(gt=0, le=DIVERGENCE_MAX_MM, allow_inf_nan=False)
+    ] = 30.0
+    sensor_timeout_s: Timeout = 0.2
 
     @model_validator(mode="after")
     def _ordered(self) -> LimitsConfig:
@@ -64,7 +97,9 @@ class LoggingConfig(Section):
     """Run logs: one directory per run below ``directory``."""
 
     directory: str = "runs"
-    fsync_every_s: PositiveFloat = 0.5
+    #: A deleted run directory or a full disk is seen within one interval: beyond 10 s a lost
+    #: log goes unseen for too long.
+    fsync_every_s: Timeout = 0.5
     #: Also write the run as ``run.mcap`` (Foxglove, PlotJuggler): one channel per stream, zstd
     #: chunks closed and flushed every ``fsync_every_s``. ``samples.csv`` is written either way.
     mcap: bool = True
@@ -97,8 +132,23 @@ class LiveViewConfig(Section):
 
 
 class DaemonConfig(Section):
-    """The daemon's control socket (Unix domain, mode 0660; no TCP listener)."""
+    """The daemon's control socket (Unix domain, mode 0660; no TCP listener).
+
+    ``socket_mode``: owner read-write at least (the daemon's own user must reach it), nothing for
+    others (whoever connects can move the arm; widen access with the socket's group instead).
+    """
 
     socket_path: str = "/run/cdcr-ctl/control.sock"
-    socket_mode: Annotated[int, Field(ge=0, le=0o777)] = 0o660
+    socket_mode: Annotated[int, Field(ge=0o600, le=0o770)] = 0o660
     watchdog: bool = True
+
+    @field_validator("socket_mode")
+    @classmethod
+    def _not_for_others(cls, value: int) -> int:
+        if value & 0o007:
+            raise ValueError(
+                f"{value:#o} gives others access: anyone could move the arm (at most 0o770)"
+            )
+        if value & 0o600 != 0o600:
+            raise ValueError(f"{value:#o}: the owner needs read and write (0o600)")
+        return value

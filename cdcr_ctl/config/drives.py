@@ -16,7 +16,7 @@ from typing import Annotated, Literal
 from pydantic import Field, field_validator, model_validator
 
 from cdcr_ctl.config.base import Section
-from cdcr_ctl.config.robot import Name, PositiveFloat
+from cdcr_ctl.config.robot import Name
 
 #: Bit rates a CAN controller can run (CiA 301 table of standard bit rates).
 STANDARD_BITRATES = (10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
@@ -43,7 +43,9 @@ class CanBusConfig(Section):
     bitrate: int = 1_000_000
     sync_period_s: Annotated[float, Field(gt=0, le=1.0)] = 0.001
     master_node_id: Annotated[int, Field(ge=1, le=127)] = 127
-    master_heartbeat_ms: Annotated[int, Field(ge=0, le=65535)] = 100
+    #: The controller's heartbeat the drives watch (0: none, and then no drive can see the
+    #: controller die: refused). At most 5 s.
+    master_heartbeat_ms: Annotated[int, Field(ge=1, le=5000)] = 100
     max_bus_load: Annotated[float, Field(gt=0, le=1.0)] = 0.70
     #: A drive whose TPDO feedback is older than this has stopped answering (s). Default: three
     #: SYNC periods. Links with more latency (an slcan pty between processes) need more.
@@ -74,7 +76,8 @@ class HomingConfig(Section):
     acceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 1000
     offset_counts: int = 0
     home_position_counts: int = 0
-    timeout_s: PositiveFloat = 20.0
+    #: A homing run at the slowest speed over the longest travel finishes well inside 10 min.
+    timeout_s: Annotated[float, Field(gt=0, le=600, allow_inf_nan=False)] = 20.0
 
     @model_validator(mode="after")
     def _known_method(self) -> HomingConfig:
@@ -118,7 +121,10 @@ class DriveConfig(Section):
     quick_stop_deceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 50_000
     quick_stop_option_code: Literal[1, 2, 5, 6] = 2
     heartbeat_producer_ms: Annotated[int, Field(ge=0, le=65535)] = 50
-    heartbeat_consumer_ms: Annotated[int, Field(ge=0, le=65535)] = 300
+    #: The drive's watch on the master's heartbeat (0x1016). 0 would switch it off: a dead
+    #: controller would leave the drive following its last target. At least twice the master's
+    #: period (checked against ``can.master_heartbeat_ms``), at most 10 s.
+    heartbeat_consumer_ms: Annotated[int, Field(ge=1, le=10_000)] = 300
     homing: HomingConfig = Field(default_factory=HomingConfig)
     eds: Annotated[str, Field(min_length=1)] | None = None
 

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from cdcr_ctl.config.base import Section
+from cdcr_ctl.config.base import Section, Timeout
 from cdcr_ctl.config.robot import Name, PositiveFloat
 
 
@@ -20,7 +20,7 @@ class SerialPortConfig(Section):
     baudrate: Annotated[int, Field(gt=0, le=4_000_000)] = 115200
     parity: Literal["N", "E", "O"] = "N"
     stopbits: Literal[1, 2] = 1
-    timeout_s: PositiveFloat = 0.05
+    timeout_s: Timeout = 0.05
 
 
 class ModbusRegisterMap(Section):
@@ -70,5 +70,5 @@ class LoadCellsConfig(Section):
     serial: SerialPortConfig
     register_map: ModbusRegisterMap = Field(default_factory=ModbusRegisterMap)
     cells: Annotated[list[LoadCellConfig], Field(min_length=1)]
-    stale_after_s: PositiveFloat = 0.1
+    stale_after_s: Timeout = 0.1
     inter_frame_s: Annotated[float, Field(ge=0, le=1.0)] | None = None

@@ -11,6 +11,7 @@ An error in a key that came from an overlay names the overlay file.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TypeVar
@@ -26,6 +27,31 @@ from cdcr_ctl.errors import ConfigError, ConfigErrors
 M = TypeVar("M", bound=BaseModel)
 
 
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading ``1.0e6``, ``1e6`` and ``-2E-3`` as numbers.
+
+    YAML 1.1 (PyYAML) wants a dot and a signed exponent (``1.0e+6``) and reads ``1.0e6`` as a
+    string; YAML 1.2 and every engineer read it as a number.
+    """
+
+
+_Loader.yaml_implicit_resolvers = {
+    k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+        |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+        |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+        |[-+]?\.(?:inf|Inf|INF)
+        |\.(?:nan|NaN|NAN))$""",
+        re.X,
+    ),
+    list("-+0123456789."),
+)
+
+
 def read_yaml(path: str | Path) -> Any:
     """Parse one YAML file; a missing file or a syntax error becomes a :class:`ConfigError`."""
     p = Path(path)
@@ -36,7 +62,7 @@ def read_yaml(path: str | Path) -> Any:
     except UnicodeDecodeError as exc:
         raise ConfigError(str(p), f"byte {exc.start}", "not UTF-8 text") from exc
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1} column {mark.column + 1}" if mark else "YAML"
@@ -208,6 +234,19 @@ def cross_check(cfg: RigConfig) -> list[tuple[KeyPath, str, Any]]:
                 (("robot", "segments", s, "name"), "no cable ends in this segment", seg.name)
             )
 
+    hb_ms = cfg.can.master_heartbeat_ms
+    for i, drive in enumerate(cfg.drives):
+        # CiA 301: the consumer time must outlast the producer period, with room for one lost
+        # heartbeat, or a healthy controller faults its own drives.
+        if drive.heartbeat_consumer_ms < 2 * hb_ms:
+            problems.append(
+                (
+                    ("drives", i, "heartbeat_consumer_ms"),
+                    f"below twice can.master_heartbeat_ms ({hb_ms} ms): a healthy controller"
+                    " would fault the drive",
+                    drive.heartbeat_consumer_ms,
+                )
+            )
     unique(cfg.drives, "name", ("drives",))
     unique(cfg.drives, "node_id", ("drives",))
     driven = unique(cfg.drives, "cable", ("drives",))

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from cdcr_ctl.config.base import Section
+from cdcr_ctl.config.base import Section, Timeout
 from cdcr_ctl.config.loadcells import SerialPortConfig
 from cdcr_ctl.config.robot import PositiveFloat
 
@@ -57,9 +57,9 @@ class TrackerConfig(Section):
     units_to_mm: PositiveFloat | None = None
     base_from_tracker: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
     marker_to_tip: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
-    stale_after_s: PositiveFloat = 0.1
-    lost_after_s: PositiveFloat = 1.0
-    connect_timeout_s: PositiveFloat = 2.0
+    stale_after_s: Timeout = 0.1
+    lost_after_s: Timeout = 1.0
+    connect_timeout_s: Timeout = 2.0
 
     @property
     def mm_per_unit(self) -> float:
@@ -75,7 +75,7 @@ class AttitudeSensorsConfig(Section):
     """
 
     sensors: Annotated[list[SerialPortConfig], Field(min_length=1)]
-    stale_after_s: PositiveFloat = 0.1
+    stale_after_s: Timeout = 0.1
 
 
 #: URL scheme of the network joystick (:func:`cdcr_ctl.sensors.joystick.open_tcp_joystick`).
@@ -145,7 +145,7 @@ class JoystickConfig(Section):
     invert_x: bool = False
     invert_y: bool = False
     advance_button: Annotated[str, Field(pattern=r"^(BTN|KEY)_[A-Z0-9_]+$")] = "BTN_SOUTH"
-    connect_timeout_s: PositiveFloat = 2.0
+    connect_timeout_s: Timeout = 2.0
 
     @field_validator("device")
     @classmethod

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,7 +20,7 @@ from cdcr_ctl.config.tracking import TrackerConfig
 from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
 from cdcr_ctl.drives.busload import check_drives_bus_load
 from cdcr_ctl.drives.group import DriveGroup, open_drive_group
-from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.errors import CommError, ConfigError
 from cdcr_ctl.sensors.attitude import AttitudeSensors, open_attitude_sensors
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
@@ -36,8 +36,14 @@ class LoadCellTension:
     reported as NaN with infinite age).
     """
 
-    def __init__(self, sampler: LoadCellSampler, order: Sequence[int]) -> None:
+    def __init__(
+        self,
+        sampler: LoadCellSampler,
+        order: Sequence[int],
+        reopen: Callable[[], LoadCellSampler] | None = None,
+    ) -> None:
         self.sampler = sampler
+        self._reopen = reopen
         self._order = np.array(order, dtype=int)
         self._has = self._order >= 0
         self._idx = np.where(self._has, self._order, 0)
@@ -50,6 +56,17 @@ class LoadCellTension:
 
     def close(self) -> None:
         self.sampler.close()
+
+    def reopen(self) -> None:
+        """Close the serial port and open it again (a transmitter or pty that went away and came
+        back); :meth:`latest` reads the new sampler from the next call on."""
+        if self._reopen is None:
+            raise CommError("this load-cell port cannot re-open")
+        with contextlib.suppress(Exception):
+            self.sampler.close()
+        sampler = self._reopen()
+        sampler.start()
+        self.sampler = sampler
 
 
 def cell_order(lc: LoadCellsConfig, cable_names: Sequence[str], file: str = "") -> list[int]:
@@ -67,14 +84,15 @@ def open_tension(lc: LoadCellsConfig, cable_names: Sequence[str]) -> LoadCellTen
     """Open the load-cell bus and start sampling (raises SensorError naming the port)."""
     sampler = open_load_cells(lc)
     sampler.start()
-    return LoadCellTension(sampler, cell_order(lc, cable_names))
+    return LoadCellTension(sampler, cell_order(lc, cable_names), lambda: open_load_cells(lc))
 
 
 class TrackerTip:
     """:class:`~cdcr_ctl.control.ports.TipPort` over a tracker reader (NatNet or line stream)."""
 
-    def __init__(self, tracker: Any) -> None:
+    def __init__(self, tracker: Any, reopen: Callable[[], Any] | None = None) -> None:
         self.tracker = tracker
+        self._reopen = reopen
 
     def latest(self) -> tuple[np.ndarray, float]:
         p, age = self.tracker.position_and_age()
@@ -82,6 +100,15 @@ class TrackerTip:
 
     def close(self) -> None:
         self.tracker.close()
+
+    def reopen(self) -> None:
+        """Connect to the tracker again (a tracker server restarted does not know this client);
+        :meth:`latest` reads the new reader from the next call on."""
+        if self._reopen is None:
+            raise CommError("this tracker port cannot re-open")
+        with contextlib.suppress(Exception):
+            self.tracker.close()
+        self.tracker = self._reopen()
 
 
 class AttitudeAngles:
@@ -106,16 +133,29 @@ class AttitudeAngles:
 
 def open_tip(tracker_cfg: TrackerConfig) -> TrackerTip:
     """Connect to the tracker (raises SensorError naming host and port when it does not answer)."""
-    return TrackerTip(open_tracker(tracker_cfg))
+    return TrackerTip(open_tracker(tracker_cfg), lambda: open_tracker(tracker_cfg))
 
 
 class DriveGroupPort:
     """:class:`~cdcr_ctl.control.ports.DrivePort` over a :class:`~cdcr_ctl.drives.group.DriveGroup`
     whose drives are in cable order."""
 
-    def __init__(self, group: DriveGroup) -> None:
+    def __init__(self, group: DriveGroup, reopen: Callable[[], DriveGroup] | None = None) -> None:
+        """``reopen()`` opens the bus and boots the drives again (see :meth:`reopen`)."""
         self.group = group
         self._clock = group.clock
+        self._reopen = reopen
+
+    def reopen(self) -> None:
+        """Close the bus and open it again, booting and configuring every drive (after the bus
+        or the drives were lost: a restarted rig, an adapter unplugged and back). The loop
+        must be paused meanwhile. Raises what opening raises; the old group is closed."""
+        if self._reopen is None:
+            raise CommError("this drive port cannot re-open its bus")
+        with contextlib.suppress(Exception):
+            self.group.close()
+        self.group = self._reopen()
+        self._clock = self.group.clock
 
     def send_cycle(self, targets_counts: Sequence[int]) -> None:
         self.group.send_cycle(targets_counts)
@@ -168,7 +208,7 @@ def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
         drives, cfg.can.sync_period_s, cfg.can.bitrate, cfg.can.max_bus_load, file
     )
     group = open_drive_group(cfg.can, drives, file=file)
-    return DriveGroupPort(group)
+    return DriveGroupPort(group, reopen=lambda: open_drive_group(cfg.can, drives, file=file))
 
 
 def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None = None) -> RigIO:

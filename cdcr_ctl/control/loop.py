@@ -19,6 +19,7 @@ on them. :class:`LoopCounters` times each stage of the cycle (:data:`STAGES`) an
 
 from __future__ import annotations
 
+import copy
 import gc
 import itertools
 import logging
@@ -40,6 +41,7 @@ from cdcr_ctl.control.ports import (
     TensionPort,
     TipPort,
 )
+from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
 from cdcr_ctl.errors import ModelError
 
@@ -188,6 +190,11 @@ class LoopCounters:
     ``cpu_s``: the loop thread's CPU time when it stopped (waiting and spinning included)."""
 
     cycles: int = 0
+    #: Cycles whose work ran past the period; deadlines missed because of them (no cycle ran).
+    long_cycles: int = 0
+    missed_cycles: int = 0
+    #: Operator stops acted on from the stop flag (:class:`StopFlag`).
+    flag_stops: int = 0
     rows_logged: int = 0
     rows_dropped: int = 0
     trips: int = 0
@@ -301,6 +308,12 @@ class ControlLoop:
         #: Set (under the lock) with every posted command: the cycle looks at the lock only then.
         self._has_pending = False
         self._stop_evt = threading.Event()
+        #: Read first thing in every cycle; see :class:`StopFlag`.
+        self.stop_flag = StopFlag()
+        self._flag_seen = 0
+        self._missed_now = 0
+        #: An event of this cycle decided outside the checks (an operator stop) for its row.
+        self._row_event = ""
         self._thread: threading.Thread | None = None
         self._run_ids = itertools.count(1)
         # State owned by the loop thread.
@@ -442,6 +455,22 @@ class ControlLoop:
     def psi_cmd(self) -> np.ndarray:
         return self._psi_cmd.copy()
 
+    def model_state(self) -> object:
+        """A copy of the model's friction memory (for planning from where the loop is; a copy
+        taken from another thread may mix two cycles' values: an estimate, not the state)."""
+        return copy.deepcopy(self._model_state)
+
+    @property
+    def q_cmd(self) -> np.ndarray:
+        """The last command sent (mm, offset included)."""
+        return self._q_cmd.copy()
+
+    def adopt_pose(self, psi: np.ndarray) -> None:
+        """Hold at ``psi`` from the next cycle (the pose the arm was found in at start-up);
+        the rest between the drives and its command is absorbed on enable."""
+        with self._lock:
+            self._post("pose", np.array(psi, dtype=float))
+
     def snapshot(self) -> dict[str, Any]:
         """Status for the socket: last cycle's values, timing, current run."""
         run = self._run
@@ -449,6 +478,11 @@ class ControlLoop:
             "cycles": self.counters.cycles,
             "timing": self.ticker.stats.summary(),
             "cycle_time_max_us": round(self.counters.max_cycle_us, 1),
+            "long_cycles": self.counters.long_cycles,
+            "missed_cycles": self.counters.missed_cycles,
+            "flag_stops": self.counters.flag_stops,
+            "rows_logged": self.counters.rows_logged,
+            "rows_dropped": self.counters.rows_dropped,
             "cpu_s": round(self.counters.cpu_s, 3),
             "psi_cmd_rad": self._psi_cmd.tolist(),
             "last": {
@@ -483,7 +517,14 @@ class ControlLoop:
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
             self.counters.cycles += 1
+            if dt_us > self.cfg.period_s * 1e6:
+                self.counters.long_cycles += 1
+            skipped = self.ticker.stats.skipped
             self.ticker.done()
+            # Deadlines skipped after this cycle: the next row says so (its lateness counts
+            # from the first missed deadline) and so do the counters.
+            self._missed_now = self.ticker.stats.skipped - skipped
+            self.counters.missed_cycles += self._missed_now
         self.counters.cpu_s = time.thread_time() - cpu0
         self._finish_run("stopped", "loop stopped")
 
@@ -497,6 +538,14 @@ class ControlLoop:
             log.exception("reacting to a failed cycle failed")
 
     def _take_pending(self, now: float) -> None:
+        seq = self.stop_flag.requested
+        if seq != self._flag_seen:
+            self._flag_seen = seq
+            reaction = Reaction(self.stop_flag.store[StopFlag.REACTION])
+            self.counters.flag_stops += 1
+            self._row_event = OPERATOR_STOP
+            self._react(Trip(OPERATOR_STOP, reaction, "stop requested", now))
+            self.stop_flag.acted(seq, self.counters.cycles)
         if not self._has_pending:
             return
         with self._lock:
@@ -508,6 +557,7 @@ class ControlLoop:
     def _apply(self, kind: str, payload: Any, now: float) -> None:
         """One posted command, on the loop thread."""
         if kind == "stop":
+            self._row_event = OPERATOR_STOP
             self._react(Trip(OPERATOR_STOP, payload, "stop requested", now))
         elif kind == "follow":
             source, run, sink = payload
@@ -540,6 +590,23 @@ class ControlLoop:
             self._model_state = self.model.new_state()
         elif kind == "sink":
             self._manual_sink = payload
+        elif kind == "pose":
+            # Hold where the arm is: the command of the pose plus an offset that makes it the
+            # drives' actual positions, so no cycle (sent or only checked) steps.
+            self._psi_cmd = payload
+            self._source, self._t_source0 = Hold(payload), now
+            self._model_state = self.model.new_state()
+            mode = "model" if self._mode == "measured" else self._mode
+            q_pose = self.model.q_command(
+                payload, self.model.q_nominal(payload), self._model_state, mode, None
+            )
+            fb = self.drives.feedback()
+            q_act = (
+                np.array([f.position_counts for f in fb]) - self.home_counts
+            ) / self.cfg.counts_per_mm
+            self._q_offset = q_act - q_pose
+            self._q_offset_target = self._q_offset.copy()
+            self._q_cmd = q_act.copy()
         else:  # pragma: no cover - a programming error
             raise ValueError(f"unknown loop command {kind!r}")
 
@@ -671,6 +738,15 @@ class ControlLoop:
         layout = self._row_layout
         # One fresh array: later cycles may reuse the arrays they were given.
         values = np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N, tip_mm))
+        if self._row_event:
+            event = f"{self._row_event}; {event}" if event else self._row_event
+            self._row_event = ""
+        missed = self._missed_now
+        if missed:
+            # The deadlines before this cycle were skipped: its lateness counts from the first.
+            lateness_s += missed * self.cfg.period_s
+            note = f"late: {missed} cycles missed"
+            event = f"{event}; {note}" if event else note
         return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)
 
     def _react(self, trip: Trip) -> None:
@@ -728,5 +804,6 @@ __all__ = [
     "LoopConfig",
     "RowLayout",
     "RunInfo",
+    "StopFlag",
     "field",
 ]

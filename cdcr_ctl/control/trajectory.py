@@ -65,6 +65,8 @@ BUILTIN_DT_S = 0.01
 QI2023_BEND_RATE_RAD_S = math.pi / 10
 #: Default speed of lead-in moves from the current pose to a trajectory's first sample (rad/s,
 #: peak of the bending vector's speed).
+#: Trajectories up to this many samples keep plain-list copies for :meth:`Trajectory.sample`.
+LIST_SAMPLES = 50_000
 LEAD_IN_SPEED_RAD_S = math.pi / 10
 #: Relative slack on the rate check (samples computed exactly at the limit pass).
 _RATE_RTOL = 1e-9
@@ -142,9 +144,13 @@ class Trajectory:
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite input: validate() says
             self._x = bend_vectors(p)
         self._x.flags.writeable = False
-        self._tl = t.tolist()
-        self._xl = self._x.tolist()
-        self._pl = p.tolist()
+        if t.size <= LIST_SAMPLES:
+            self._tl, self._xl, self._pl = t.tolist(), self._x.tolist(), p.tolist()
+        else:
+            # A long trajectory (a 10^6-row file) stays in its arrays: making millions of Python
+            # floats would hold the interpreter for seconds, in the loop's process. sample() then
+            # bisects and steps on numpy scalars (the same float64 arithmetic, ~10 us a call).
+            self._tl, self._xl, self._pl = t, self._x, p
 
     # ------------------------------------------------------------------ properties
     @property

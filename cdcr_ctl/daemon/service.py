@@ -22,12 +22,15 @@ import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.clock import LoopClock
-from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
+from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.ports import DrivePort, RobotModelPort, TensionPort, TipPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
+from cdcr_ctl.daemon import recovery
+from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.joystick import JoystickSession
 from cdcr_ctl.daemon.notify import SystemdNotifier
-from cdcr_ctl.daemon.protocol import ProtocolError, Request
+from cdcr_ctl.daemon.planning import LEAD_IN_CABLE_FRACTION, peak_cable_speed, plan_lead_in
+from cdcr_ctl.daemon.protocol import ProtocolError, Request, check_jog_speed
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.annotate import annotate_when_ended
@@ -37,9 +40,8 @@ log = logging.getLogger(__name__)
 
 #: How long shutdown waits for the loop thread to finish its last cycle (s).
 LOOP_JOIN_TIMEOUT_S = 2.0
-#: The lead-in move before a trajectory keeps its fastest cable within this fraction of
-#: ``limits.cable_velocity_mm_s`` (the rest is room for the compensation's own motion).
-LEAD_IN_CABLE_FRACTION = 0.5
+#: Commands answered without the command lock: they never wait behind loading or planning.
+UNLOCKED_COMMANDS = ("stop", "shutdown", "status")
 #: Longest wait of a run request (trajectory, jog, joystick) for the loop to take it up (s).
 RUN_PICKUP_TIMEOUT_S = 1.0
 
@@ -119,9 +121,14 @@ class Daemon:
         self._last_run: Any = None
         #: The live view (``live.enabled``), started with the loop.
         self.live: LiveView | None = None
+        #: Big requests and trajectory files are parsed in this worker process, not here.
+        self.intake = Intake(model.n_segments, cfg.limits.bend_rad)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        # The arm may be bent (a restart): no tracker check until the loop holds the pose the
+        # drives report (recovery.adopt_start_pose, in the background).
+        restore_tracker = recovery.hold_tracker_check(self.supervisor)
         # Start the loop before the socket so a connecting client always sees live status.
         self.loop.start()
         if self.cfg.live.enabled:
@@ -131,8 +138,19 @@ class Daemon:
                 lambda: self.supervisor.trip,
                 str(self.config_path),
             ).start()
+        threading.Thread(
+            target=recovery.adopt_start_pose,
+            args=(self, restore_tracker),
+            name="start-pose",
+            daemon=True,
+        ).start()
+        self.intake.start()
         self.server = ControlServer(
-            self.cfg.daemon.socket_path, self.handle, mode=self.cfg.daemon.socket_mode
+            self.cfg.daemon.socket_path,
+            self.handle,
+            mode=self.cfg.daemon.socket_mode,
+            spooler=self.intake.parse_spooled,
+            spool_dir=self.intake.dir,
         ).start()
         self.state = "ready"
         self.notifier.ready(f"ready: {self.cfg.name}, drives disabled")
@@ -179,7 +197,7 @@ class Daemon:
         self.state = "stopping"
         self.notifier.stopping()
         steps: list[tuple[str, Callable[[], None]]] = [
-            ("halt", lambda: self.loop.request_stop(Reaction.HALT)),
+            ("halt", lambda: self.loop.stop_flag.request(Reaction.HALT)),
             ("settle", lambda: time.sleep(3 * self.loop.cfg.period_s)),
             ("joystick", lambda: self._session.shutdown() if self._session else None),
             ("manual log", self._close_manual_sink),
@@ -188,6 +206,7 @@ class Daemon:
             ("stop loop", lambda: self.loop.stop(LOOP_JOIN_TIMEOUT_S)),
             ("close socket", lambda: self.server.close() if self.server else None),
             ("live view", lambda: self.live.stop() if self.live else None),
+            ("intake", self.intake.close),
             ("close io", self.io.close),
         ]
         for name, step in steps:
@@ -201,6 +220,8 @@ class Daemon:
     # ------------------------------------------------------------------ control socket
     def handle(self, req: Request) -> Any:
         method = getattr(self, f"_cmd_{req.cmd}")
+        if req.cmd in UNLOCKED_COMMANDS:
+            return method(req.args)
         with self._cmd_lock:
             return method(req.args)
 
@@ -218,15 +239,7 @@ class Daemon:
             "enabled": self.enabled,
             "homed": self.homed,
             "compensation": self.loop.cfg.compensation,
-            "drives": [
-                {
-                    "cable": c.name,
-                    "position_counts": f.position_counts,
-                    "state": f.state,
-                    "fault": f.fault,
-                }
-                for c, f in zip(self.cfg.robot.cables, fb, strict=False)
-            ],
+            "drives": recovery.drive_status(self.cfg, fb),
             "tension_N": [None if not math.isfinite(v) else round(float(v), 3) for v in force],
             "tension_age_s": [
                 None if not math.isfinite(v) else round(float(v), 4) for v in force_age
@@ -262,16 +275,25 @@ class Daemon:
     def _cmd_home(self, args: Any) -> dict[str, Any]:
         if self.loop.current_run is not None:
             raise RigError("a run is in progress: stop it before homing")
+        if self.enabled:
+            # Homing on the current position (37) declares the arm straight there: bring a bent
+            # arm straight first, at the lead-in's cable speed.
+            recovery.straighten(self)
         self.loop.pause(True)
+        home: list[int] | None = None
         try:
             home = self.io.drives.home()
+            # The new home before the loop sends again: no cycle with the old one.
+            self.loop.set_home(home)
         finally:
             self.loop.pause(False)
-        self.loop.set_home(home)
         # Reply once the loop has taken the home up (status shows the new home).
         self._wait_cycles(2)
         self.homed = True
-        return {"home_counts": list(home)}
+        return {
+            "home_counts": list(home),
+            "position_counts": [f.position_counts for f in self.io.drives.feedback()],
+        }
 
     def _require_ready(self) -> None:
         if not self.enabled:
@@ -290,10 +312,11 @@ class Daemon:
                     f"outside [0, {self.cfg.limits.bend_rad}] rad (limits.bend_rad)",
                     field="args.theta_rad",
                 )
+            check_jog_speed(args.speed, self.cfg.limits.bend_rad)
             start = self.loop.psi_cmd
             goal = start.copy()
             goal[args.segment - 1] = (args.theta_rad, args.phi_rad)
-            traj = self.new_trajectory.move(start, goal, speed_rad_s=args.speed)
+            traj = self._jog_move(start, goal, args.speed)
             run = self._last_run = self.loop.follow(traj, f"jog seg{args.segment}", None, None)
             self._wait_picked_up(run)
             return {"run": run.id, "duration_s": run.duration_s}
@@ -305,42 +328,56 @@ class Daemon:
         self.loop.jog_cable(args.cable - 1, args.delta_mm)
         return {"cable": args.cable, "delta_mm": args.delta_mm}
 
-    def _with_lead_in(self, traj: Any) -> Any:
-        """``traj`` after a lead-in move from the commanded pose, slow enough for the cables.
-
-        The default lead-in speed (rad/s of bend) means very different cable speeds on different
-        designs (a universal-joint arm's cables move ~20x more per radian than a disk arm's), so
-        the move is checked through the model's nominal kinematics: if its fastest cable would
-        exceed ``LEAD_IN_CABLE_FRACTION`` of ``limits.cable_velocity_mm_s``, the speed is scaled
-        down to meet it (the cable speed of the move is proportional to its speed).
-        """
+    def _jog_move(self, start: np.ndarray, goal: np.ndarray, speed: float) -> Any:
+        """A jog move at ``speed`` (rad/s), slowed so its fastest cable (in the mode in force)
+        stays within ``LEAD_IN_CABLE_FRACTION`` of the velocity limit."""
         tj = self.new_trajectory
-        psi_now = np.array(self.loop.psi_cmd, dtype=float)
-        lead = tj.with_lead_in(psi_now, traj)
-        if lead is traj:
-            return traj
-        m = tj.move(psi_now, traj.psi[0])
-        q = np.array([self.model.q_nominal(p) for p in m.psi])
-        dt = np.diff(m.t_s)
-        v_peak = float(np.max(np.abs(np.diff(q, axis=0)) / dt[:, None])) if len(dt) else 0.0
+        traj = tj.move(start, goal, speed_rad_s=speed)
         v_allowed = LEAD_IN_CABLE_FRACTION * self.cfg.limits.cable_velocity_mm_s
-        if v_peak <= v_allowed:
-            return lead
-        speed = tj.LEAD_IN_SPEED_RAD_S * v_allowed / v_peak
-        log.info(
-            "lead-in slowed to %.4f rad/s (cables %.1f mm/s at the default speed)", speed, v_peak
+        peak = peak_cable_speed(self.model, traj, self.loop.cfg.compensation)
+        if peak > v_allowed:
+            speed *= 0.98 * v_allowed / peak
+            log.info("jog slowed to %.4f rad/s (cables %.1f mm/s at the speed asked)", speed, peak)
+            traj = tj.move(start, goal, speed_rad_s=speed)
+        return traj
+
+    def _with_lead_in(self, traj: Any, mode: str | None = None) -> Any:
+        """``traj`` after a hold for a compensation switch and a lead-in move from the commanded
+        pose, each within the cable velocity limit (:func:`.planning.plan_lead_in`)."""
+        mode = mode or self.loop.cfg.compensation
+        force_N, _ = self.io.tensions.latest()
+        plan = plan_lead_in(
+            self.model,
+            np.array(self.loop.psi_cmd, dtype=float),
+            self.loop.q_cmd if self.loop.counters.cycles else None,
+            traj,
+            mode,
+            self.cfg.limits.cable_velocity_mm_s,
+            measured_N=force_N if np.isfinite(force_N).all() else None,
+            state=self.loop.model_state(),
         )
-        return tj.with_lead_in(psi_now, traj, speed_rad_s=speed)
+        if plan.hold_s or plan.speed_rad_s != self.new_trajectory.LEAD_IN_SPEED_RAD_S:
+            log.info(
+                "lead-in: hold %.2f s for the mode switch, move at %.4f rad/s (cables %.1f mm/s)",
+                plan.hold_s,
+                plan.speed_rad_s,
+                plan.peak_mm_s,
+            )
+        return plan.trajectory
 
     def _cmd_trajectory(self, args: Any) -> dict[str, Any]:
         self._require_ready()
-        traj = self.new_trajectory.from_samples(
-            args.samples,
-            n_segments=self.model.n_segments,
-            bend_limit_rad=self.cfg.limits.bend_rad,
-            source=f"request {args.name!r}",
-        )
-        traj = self._with_lead_in(traj)
+        if args.file is not None:
+            # Read, parsed and validated in the intake process; mapped here.
+            traj = self.intake.load(self.intake.prepare_file(args.file), args.name)
+        else:
+            traj = self.new_trajectory.from_samples(
+                args.samples,
+                n_segments=self.model.n_segments,
+                bend_limit_rad=self.cfg.limits.bend_rad,
+                source=f"request {args.name!r}",
+            )
+        traj = self._with_lead_in(traj, args.compensation)
         sink = None
         if args.log:
             sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
@@ -422,11 +459,14 @@ class Daemon:
             time.sleep(self.loop.cfg.period_s / 2)
 
     def _cmd_stop(self, args: Any) -> dict[str, Any]:
+        """Set the loop's stop flag (no lock, no queue) and answer once the loop has acted:
+        the reply names the cycle that sent the stop and how many cycles it took."""
         reaction = Reaction.QUICK_STOP if args.mode == "quick_stop" else Reaction.HALT
-        self.loop.request_stop(reaction)
+        acted = recovery.stop_now(self, reaction)
         if reaction is Reaction.QUICK_STOP:
             self.enabled = False
-        return {"stopped": args.mode}
+            self.state = "stopped"
+        return {"stopped": args.mode, **acted}
 
     def _cmd_log_start(self, args: Any) -> dict[str, Any]:
         if self._manual_sink is not None:
@@ -456,10 +496,7 @@ class Daemon:
     def _cmd_reset_fault(self, args: Any) -> dict[str, Any]:
         if not args.confirm:
             raise ProtocolError("set confirm: true to reset a fault", field="args.confirm")
-        notes = self.io.drives.reset_faults() or []
-        self.supervisor.reset()
-        # A drive that rebooted mid-run was reconfigured before it may be enabled: say so.
-        return {"fault": None, "reconfigured": list(notes)}
+        return recovery.reset_fault(self)
 
     def _cmd_shutdown(self, args: Any) -> dict[str, Any]:
         self.request_stop("shutdown requested")
@@ -477,7 +514,12 @@ class Daemon:
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:
             self.enabled = False
-            self.state = "fault"
+            self.state = "stopped" if trip.cause == OPERATOR_STOP else "fault"
+        if trip.cause == "log_write_failed":
+            # The run directory is gone or the disk full: stop the CAN log writing into it.
+            stop = getattr(self.io.drives, "log_traffic", None)
+            if stop is not None:
+                threading.Thread(target=stop, args=(None,), daemon=True).start()
         self.notifier.status(f"TRIP {trip.cause}: {trip.detail}")
         # A drive fault ending a logged run: its 0x603F/0x1003 come later (read by SDO after
         # the fault); record them in the run's run.yaml once both are there (own thread).

@@ -28,6 +28,7 @@ import atexit
 import collections
 import contextlib
 import csv
+import errno
 import io
 import logging
 import math
@@ -74,6 +75,12 @@ BATCH_ROWS = 2_000
 YIELD_EVERY_ROWS = 8
 #: How long ``close(wait=True)`` waits for the writer thread to finish (s).
 CLOSE_TIMEOUT_S = 30.0
+#: Bytes ``run.yaml`` is padded to beyond its first text when a run starts: the end of the run
+#: (outcome, reason, counters, write error) is later written over this reserved space when the
+#: disk is full, so the file still says how the run ended.
+RUN_YAML_RESERVE_BYTES = 8192
+#: Longest reason or write error kept in ``run.yaml`` (characters), so the end fits the reserve.
+ENDED_TEXT_MAX = 1500
 
 FileOpener = Callable[[Path], IO[bytes]]
 #: Makes a second sink beside ``samples.csv`` (e.g. :mod:`cdcr_ctl.runlog.mcap_sink`):
@@ -195,14 +202,60 @@ def _fsync_dir(path: Path) -> None:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file, fsync, rename, fsync the directory."""
+    """Write ``text`` to ``path`` via a temporary file, fsync, rename, fsync the directory.
+
+    A failed write (disk full) removes its temporary file and leaves ``path`` as it was."""
+    _write_atomic_bytes(path, text.encode("utf-8"))
+
+
+def _write_atomic_bytes(path: Path, data: bytes) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
     _fsync_dir(path.parent)
+
+
+def _file_id(st: os.stat_result) -> tuple[int, int]:
+    return (st.st_dev, st.st_ino)
+
+
+def _padded(text: str, size: int) -> bytes:
+    """``text`` followed by YAML comment lines up to ``size`` bytes (the reserve of run.yaml)."""
+    data = text.encode("utf-8")
+    if not data.endswith(b"\n"):
+        data += b"\n"
+    line = b"#" + b" " * 62 + b"\n"  # 64 bytes
+    pad = max(size - len(data), 0)
+    data += line * (pad // len(line))
+    rest = size - len(data)
+    if rest > 0:
+        data += b"#" * (rest - 1) + b"\n" if rest > 1 else b"\n"
+    return data
+
+
+def _overwrite_in_place(path: Path, text: str) -> None:
+    """Write ``text`` over the start of the reserved file ``path`` without growing it (the
+    blocks are already the file's: this works on a full disk); pad the rest with comments."""
+    size = path.stat().st_size
+    data = _padded(text, size)
+    if len(data) > size:
+        raise OSError(errno.ENOSPC, f"the end of the run needs {len(data)} bytes, {size} reserved")
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view) :]
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 _OPEN_WRITERS: weakref.WeakSet[RunLogWriter] = weakref.WeakSet()
@@ -288,7 +341,11 @@ class RunLogWriter:
                 _write_atomic(self.run_dir / CONFIG_YAML, config_text)
             for name, text in (extra_files or {}).items():
                 _write_atomic(self.run_dir / name, text)
-            _write_atomic(self.run_dir / RUN_YAML, self._run_yaml())
+            first = self._run_yaml()
+            # Reserve the space the end of the run needs (see RUN_YAML_RESERVE_BYTES).
+            reserved = _padded(first, len(first.encode("utf-8")) + RUN_YAML_RESERVE_BYTES)
+            _write_atomic_bytes(self.run_dir / RUN_YAML, reserved)
+            self._dir_id = _file_id(os.stat(self.run_dir))
             self._file = opener(self.samples_path)
             header = self._encode([self.columns], raw=True)
             self._file.write(header)
@@ -500,6 +557,36 @@ class RunLogWriter:
             self._fsync()
         except (OSError, ValueError) as exc:
             self._fail(exc, "fsync")
+            return
+        try:
+            self._check_present()
+        except OSError as exc:
+            self._fail(exc, "log")
+
+    def _check_present(self) -> None:
+        """Raise if the run directory or ``samples.csv`` was deleted or replaced: writing on
+        into an unlinked file loses the log as surely as a full disk (checked at every fsync,
+        so a vanished log is seen within one ``fsync_every_s``)."""
+        try:
+            fd = self._file.fileno()
+        except (OSError, ValueError, AttributeError):
+            fd = None  # not a real file (tests)
+        if fd is not None:
+            st = os.fstat(fd)
+            if st.st_nlink == 0:
+                raise OSError(errno.ENOENT, "samples.csv was deleted")
+            try:
+                on_disk = os.stat(self.samples_path)
+            except FileNotFoundError:
+                raise OSError(errno.ENOENT, "samples.csv is gone from the run directory") from None
+            if _file_id(on_disk) != _file_id(st):
+                raise OSError(errno.ESTALE, "samples.csv was replaced by another file")
+        try:
+            now = _file_id(os.stat(self.run_dir))
+        except FileNotFoundError:
+            raise OSError(errno.ENOENT, f"run directory {self.run_dir} was deleted") from None
+        if now != self._dir_id:
+            raise OSError(errno.ESTALE, f"run directory {self.run_dir} was replaced")
 
     def _fail(self, exc: BaseException, what: str) -> None:
         if self._failure is not None:
@@ -555,13 +642,25 @@ class RunLogWriter:
                     self._second.close(run_yaml, self._failure is None)
                 except Exception as exc:
                     log.error("%s: closing %s failed: %s", self.run_dir, self._second, exc)
-            try:
-                _write_atomic(self.run_dir / RUN_YAML, run_yaml)
-            except OSError as exc:
-                log.error("%s: cannot record the end of the run: %s", self.run_dir / RUN_YAML, exc)
+            self._record_end()
         finally:
             _OPEN_WRITERS.discard(self)
             self._done_evt.set()
+
+    def _record_end(self) -> None:
+        """The end of the run into run.yaml: atomically if the disk allows, else over the
+        space reserved at the start (a full disk still says how the run ended)."""
+        path = self.run_dir / RUN_YAML
+        text = self._run_yaml()
+        try:
+            _write_atomic(path, text)
+            return
+        except OSError as exc:
+            log.warning("%s: atomic write failed (%s); writing into the reserve", path, exc)
+        try:
+            _overwrite_in_place(path, text)
+        except OSError as exc:
+            log.error("%s: cannot record the end of the run: %s", path, exc)
 
     def _run_yaml(self) -> str:
         meta = asdict(self.metadata)
@@ -580,15 +679,17 @@ class RunLogWriter:
         )
         if self._ended is not None:
             s = self.stats
+            ended = dict(self._ended)
+            ended["reason"] = str(ended["reason"])[:ENDED_TEXT_MAX]
             doc["ended"] = {
-                **self._ended,
+                **ended,
                 "rows": {
                     "queued": s.queued,
                     "written": s.written,
                     "dropped": s.dropped,
                     "lost": s.lost,
                 },
-                "write_error": self._failure,
+                "write_error": None if self._failure is None else self._failure[:ENDED_TEXT_MAX],
             }
         return yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
 

@@ -38,7 +38,7 @@ def test_valid_jog_request_round_trips():
         ({"cmd": "status", "args": []}, "args"),
         ({"cmd": "status", "extra": 1}, "extra"),
         ({"cmd": "stop", "args": {"mode": "brake"}}, "args.mode"),
-        ({"cmd": "trajectory", "args": {"name": "t", "samples": [[0.0, 1.0]]}}, "args.samples"),
+        ({"cmd": "trajectory", "args": {"name": "t", "samples": [[0.0, 1.0]]}}, "args.samples[0]"),
         ({"cmd": "jog", "args": {"segment": True, "theta_rad": 0.1, "phi_rad": 0}}, "args.segment"),
     ],
 )
