@@ -1,6 +1,6 @@
 """The heavier ``cdcr-ctl`` commands: daemon, sim, trajectory, plot, demo.
 
-Imported by :func:`cdcr_ctl.cli.main.main`; each command imports what it needs when it runs, so
+Imported by :mod:`cdcr_ctl.cli.main`; each command imports what it needs when it runs, so
 ``cdcr-ctl status`` stays fast.
 """
 
@@ -18,7 +18,7 @@ from typing import Any
 
 import click
 
-from cdcr_ctl.cli.main import Ctx, cli, wait_for_run
+from cdcr_ctl.cli.app import Ctx, cli, wait_for_run
 
 
 def _setup_logging(verbose: bool) -> None:

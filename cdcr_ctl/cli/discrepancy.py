@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 
 
 def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:

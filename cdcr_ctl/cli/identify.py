@@ -26,7 +26,7 @@ from typing import Any
 import click
 import yaml
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import click
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.daemon.client import ControlClient
 
 #: How often the progress is refreshed (s).

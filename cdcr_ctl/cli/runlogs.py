@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.runlog import export as run_export
 from cdcr_ctl.runlog.reader import load_run
 

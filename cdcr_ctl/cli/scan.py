@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import click
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.errors import ConfigError
 
 

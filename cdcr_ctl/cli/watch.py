@@ -22,7 +22,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from cdcr_ctl.cli.main import Ctx, cli
+from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 

@@ -10,23 +10,20 @@ import contextlib
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from cdcr_ctl.config.loadcells import LoadCellsConfig
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.config.tracking import TrackerConfig
-from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
+from cdcr_ctl.control.ports import DriveState, NoTension, NoTip, RigIO
 from cdcr_ctl.drives.busload import check_drives_bus_load
 from cdcr_ctl.drives.group import DriveGroup, open_drive_group
 from cdcr_ctl.errors import CommError, ConfigError
 from cdcr_ctl.sensors.attitude import AttitudeSensors, open_attitude_sensors
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
-
-if TYPE_CHECKING:
-    from cdcr_ctl.daemon.service import RigIO
 
 
 class LoadCellTension:
@@ -213,7 +210,6 @@ def open_drives(cfg: RigConfig, file: str = "") -> DriveGroupPort:
 
 def open_rig_io(cfg: RigConfig, path: str | Path, traffic_dir: str | Path | None = None) -> RigIO:
     """Open drives, load cells and tracker of ``cfg``; close what was opened if one fails."""
-    from cdcr_ctl.daemon.service import RigIO
 
     opened: list[Any] = []
     try:

@@ -7,9 +7,9 @@ ages. Adapters in :mod:`cdcr_ctl.control.io` wrap the protocol layers (``cdcr_ct
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -141,3 +141,15 @@ class RobotModelPort(Protocol):
     # Optional (a design with joint attitude sensors, e.g. ``model.vertebra.VertebraModel``):
     # ``attach_attitude(port: AttitudePort | None) -> None`` hands the model the sensors its
     # compensation mode ``measured`` closes the loop on. Whoever opens the sensors calls it.
+
+
+@dataclass
+class RigIO:
+    """The opened hardware (or simulated hardware) of one rig, as the daemon's loop uses it."""
+
+    drives: DrivePort
+    tensions: TensionPort
+    tip: TipPort
+    close: Callable[[], None]
+    #: Per-joint attitude sensors (:class:`AttitudePort`) or None.
+    attitude: Any = None

@@ -14,7 +14,6 @@ import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +22,7 @@ import numpy as np
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.clock import LoopClock
 from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig, RunInfo
-from cdcr_ctl.control.ports import DrivePort, RobotModelPort, TensionPort, TipPort
+from cdcr_ctl.control.ports import RigIO, RobotModelPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.daemon import recovery
 from cdcr_ctl.daemon.intake import Intake
@@ -44,18 +43,6 @@ LOOP_JOIN_TIMEOUT_S = 2.0
 UNLOCKED_COMMANDS = ("stop", "shutdown", "status")
 #: Longest wait of a run request (trajectory, jog, joystick) for the loop to take it up (s).
 RUN_PICKUP_TIMEOUT_S = 1.0
-
-
-@dataclass
-class RigIO:
-    """The opened hardware (or simulated hardware) of one rig."""
-
-    drives: DrivePort
-    tensions: TensionPort
-    tip: TipPort
-    close: Callable[[], None]
-    #: Per-joint attitude sensors (:class:`~cdcr_ctl.control.ports.AttitudePort`) or None.
-    attitude: Any = None
 
 
 class Daemon:

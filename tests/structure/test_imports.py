@@ -1,0 +1,177 @@
+"""The package's rooms and the way its imports point (README "Layout").
+
+Walks every module of ``cdcr_ctl`` with :mod:`ast` (imports inside functions count: a lazy import
+that dodges a cycle is still a cycle; only ``if TYPE_CHECKING:`` blocks are skipped) and fails on
+
+- an import cycle between modules;
+- an import against the layer order
+  model <- config <- drives, sensors, runlog <- control, sim, identify, discrepancy <- daemon <- cli
+  (a layer may import its own layer and the layers below it);
+- production code importing the simulator (``cdcr_ctl.sim``): only the CLI commands that start a
+  simulated rig may, and they are named here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[2] / "cdcr_ctl"
+
+#: Layer of each top-level subpackage (higher may import lower or equal, never higher).
+LAYERS: dict[str, int] = {
+    "errors": 0,
+    "model": 0,
+    "config": 1,
+    "drives": 2,
+    "sensors": 2,
+    "runlog": 2,
+    "control": 3,
+    "sim": 3,
+    "identify": 3,
+    "discrepancy": 3,
+    "analysis": 3,
+    "daemon": 4,
+    "cli": 5,
+    "__main__": 5,
+}
+#: Siblings in the same layer that must not import each other (the simulator stays apart).
+APART = {("control", "sim"), ("identify", "sim"), ("discrepancy", "sim"), ("analysis", "sim")}
+#: CLI modules that start the simulated rig (`cdcr-ctl sim`, `sim --lockstep`): the only
+#: modules outside `cdcr_ctl.sim` allowed to import it.
+SIM_ENTRY_POINTS = {"cdcr_ctl.cli.commands", "cdcr_ctl.cli.lockstep"}
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for p in PKG.rglob("*.py"):
+        parts = p.relative_to(PKG.parent).with_suffix("").parts
+        name = ".".join(parts)
+        out[name.removesuffix(".__init__")] = p
+    return out
+
+
+def _type_checking_nodes(tree: ast.AST) -> set[int]:
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip.update(id(n) for n in ast.walk(node))
+    return skip
+
+
+def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
+    """The package modules ``name`` imports (``from a import b`` is module ``a.b`` if it is one)."""
+    pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _type_checking_nodes(tree)
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                up = pkg.split(".")[: len(pkg.split(".")) - node.level + 1]
+                base = ".".join(up + ([base] if base else []))
+            for alias in node.names:
+                for cand in (f"{base}.{alias.name}", base):
+                    if cand in known:
+                        found.add(cand)
+                        break
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                mod = alias.name
+                while mod and mod not in known:
+                    mod = mod.rpartition(".")[0]
+                if mod:
+                    found.add(mod)
+    found.discard(name)
+    return found
+
+
+def graph() -> dict[str, set[str]]:
+    mods = modules()
+    known = set(mods)
+    return {n: imports_of(n, p, known) for n, p in mods.items()}
+
+
+def top(name: str) -> str:
+    parts = name.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def find_cycles(g: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(g[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(g):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_the_walker_finds_a_cycle_and_a_layer_break():
+    g = {"cdcr_ctl.model.a": {"cdcr_ctl.config.b"}, "cdcr_ctl.config.b": {"cdcr_ctl.model.a"}}
+    assert find_cycles(g) == [["cdcr_ctl.config.b", "cdcr_ctl.model.a"]]
+    assert layer_breaks(g) == [("cdcr_ctl.model.a", "cdcr_ctl.config.b")]
+
+
+def layer_breaks(g: dict[str, set[str]]) -> list[tuple[str, str]]:
+    bad = []
+    for a, deps in g.items():
+        la = top(a)
+        for b in deps:
+            lb = top(b)
+            if la == lb or lb in ("__init__",):
+                continue
+            if la not in LAYERS or lb not in LAYERS:
+                bad.append((a, b))  # a new subpackage must be given its layer above
+            elif LAYERS[lb] > LAYERS[la] or (la, lb) in APART:
+                bad.append((a, b))
+    return sorted(bad)
+
+
+def test_no_import_cycles():
+    assert find_cycles(graph()) == []
+
+
+def test_imports_follow_the_layer_order():
+    assert layer_breaks(graph()) == []
+
+
+def test_production_code_never_imports_the_simulator():
+    g = graph()
+    offenders = sorted(
+        (a, b)
+        for a, deps in g.items()
+        for b in deps
+        if top(b) == "sim" and top(a) != "sim" and a not in SIM_ENTRY_POINTS
+    )
+    assert offenders == []
