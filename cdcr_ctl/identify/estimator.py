@@ -10,7 +10,8 @@ dwell, which holds whatever the command was (errors-in-variables least squares):
 
 unknowns per dwell j: the bending vectors x_j (2S, rad), the anchor tensions T_j (K, N) and, where
 the friction state is not certain (:mod:`.dwell`), the mobilised fractions s_jk in [-1, 1];
-global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, pulley α/n).
+global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, lost motion b,
+pulley α/n).
 
 residuals per dwell, each divided by its standard deviation:
 
@@ -18,7 +19,9 @@ residuals per dwell, each divided by its standard deviation:
 * cell:    T_cell(x_j, T_j, s_j) - T_load cell                    (eq. 23, 29-32; N)
   (the tension entering the base hole, T_j exp(s μ Σ η), or beyond the pulleys at the actuator)
 * moment:  Σ_k T_jk F̄_k(s, μ) a_k(x_j) - m_req(x_j; EI, gravity) (eq. 8-15; 2S rows, N mm)
-* compat:  q_geom(x_j) + δ_in + δ_out - q_act                     (eq. 4, 33-37; mm)
+* compat:  q_geom(x_j) + δ_in + δ_out + d_jk b_k/2 - q_act        (eq. 4, 33-37; mm)
+  (b_k the cable's lost motion, d_jk = ±1 the direction of its last motion: the drive stands
+  half the play ahead of the cable, Yang et al. 2022 eq. 13-17, :mod:`cdcr_ctl.model.deadzone`)
   dropped for a cable whose measured tension is below ``slack_N`` (a slack cable is longer
   than its path)
 
@@ -282,7 +285,10 @@ class _Problem:
             elif kind == "moment":
                 out.append(mom[a] / self.sig_M[j])
             else:
-                out.append((cab[a][3] - float(p.q_act_mm[a])) / self.sig_q[j][a])
+                # The drive runs half the play ahead of the cable in the direction of its last
+                # motion (cdcr_ctl.model.deadzone; the steps between dwells exceed the play).
+                play = 0.5 * ft.params.cables[a].backlash_mm * p.s[a]
+                out.append((cab[a][3] + play - float(p.q_act_mm[a])) / self.sig_q[j][a])
         return out
 
     def residuals(self, z: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from cdcr_ctl.model.deadzone import dead_zone_inverse, play_forward
 from cdcr_ctl.model.params import CableParams, Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
@@ -49,13 +50,18 @@ STANDARD_GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
 class BacklashPlay:
     """Play of total width ``width_mm`` (per cable or one for all) between drive and cable.
 
-    Forward (:meth:`to_cable`): y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred
-    (y = 0 at x = 0). Inverse (:meth:`to_actuator`): x = y + sign * b/2 with the sign of the last
-    motion of the wanted cable position (kept while it does not move). State: (K, 2) array of
-    [last cable position (mm), last direction (+1/-1/0)]. Units mm.
+    Forward (:meth:`to_cable`): the play operator of :mod:`cdcr_ctl.model.deadzone`,
+    y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred (y = 0 at x = 0). Inverse
+    (:meth:`to_actuator`): :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`, x = y + c with
+    the pre-travel c moving towards +-b/2 in the direction of the last motion of the wanted cable
+    position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse).
+    State: (K, 2) array of [last cable position (forward) or last wanted cable position
+    (inverse), pre-travel c (inverse only)], mm; made by :meth:`new_state` and owned by the
+    caller (the control loop keeps it from cycle to cycle). Yang et al. 2022 eq. 13-17.
     """
 
     width_mm: float | tuple[float, ...]
+    max_step_mm: float = math.inf
 
     def _b(self, n: int) -> np.ndarray:
         b = np.broadcast_to(np.asarray(self.width_mm, dtype=float), (n,))
@@ -68,19 +74,32 @@ class BacklashPlay:
 
     def to_cable(self, q_act_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
         x = np.asarray(q_act_mm, dtype=float)
-        half = 0.5 * self._b(x.size)
-        y = np.clip(state[:, 0], x - half, x + half)
+        y = play_forward(x, state[:, 0], self._b(x.size))
         state[:, 0] = y
         return y
 
     def to_actuator(self, q_cable_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
         y = np.asarray(q_cable_mm, dtype=float)
-        half = 0.5 * self._b(y.size)
-        dy = y - state[:, 0]
-        direction = np.where(dy > 1e-12, 1.0, np.where(dy < -1e-12, -1.0, state[:, 1]))
+        x, c = dead_zone_inverse(y, state[:, 0], state[:, 1], self._b(y.size), self.max_step_mm)
         state[:, 0] = y
-        state[:, 1] = direction
-        return y + direction * half
+        state[:, 1] = c
+        return x
+
+
+def with_cable_play(
+    params: RobotParams, effects: Effects, max_step_mm: float = math.inf
+) -> Effects:
+    """``effects`` with the cables' own lost motion (``CableParams.backlash_mm``) as the first
+    (drive-side) transmission effect, :class:`BacklashPlay` with per-cable widths (mm).
+
+    Unchanged when every cable has zero play or ``effects.actuator`` already holds a play (a
+    discrepancy candidate that brings its own). ``max_step_mm``: the inverse's pre-travel step
+    bound per call (see :mod:`cdcr_ctl.model.deadzone`).
+    """
+    widths = tuple(c.backlash_mm for c in params.cables)
+    if not any(w > 0 for w in widths) or any(isinstance(e, BacklashPlay) for e in effects.actuator):
+        return effects
+    return replace(effects, actuator=(BacklashPlay(widths, max_step_mm), *effects.actuator))
 
 
 @dataclass(frozen=True)
