@@ -108,7 +108,8 @@ def build_model(
 
     ``cc_disk``: ``effects`` defaults to every effect on, with the cable geometry of
     ``control.geometry``; the cables' lost motion (``backlash_mm``) is added to it as the first
-    transmission effect, its inverse bounded by :func:`dead_zone_step_mm`; ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
+    transmission effect, its inverse bounded by :func:`dead_zone_step_mm`;
+    ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
     ``ujoint``/``vertebra``: built by :mod:`cdcr_ctl.config.designs` (``effects`` and
     ``reversal_band_mm`` do not apply and must be None). ``source`` names the file in errors;
     a design section that contradicts the drives raises :class:`ConfigError`.

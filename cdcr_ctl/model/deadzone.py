@@ -32,6 +32,7 @@ Limits: b = 0 gives x = y exactly; ``max_step_mm`` = inf gives the exact inverse
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 #: Motion of the wanted cable position below this (mm) keeps the direction memory (a pose

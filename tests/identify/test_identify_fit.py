@@ -23,8 +23,8 @@ from cdcr_ctl.identify.estimator import identify
 from cdcr_ctl.identify.parameters import plan_parameters
 from cdcr_ctl.identify.pipeline import overlay_text
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
-from cdcr_ctl.model.identification import get_value
 from cdcr_ctl.model.effects import with_cable_play
+from cdcr_ctl.model.identification import get_value
 from cdcr_ctl.model.params import Effects
 from cdcr_ctl.runlog import load_run
 
