@@ -29,6 +29,7 @@ import yaml
 from cdcr_ctl.cli.main import Ctx, cli
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
+from cdcr_ctl.identify.estimator import FitOptions
 
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: Extra time allowed beyond a run's duration before giving up on it (s).
@@ -100,9 +101,22 @@ def run_sweep(sock: str | Path, n_segments: int, bend_limit_rad: float, quick: b
     return out
 
 
-def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
-    """Fit ``run_dirs`` with the nominal config ``cfg_path``; write overlay, report, plots."""
+def fit_and_write(
+    cfg_path: Path,
+    run_dirs: list[Path],
+    out: Path,
+    options: FitOptions | None = None,
+    fit_pulleys: str = "auto",
+) -> Path:
+    """Fit ``run_dirs`` with the nominal config ``cfg_path``; write overlay, report, plots.
+
+    A fit the misfit gate refuses (:mod:`cdcr_ctl.identify.gate`) writes the report and plots
+    but no overlay, and raises :class:`~cdcr_ctl.identify.gate.MisfitError` (exit status 1)
+    naming ``cdcr-ctl discrepancy`` as the next step. ``options``/``fit_pulleys``: as
+    :func:`~cdcr_ctl.identify.pipeline.identify_runs`.
+    """
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.identify.gate import MisfitError, judge_identification
     from cdcr_ctl.identify.pipeline import (
         identify_runs,
         overlay_text,
@@ -114,18 +128,29 @@ def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
     cfg = load_rig_config(cfg_path)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    ident = identify_runs(cfg, run_dirs)
+    ident = identify_runs(cfg, run_dirs, options, fit_pulleys)
     dt = time.monotonic() - t0
+    verdict = judge_identification(ident, options)
     overlay = out / "identified.yaml"
-    overlay.write_text(overlay_text(cfg, ident, [str(r) for r in run_dirs]))
     rep = report_dict(ident)
     rep["fit_time_s"] = dt
     rep["runs"] = [str(r) for r in run_dirs]
+    rep["verdict"] = {"ok": verdict.ok, "misfit_ratio": verdict.misfit_ratio}
+    rep["verdict"]["reasons"] = verdict.reasons
     (out / "identification.json").write_text(json.dumps(rep, indent=2, default=float))
     plot_identification(ident, out / "plots")
     click.echo(summary_table(ident), err=True)
     for w in ident.warnings:
         click.echo(f"warning: {w}", err=True)
+    if not verdict.ok:
+        # The misfit gate (cdcr_ctl.identify.gate): no overlay, not even a stale one.
+        overlay.unlink(missing_ok=True)
+        raise MisfitError(
+            verdict.message(str(run_dirs[0]), str(cfg_path))
+            + f" (report: {out / 'identification.json'})"
+        )
+    click.echo(verdict.message(), err=True)
+    overlay.write_text(overlay_text(cfg, ident, [str(r) for r in run_dirs]))
     click.echo(f"fit took {dt:.1f} s; overlay {overlay}", err=True)
     return overlay
 

@@ -527,6 +527,11 @@ def identify(
     )
 
 
+def _exp(v: float) -> float:
+    """exp(v), inf above the float range (v > 709.78), nan for nan."""
+    return math.inf if v > 709.0 else math.exp(v)
+
+
 def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, int, int]:
     """Values, standard errors and 95 % intervals of the free globals at the solution ``z``."""
     lo, hi = prob.bounds()
@@ -556,7 +561,8 @@ def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, in
         sd = math.sqrt(max(float(cov[idx[c], idx[c]]), 0.0)) if keep[c] else math.nan
         if fp.log:
             std = v * sd
-            ci = (math.exp(z[c] - tq * sd), math.exp(z[c] + tq * sd))
+            # exp of a huge interval (a fit that does not explain its data) saturates at inf
+            ci = (_exp(z[c] - tq * sd), _exp(z[c] + tq * sd))
         else:
             std = sd
             ci = (v - tq * sd, v + tq * sd)
