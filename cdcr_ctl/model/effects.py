@@ -317,10 +317,13 @@ class DiskFriction(EffectTerm):
 
 
 class ReversalBacklash(EffectTerm):
-    """Backlash (play) between drive and cable, one width for all drives (:class:`BacklashPlay`).
+    """Lost motion (play) between drive and cable, one correction for all cables
+    (:class:`BacklashPlay`).
 
-    Parameter ``backlash_mm`` (mm, >= 0). Signature: a dead zone at every reversal whose width
-    is independent of speed and tension; the error keeps the sign of the last motion.
+    Parameter ``backlash_mm`` (mm, >= 0): added to each cable's configured play
+    (``CableParams.backlash_mm``, 0 when the config has none). Signature: a dead zone at every
+    reversal whose width is independent of speed and tension; the error keeps the sign of the
+    last motion.
     """
 
     name = "backlash"
@@ -331,15 +334,24 @@ class ReversalBacklash(EffectTerm):
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (EffectParam("backlash_mm", "mm", 0.2, 0.0, 20.0),)
 
-    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+    def _widths(self, base: ModelSpec, values: np.ndarray) -> tuple[float, ...]:
         b = max(float(values[0]), 0.0)
-        if b == 0.0:
+        return tuple(c.backlash_mm + b for c in base.params.cables)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        if max(float(values[0]), 0.0) == 0.0:
             return base
-        act = (*base.effects.actuator, BacklashPlay(b))
-        return replace(base, effects=replace(base.effects, actuator=act))
+        w = self._widths(base, values)
+        rest = tuple(e for e in base.effects.actuator if not isinstance(e, BacklashPlay))
+        params = _cables(base.params, backlash_mm=list(w))
+        act = (BacklashPlay(w), *rest)
+        return replace(base, params=params, effects=replace(base.effects, actuator=act))
 
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
-        return [FittedValue("drives", "", "backlash_mm", max(float(values[0]), 0.0))]
+        return [
+            FittedValue("cable", c.name, "backlash_mm", w)
+            for c, w in zip(base.params.cables, self._widths(base, values), strict=True)
+        ]
 
 
 class SegmentCoupling(EffectTerm):
@@ -429,6 +441,59 @@ class GravitySag(EffectTerm):
             FittedValue("segment", s.name, "disk_mass_g", a * m)
             for s, m in zip(base.params.segments, self._refs(base), strict=True)
         ]
+        if not base.effects.gravity:
+            out.append(FittedValue("model_effects", "", "gravity", True))
+        return out
+
+
+class GravityDirection(EffectTerm):
+    """The mount direction: gravity in the base frame turned away from the config's vector.
+
+    Parameters ``tilt_x``/``tilt_y`` (rad): g_new = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg, the
+    config's gravity vector (standard gravity along -z if it is zero) turned about the base x
+    and y axes; its size is kept (the mount is tilted, gravity is not stronger). A turn about
+    the gravity vector itself changes nothing, so two angles are all the direction has. When
+    the model has no disk mass or gravity off, the reference masses
+    (:data:`REFERENCE_DISK_MASS_G`) carry the sag. Signature: a sag whose direction in the base
+    frame is fixed and not the config's (sideways for a robot whose config says upright): the
+    error depends on the bending direction relative to the true gravity, not on time.
+    """
+
+    name = "gravity_direction"
+    title = "gravity direction (mount tilt)"
+    signature = "sag towards a fixed direction other than the config's gravity vector"
+    reference = "Qi et al. 2023 eq. 7-9 (external load W_e) with the mount direction fitted"
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return (
+            EffectParam("tilt_x", "rad", 0.05, -math.pi / 2, math.pi / 2),
+            EffectParam("tilt_y", "rad", 0.05, -math.pi / 2, math.pi / 2),
+        )
+
+    def _gravity(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
+        g = np.asarray(base.params.gravity_mm_s2, dtype=float)
+        if np.linalg.norm(g) == 0:
+            g = np.asarray(STANDARD_GRAVITY_MM_S2)
+        R = rotation_from_rotvec((float(values[0]), float(values[1]), 0.0))
+        return R @ g
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        p = base.params
+        segs = p.segments
+        if not (base.effects.gravity and any(s.disk_mass_g > 0 for s in segs)):
+            segs = tuple(
+                replace(s, disk_mass_g=s.disk_mass_g or REFERENCE_DISK_MASS_G) for s in segs
+            )
+        g = tuple(float(v) for v in self._gravity(base, values))
+        return replace(
+            base,
+            params=replace(p, segments=segs, gravity_mm_s2=g),
+            effects=replace(base.effects, gravity=True),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        g = [round(float(v), 2) for v in self._gravity(base, values)]
+        out = [FittedValue("robot", "", "gravity_mm_s2", g)]
         if not base.effects.gravity:
             out.append(FittedValue("model_effects", "", "gravity", True))
         return out
@@ -574,6 +639,7 @@ CANDIDATES: tuple[EffectTerm, ...] = (
     ReversalBacklash(),
     SegmentCoupling(),
     GravitySag(),
+    GravityDirection(),
     PulleyLosses(),
     ActuatorScale(),
     TrackerFrameOffset(),

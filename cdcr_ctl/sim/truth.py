@@ -22,6 +22,7 @@ from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import Effects, ForwardStepper
 from cdcr_ctl.model.effects import with_cable_play
 from cdcr_ctl.model.kinematics import chain
+from cdcr_ctl.sim.friction_law import use_friction_law
 from cdcr_ctl.sim.simconfig import LoadedSim
 
 log = logging.getLogger(__name__)
@@ -99,6 +100,7 @@ class TruthModel(SteppedTruth):
         )
         self.effects = with_cable_play(self.params, self.effects)
         self.stepper = ForwardStepper(self.params, self.effects)
+        use_friction_law(self.stepper, eff.friction_law, eff.friction_exponent)
         by_cable = {d.cable: d for d in rig.drives}
         scale = eff.counts_per_mm_scale or [1.0] * len(rig.drives)
         # The truth's transmission: what the drives' counts really mean in cable millimetres.

@@ -20,6 +20,7 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, loadcell_locations, robot_params
 from cdcr_ctl.identify.dwell import extract_dwells
 from cdcr_ctl.identify.estimator import identify
+from cdcr_ctl.identify.gate import judge_identification
 from cdcr_ctl.identify.parameters import plan_parameters
 from cdcr_ctl.identify.pipeline import overlay_text
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
@@ -89,6 +90,8 @@ def test_fit_explains_the_data_and_reports_what_stays_nominal(fitted):
     assert res.rms_after["cell"] < 0.2 * res.rms_before["cell"]
     assert any(f.name == "pulleys.alpha" for f in res.fixed)
     assert 0.3 < res.chi2_reduced < 5.0
+    # the misfit gate lets a fit through that explains its data
+    assert judge_identification(res).ok
 
 
 def test_overlay_loads_back_into_the_rig_config(fitted, tmp_path: Path):
