@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
 
-from cdcr_ctl.model.deadzone import dead_zone_inverse, play_forward
+from cdcr_ctl.model.deadzone import dead_zone_inverse_list, play_forward
 from cdcr_ctl.model.params import CableParams, Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
@@ -62,6 +62,10 @@ class BacklashPlay:
 
     width_mm: float | tuple[float, ...]
     max_step_mm: float = math.inf
+    #: half widths per cable count, made on first use (the loop's path stays in plain floats)
+    _halves: dict[int, list[float]] = field(
+        default_factory=dict, init=False, repr=False, compare=False, hash=False
+    )
 
     def _b(self, n: int) -> np.ndarray:
         b = np.broadcast_to(np.asarray(self.width_mm, dtype=float), (n,))
@@ -79,11 +83,14 @@ class BacklashPlay:
         return y
 
     def to_actuator(self, q_cable_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
-        y = np.asarray(q_cable_mm, dtype=float)
-        x, c = dead_zone_inverse(y, state[:, 0], state[:, 1], self._b(y.size), self.max_step_mm)
-        state[:, 0] = y
-        state[:, 1] = c
-        return x
+        y = np.asarray(q_cable_mm, dtype=float).tolist()
+        half = self._halves.get(len(y))
+        if half is None:
+            half = self._halves.setdefault(len(y), (0.5 * self._b(len(y))).tolist())
+        rows = state.tolist()
+        x = dead_zone_inverse_list(y, rows, half, self.max_step_mm)
+        state[:, :] = rows
+        return np.array(x)
 
 
 def with_cable_play(
