@@ -107,13 +107,15 @@ def fit_and_write(
     out: Path,
     options: FitOptions | None = None,
     fit_pulleys: str = "auto",
+    accept_misfit: bool = False,
 ) -> Path:
     """Fit ``run_dirs`` with the nominal config ``cfg_path``; write overlay, report, plots.
 
     A fit the misfit gate refuses (:mod:`cdcr_ctl.identify.gate`) writes the report and plots
     but no overlay, and raises :class:`~cdcr_ctl.identify.gate.MisfitError` (exit status 1)
     naming ``cdcr-ctl discrepancy`` as the next step. ``options``/``fit_pulleys``: as
-    :func:`~cdcr_ctl.identify.pipeline.identify_runs`.
+    :func:`~cdcr_ctl.identify.pipeline.identify_runs`. ``accept_misfit``: the operator's
+    explicit override: the overlay is written all the same, its first line says it is a misfit.
     """
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.identify.gate import MisfitError, judge_identification
@@ -142,15 +144,24 @@ def fit_and_write(
     click.echo(summary_table(ident), err=True)
     for w in ident.warnings:
         click.echo(f"warning: {w}", err=True)
-    if not verdict.ok:
+    text = overlay_text(cfg, ident, [str(r) for r in run_dirs])
+    if not verdict.ok and not accept_misfit:
         # The misfit gate (cdcr_ctl.identify.gate): no overlay, not even a stale one.
         overlay.unlink(missing_ok=True)
         raise MisfitError(
             verdict.message(str(run_dirs[0]), str(cfg_path))
             + f" (report: {out / 'identification.json'})"
         )
-    click.echo(verdict.message(), err=True)
-    overlay.write_text(overlay_text(cfg, ident, [str(r) for r in run_dirs]))
+    if not verdict.ok:
+        msg = verdict.message(str(run_dirs[0]), str(cfg_path))
+        click.echo(f"warning: MISFIT ACCEPTED (--accept-misfit): {msg}", err=True)
+        text = (
+            f"# MISFIT ACCEPTED BY THE OPERATOR (--accept-misfit): {'; '.join(verdict.reasons)}\n"
+        )
+        text += overlay_text(cfg, ident, [str(r) for r in run_dirs])
+    else:
+        click.echo(verdict.message(), err=True)
+    overlay.write_text(text)
     click.echo(f"fit took {dt:.1f} s; overlay {overlay}", err=True)
     return overlay
 
@@ -171,12 +182,21 @@ def fit_and_write(
     help="Fit these logged runs instead of running the sweep (repeatable).",
 )
 @click.option("--quick", is_flag=True, help="Coarser, shorter sweep (10 deg steps).")
+@click.option(
+    "--accept-misfit",
+    is_flag=True,
+    help="Write the overlay even when the fit does not explain the data (marked as a misfit).",
+)
 @click.pass_obj
-def identify_cmd(obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool) -> None:
+def identify_cmd(
+    obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool, accept_misfit: bool
+) -> None:
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
 
     Needs --config (the controller's rig config: nominal values, geometry, load-cell places).
-    Writes OUT/identified.yaml: add it to the rig config's `overlays:` list.
+    Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does
+    not explain its data (cdcr_ctl.identify.gate) writes no overlay and exits 1, unless
+    --accept-misfit.
     """
     if not obj.config:
         raise click.UsageError("identify needs --config RIG (the controller's rig config)")
@@ -187,7 +207,7 @@ def identify_cmd(obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool) 
     runs = list(from_runs)
     if not runs:
         runs = run_sweep(obj.socket, len(cfg.robot.segments), cfg.limits.bend_rad, quick)
-    overlay = fit_and_write(cfg_path, runs, out)
+    overlay = fit_and_write(cfg_path, runs, out, accept_misfit=accept_misfit)
     obj.emit({"overlay": str(overlay), "runs": [str(r) for r in runs]}, text=str(overlay))
 
 
