@@ -153,8 +153,8 @@ def fit_and_write(
             + f" (report: {out / 'identification.json'})"
         )
     if not verdict.ok:
-        msg = verdict.message(str(run_dirs[0]), str(cfg_path))
-        click.echo(f"warning: MISFIT ACCEPTED (--accept-misfit): {msg}", err=True)
+        why = "; ".join(verdict.reasons)
+        click.echo(f"warning: MISFIT ACCEPTED (--accept-misfit), overlay written: {why}", err=True)
         text = (
             f"# MISFIT ACCEPTED BY THE OPERATOR (--accept-misfit): {'; '.join(verdict.reasons)}\n"
         )

@@ -191,6 +191,7 @@ class _Problem:
         self.block = [2 * S + K + len(u) for u in self.unc]
         self.offsets = np.concatenate(([0], np.cumsum(self.block)))
         self._ft_key: tuple[float, ...] | None = None
+        self._play_cache: dict[tuple[float, ...], list[list[float]]] = {}
         self._ft: ForceTransfer | None = None
         self.g_all = np.array([fp.to_var(fp.nominal) for fp in self.fps])
         self.set_stage(list(range(len(self.fps))), RESIDUAL_KINDS)
@@ -285,10 +286,43 @@ class _Problem:
             elif kind == "moment":
                 out.append(mom[a] / self.sig_M[j])
             else:
-                # The drive runs half the play ahead of the cable in the direction of its last
-                # motion (cdcr_ctl.model.deadzone; the steps between dwells exceed the play).
-                play = 0.5 * ft.params.cables[a].backlash_mm * p.s[a]
+                # The drive stands ahead of the cable by what the play leaves
+                # (cdcr_ctl.model.deadzone): +-b/2 once a move exceeded the gap, less at the
+                # first dwell after a reversal when the step was shorter than the gap.
+                play = self.play_offsets(ft)[j][a]
                 out.append((cab[a][3] + play - float(p.q_act_mm[a])) / self.sig_q[j][a])
+        return out
+
+    def play_offsets(self, ft: ForceTransfer) -> list[list[float]]:
+        """Per point and cable, drive position minus cable position through the play (mm):
+        the play operator (:func:`cdcr_ctl.model.deadzone.play_forward`) run over each run's
+        dwells in order (between two dwells a cable moves one way, so the operator on the dwell
+        positions is exact), starting centred at the run's first dwell. Cached per widths."""
+        key = tuple(c.backlash_mm for c in ft.params.cables)
+        hit = self._play_cache.get(key)
+        if hit is not None:
+            return hit
+        out: list[list[float]] = []
+        last: dict[str, list[float]] = {}
+        for p in self.points:
+            x = [float(v) for v in p.q_act_mm]
+            prev = last.get(p.run)
+            y = []
+            for k, b in enumerate(key):
+                yp = prev[k] if prev is not None else x[k]
+                if not math.isfinite(x[k]):
+                    y.append(yp)
+                elif not math.isfinite(yp):
+                    y.append(x[k])
+                else:
+                    y.append(min(max(yp, x[k] - 0.5 * b), x[k] + 0.5 * b))
+            last[p.run] = y
+            out.append(
+                [x[k] - y[k] if math.isfinite(x[k] - y[k]) else 0.0 for k in range(len(key))]
+            )
+        if len(self._play_cache) > 64:
+            self._play_cache.clear()
+        self._play_cache[key] = out
         return out
 
     def residuals(self, z: np.ndarray) -> np.ndarray:

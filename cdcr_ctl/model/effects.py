@@ -349,9 +349,12 @@ class ReversalBacklash(EffectTerm):
         if max(float(values[0]), 0.0) == 0.0:
             return base
         w = self._widths(base, values)
-        rest = tuple(e for e in base.effects.actuator if not isinstance(e, BacklashPlay))
+        # the play sits where the config's was, else after the drive-side effects (a scale)
+        old = base.effects.actuator
+        at = next((i for i, e in enumerate(old) if isinstance(e, BacklashPlay)), len(old))
+        rest = tuple(e for e in old if not isinstance(e, BacklashPlay))
         params = _cables(base.params, backlash_mm=list(w))
-        act = (BacklashPlay(w), *rest)
+        act = (*rest[:at], BacklashPlay(w), *rest[at:])
         return replace(base, params=params, effects=replace(base.effects, actuator=act))
 
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
