@@ -8,6 +8,13 @@ Measured with time.perf_counter_ns around each single call, after a warm-up, ove
 poses that change every call (a slow circle), so no result is reused. Prints median and p90 (us).
 Target: stateless compensation median < 200 us.
 
+Then the cost of each term on the loop's path (issue #17): ``CCDiskModel.q_command`` of the
+Qi et al. 2023 rig (config/qi2023.yaml, the 1 kHz loop's model) built with one more effect at a
+time (geometry only -> + elongation -> + disk friction -> + pulleys -> + gravity -> + the cables'
+lost motion, 0.3 mm, with its direction memory), and the dead-zone inverse alone; the increments
+are the terms' costs. A tilted mount (gravity_direction) or a fitted actuator scale change
+values, not work: the same calls.
+
     .venv/bin/python benchmarks/bench_compensation.py [--n 1000] [--warmup 200]
 """
 
@@ -115,6 +122,7 @@ def main(argv: list[str] | None = None) -> int:
             ns.warmup,
         ),
     )
+    term_costs(ns.n, ns.warmup)
     # the simulator's forward stepper, for information (not a loop-path call)
     fw = ForwardStepper(params, Effects())
     cstate = comp.new_state()
@@ -122,6 +130,63 @@ def main(argv: list[str] | None = None) -> int:
     cmds = [(np.array(comp.step(p, cstate).q),) for p in poses(n_fw)]
     report("ForwardStepper.step (simulator truth)", timed(fw.step, cmds, 5))
     return 0
+
+
+def term_costs(n: int, warmup: int) -> None:
+    """q_command of the Qi rig's loop model with the effects added one at a time (docstring)."""
+    from dataclasses import replace
+
+    from cdcr_ctl.model.deadzone import dead_zone_inverse
+
+    cfg = load_rig_config(ROOT / "config" / "qi2023.yaml")
+    play = cfg.model_copy(
+        update={
+            "robot": cfg.robot.model_copy(
+                update={
+                    "cables": [c.model_copy(update={"backlash_mm": 0.3}) for c in cfg.robot.cables]
+                }
+            )
+        }
+    )
+    P = [np.array([[0.8 + 0.6 * math.sin(2 * math.pi * j / 200), 0.3 * j / n]]) for j in range(n)]
+    base = Effects.none()
+    steps = [
+        ("geometry only (eq. 4)", base, cfg),
+        ("+ elongation (eq. 33-36)", replace(base, elongation=True), cfg),
+        ("+ disk friction (eq. 16-24)", replace(base, elongation=True, disk_friction=True), cfg),
+    ]
+    full = Effects(geometry=cfg.control.geometry)
+    steps += [
+        ("+ pulleys (eq. 25-32)", replace(full, gravity=False, coupling=False), cfg),
+        ("+ gravity (eq. 7-9)", replace(full, coupling=False), cfg),
+        ("+ lost motion 0.3 mm (Yang eq. 13-17)", replace(full, coupling=False), play),
+    ]
+    print("cost of each term, CCDiskModel.q_command + q_nominal of the Qi rig (1 segment):")
+    prev = None
+    for name, eff, c in steps:
+        model = build_model(c, eff)
+        st = model.new_state()
+        us = timed(
+            lambda psi, model=model, st=st: model.q_command(
+                psi, model.q_nominal(psi), st, "model", None
+            ),
+            [(p,) for p in P],
+            warmup,
+        )
+        med = statistics.median(us)
+        inc = "" if prev is None else f"   (+{med - prev:.1f} us)"
+        report(f"  {name}", us)
+        if inc:
+            print(f"{'':48}{inc}")
+        prev = med
+    y = np.zeros(3)
+    c0 = np.zeros(3)
+    b = np.full(3, 0.3)
+    ys = [(y + 0.001 * j,) for j in range(n)]
+    report(
+        "  dead-zone inverse alone (model.deadzone)",
+        timed(lambda v: dead_zone_inverse(v, y, c0, b, 0.01), ys, warmup),
+    )
 
 
 if __name__ == "__main__":

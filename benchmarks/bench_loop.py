@@ -286,6 +286,13 @@ def main() -> None:
         help="log every cycle as the daemon does: csv = samples.csv, mcap = samples.csv + "
         "run.mcap (with the CAN frames); prints the log stage's percentiles and bytes per hour",
     )
+    ap.add_argument(
+        "--backlash-mm",
+        type=float,
+        default=0.3,
+        help="lost motion per cable in the loop's model (robot.cables[].backlash_mm), so the model "
+        "stage includes the dead-zone compensation with its direction memory (0: without)",
+    )
     ap.add_argument("--sim-child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.floor is not None:
@@ -298,6 +305,8 @@ def main() -> None:
         sys.exit(in_namespace(sys.argv[1:]))
     period = 1.0 / args.rate
     cfg = load_rig_config("config/qi2023.yaml")
+    cables = [c.model_copy(update={"backlash_mm": args.backlash_mm}) for c in cfg.robot.cables]
+    cfg = cfg.model_copy(update={"robot": cfg.robot.model_copy(update={"cables": cables})})
     child = None
     sim = None
     work = tempfile.TemporaryDirectory(prefix="cdcr-bench-")

@@ -70,7 +70,15 @@ SWITCH_OF = {
     "gravity_sag": "gravity",
     "coupling": "coupling",
 }
-HIDDEN = ("none", *SWITCH_OF, "backlash", "actuator_scale", "tracker_offset")
+HIDDEN = (
+    "none",
+    *SWITCH_OF,
+    "backlash",
+    "actuator_scale",
+    "tracker_offset",
+    "gravity_direction",  # the truth's mount is tilted against the config's gravity vector
+    "friction_law",  # the truth's disk friction follows another law (cdcr_ctl.sim.friction_law)
+)
 TRAJECTORIES = ("rich", "random", "circle")
 #: Column groups a partial log may lack (``--drop``).
 DROPPABLE = ("tension", "q_act", "tip")

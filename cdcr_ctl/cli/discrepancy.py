@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.errors import RigError
 
 
 def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
@@ -59,6 +60,14 @@ def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
     help="Largest number of simulated samples per run (the rest are interpolated).",
 )
 @click.option("--jobs", type=click.IntRange(1, 64), default=2, show_default=True)
+@click.option(
+    "--apply",
+    "apply_to",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write the named effect's fitted values as a rig-config overlay to this file "
+    "(checked against the run's effective config); exit 1 when no effect was named.",
+)
 @click.option("--plots/--no-plots", default=True, show_default=True)
 @click.option("--progress/--no-progress", default=True, show_default=True)
 @click.pass_obj
@@ -73,15 +82,18 @@ def discrepancy(
     pairs: bool,
     max_points: int,
     jobs: int,
+    apply_to: Path | None,
     plots: bool,
     progress: bool,
 ) -> None:
     """Find where model and measurement disagree, name the missing effect, refit.
 
-    Exit code 0 whatever the verdict; the verdict is the first line of the output.
+    Exit code 0 whatever the verdict; the verdict is the first line of the output. With
+    ``--apply OVERLAY`` the fitted effect is written as an overlay for the rig config's
+    ``overlays:`` list (the daemon loads it at start); no effect named: nothing written, exit 1.
     """
     from cdcr_ctl.discrepancy import analyse
-    from cdcr_ctl.discrepancy.report import summary_lines, write_report
+    from cdcr_ctl.discrepancy.report import config_fragment, summary_lines, write_report
     from cdcr_ctl.model.effects import CANDIDATES, candidate
 
     terms = CANDIDATES
@@ -125,5 +137,42 @@ def discrepancy(
         "elapsed_s": res.elapsed_s,
         "files": {k: str(v) for k, v in paths.items()},
     }
-    text = "\n".join([*summary_lines(res), f"report: {paths['report']}"])
-    obj.emit(result, text)
+    lines = [*summary_lines(res), f"report: {paths['report']}"]
+    if apply_to is not None:
+        if res.refit is None or res.named is None:
+            obj.emit(result, "\n".join(lines))
+            raise RigError(
+                f"--apply: no effect was named ({res.selection.verdict}): nothing written"
+            )
+        apply_overlay(config_fragment(res), Path(run_dirs[0]), apply_to)
+        result["overlay"] = str(apply_to)
+        lines.append(
+            f"applied: {apply_to} (add it to the rig config's `overlays:` list, then restart the"
+            " daemon and re-run the experiment)"
+        )
+    obj.emit(result, "\n".join(lines))
+
+
+def apply_overlay(fragment: str, run_dir: Path, dest: Path) -> None:
+    """Write ``fragment`` to ``dest`` after checking it loads over the run's effective config
+    (``config_effective.yaml`` in the run directory; a ConfigError names the key)."""
+    import tempfile
+
+    import yaml
+
+    from cdcr_ctl.config import load_rig_config
+
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(fragment, encoding="utf-8")
+    effective = run_dir / "config_effective.yaml"
+    if not effective.is_file():
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        probe = Path(tmp) / "probe.yaml"
+        doc = {"extends": str(effective.resolve()), "overlays": [str(dest.resolve())]}
+        probe.write_text(yaml.safe_dump(doc))
+        try:
+            load_rig_config(probe)
+        except RigError:
+            dest.unlink(missing_ok=True)
+            raise

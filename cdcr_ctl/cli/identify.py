@@ -29,6 +29,7 @@ import yaml
 from cdcr_ctl.cli.app import Ctx, cli
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
+from cdcr_ctl.identify.estimator import FitOptions
 
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: Extra time allowed beyond a run's duration before giving up on it (s).
@@ -106,9 +107,24 @@ def run_sweep(
     return out
 
 
-def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
-    """Fit ``run_dirs`` with the nominal config ``cfg_path``; write overlay, report, plots."""
+def fit_and_write(
+    cfg_path: Path,
+    run_dirs: list[Path],
+    out: Path,
+    options: FitOptions | None = None,
+    fit_pulleys: str = "auto",
+    accept_misfit: bool = False,
+) -> Path:
+    """Fit ``run_dirs`` with the nominal config ``cfg_path``; write overlay, report, plots.
+
+    A fit the misfit gate refuses (:mod:`cdcr_ctl.identify.gate`) writes the report and plots
+    but no overlay, and raises :class:`~cdcr_ctl.identify.gate.MisfitError` (exit status 1)
+    naming ``cdcr-ctl discrepancy`` as the next step. ``options``/``fit_pulleys``: as
+    :func:`~cdcr_ctl.identify.pipeline.identify_runs`. ``accept_misfit``: the operator's
+    explicit override: the overlay is written all the same, its first line says it is a misfit.
+    """
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.identify.gate import MisfitError, judge_identification
     from cdcr_ctl.identify.pipeline import (
         identify_runs,
         overlay_text,
@@ -120,18 +136,38 @@ def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
     cfg = load_rig_config(cfg_path)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    ident = identify_runs(cfg, run_dirs)
+    ident = identify_runs(cfg, run_dirs, options, fit_pulleys)
     dt = time.monotonic() - t0
+    verdict = judge_identification(ident, options)
     overlay = out / "identified.yaml"
-    overlay.write_text(overlay_text(cfg, ident, [str(r) for r in run_dirs]))
     rep = report_dict(ident)
     rep["fit_time_s"] = dt
     rep["runs"] = [str(r) for r in run_dirs]
+    rep["verdict"] = {"ok": verdict.ok, "misfit_ratio": verdict.misfit_ratio}
+    rep["verdict"]["reasons"] = verdict.reasons
     (out / "identification.json").write_text(json.dumps(rep, indent=2, default=float))
     plot_identification(ident, out / "plots")
     click.echo(summary_table(ident), err=True)
     for w in ident.warnings:
         click.echo(f"warning: {w}", err=True)
+    text = overlay_text(cfg, ident, [str(r) for r in run_dirs])
+    if not verdict.ok and not accept_misfit:
+        # The misfit gate (cdcr_ctl.identify.gate): no overlay, not even a stale one.
+        overlay.unlink(missing_ok=True)
+        raise MisfitError(
+            verdict.message(str(run_dirs[0]), str(cfg_path))
+            + f" (report: {out / 'identification.json'})"
+        )
+    if not verdict.ok:
+        why = "; ".join(verdict.reasons)
+        click.echo(f"warning: MISFIT ACCEPTED (--accept-misfit), overlay written: {why}", err=True)
+        text = (
+            f"# MISFIT ACCEPTED BY THE OPERATOR (--accept-misfit): {'; '.join(verdict.reasons)}\n"
+        )
+        text += overlay_text(cfg, ident, [str(r) for r in run_dirs])
+    else:
+        click.echo(verdict.message(), err=True)
+    overlay.write_text(text)
     click.echo(f"fit took {dt:.1f} s; overlay {overlay}", err=True)
     return overlay
 
@@ -152,12 +188,21 @@ def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
     help="Fit these logged runs instead of running the sweep (repeatable).",
 )
 @click.option("--quick", is_flag=True, help="Coarser, shorter sweep (10 deg steps).")
+@click.option(
+    "--accept-misfit",
+    is_flag=True,
+    help="Write the overlay even when the fit does not explain the data (marked as a misfit).",
+)
 @click.pass_obj
-def identify_cmd(obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool) -> None:
+def identify_cmd(
+    obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool, accept_misfit: bool
+) -> None:
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
 
     Needs --config (the controller's rig config: nominal values, geometry, load-cell places).
-    Writes OUT/identified.yaml: add it to the rig config's `overlays:` list.
+    Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does
+    not explain its data (cdcr_ctl.identify.gate) writes no overlay and exits 1, unless
+    --accept-misfit.
     """
     if not obj.config:
         raise click.UsageError("identify needs --config RIG (the controller's rig config)")
@@ -168,7 +213,7 @@ def identify_cmd(obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool) 
     runs = list(from_runs)
     if not runs:
         runs = run_sweep(obj.socket, len(cfg.robot.segments), cfg.limits.bend_rad, quick)
-    overlay = fit_and_write(cfg_path, runs, out)
+    overlay = fit_and_write(cfg_path, runs, out, accept_misfit=accept_misfit)
     obj.emit({"overlay": str(overlay), "runs": [str(r) for r in runs]}, text=str(overlay))
 
 

@@ -17,6 +17,7 @@ from cdcr_ctl.config.robot import RobotConfig
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.model.compensation import CCDiskModel
+from cdcr_ctl.model.effects import with_cable_play
 from cdcr_ctl.model.params import (
     CableParams,
     Effects,
@@ -28,6 +29,17 @@ from cdcr_ctl.model.params import (
 
 if TYPE_CHECKING:
     from cdcr_ctl.control.ports import RobotModelPort
+
+#: Share of the cable velocity limit the dead-zone inverse may add to the command while it
+#: pre-travels the play after a reversal (cdcr_ctl.model.deadzone). The loop's offset ramp takes
+#: half of the limit (control.loop.OFFSET_RAMP_FRACTION); a quarter leaves the trajectory its
+#: own quarter: 0.3 mm of play at 40 mm/s and 250 Hz is crossed in 8 cycles (32 ms).
+DEAD_ZONE_STEP_FRACTION = 0.25
+
+
+def dead_zone_step_mm(cfg: RigConfig) -> float:
+    """Largest pre-travel step of the dead-zone inverse per control cycle (mm)."""
+    return DEAD_ZONE_STEP_FRACTION * cfg.limits.cable_velocity_mm_s / cfg.control.rate_hz
 
 
 def robot_params(robot: RobotConfig) -> RobotParams:
@@ -69,6 +81,7 @@ def robot_params(robot: RobotConfig) -> RobotParams:
             mu_disk=c.mu_disk,
             free_length_mm=c.free_length_mm,
             pulleys=tuple(pulleys[name] for name in c.pulleys),
+            backlash_mm=c.backlash_mm,
         )
         for c in robot.cables
     )
@@ -94,7 +107,9 @@ def build_model(
     """The control loop's model (``RobotModelPort``) for the rig's ``design``.
 
     ``cc_disk``: ``effects`` defaults to every effect on, with the cable geometry of
-    ``control.geometry``; ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
+    ``control.geometry``; the cables' lost motion (``backlash_mm``) is added to it as the first
+    transmission effect, its inverse bounded by :func:`dead_zone_step_mm`;
+    ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
     ``ujoint``/``vertebra``: built by :mod:`cdcr_ctl.config.designs` (``effects`` and
     ``reversal_band_mm`` do not apply and must be None). ``source`` names the file in errors;
     a design section that contradicts the drives raises :class:`ConfigError`.
@@ -140,8 +155,11 @@ def build_cc_disk_model(
         raise ConfigError(
             source, "design", "the constant-curvature model needs cc_disk", cfg.design
         )
+    params = robot_params(cfg.robot)
+    # The cables' lost motion (robot.cables[].backlash_mm) is part of every cc_disk model.
+    effects = with_cable_play(params, effects, dead_zone_step_mm(cfg))
     return CCDiskModel(
-        robot_params(cfg.robot),
+        params,
         effects,
         locations=loadcell_locations(cfg),
         reversal_band_mm=reversal_band_mm,

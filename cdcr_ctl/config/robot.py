@@ -84,6 +84,9 @@ class CableConfig(Section):
     ``free_length_mm`` is the straight cable between actuator and robot base (it stretches too).
     ``mu_disk`` is the Coulomb friction coefficient in the disk holes (eq. 16-24).
     Give the axial stiffness as ``E_MPa`` (with ``diameter_mm``, solid section) or ``EA_N``.
+    ``backlash_mm`` is the lost motion between drive and cable (total width of the dead zone a
+    reversal crosses: slack, sheath, gear play; Yang et al. 2022 eq. 13-17), mm; the
+    controller's command pre-travels it at every reversal, ``cdcr-ctl identify`` fits it.
     """
 
     name: Name
@@ -97,6 +100,7 @@ class CableConfig(Section):
     mu_disk: NonNegativeFloat = 0.0
     free_length_mm: NonNegativeFloat = 0.0
     pulleys: list[Name] = Field(default_factory=list)
+    backlash_mm: Annotated[float, Field(ge=0, le=20)] = 0.0
 
     @model_validator(mode="after")
     def _one_axial_stiffness(self) -> CableConfig:

@@ -34,7 +34,7 @@ from cdcr_ctl.config.loader import load_rig_config, validate_mapping
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.timing import TipTiming, no_timing
 from cdcr_ctl.errors import ConfigError, RigError
-from cdcr_ctl.model.effects import ModelSpec
+from cdcr_ctl.model.effects import ModelSpec, with_cable_play
 from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects
 from cdcr_ctl.model.routing import cable_matrix_x
@@ -260,7 +260,8 @@ def align_run(
         + (f"off: {', '.join(off)}" if off else "all on")
     )
     params = robot_params(cfg.robot)
-    spec = ModelSpec(params, Effects(geometry=cfg.control.geometry, **sw))
+    # The controller's model as build_model makes it: the cables' lost motion included.
+    spec = ModelSpec(params, with_cable_play(params, Effects(geometry=cfg.control.geometry, **sw)))
     if run.has("q_act"):
         q = run.q_act()
         q_src = "q_act"

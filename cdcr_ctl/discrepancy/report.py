@@ -58,6 +58,8 @@ def summary_lines(res: DiscrepancyResult) -> list[str]:
             )
         else:
             out.append(f"  {o.name}: tracker lag {1e3 * o.lag_s:.1f} ms")
+        if o.lag_suspect:
+            out.append(f"  {o.name}: SUSPECT LAG: {o.lag_suspect}")
     return out
 
 
@@ -142,6 +144,8 @@ def config_fragment(res: DiscrepancyResult) -> str:
                     doc.setdefault("robot", {}).setdefault("segments", []),
                     {"name": fv.item, "disks": disks},
                 )
+            elif fv.what == "robot" and fv.key == "gravity_mm_s2":
+                doc.setdefault("robot", {})["gravity_mm_s2"] = list(fv.value)  # type: ignore[arg-type]
             elif fv.what == "drive_of_cable":
                 d = next(d for d in cfg.drives if d.cable == fv.item)
                 _merge_named(

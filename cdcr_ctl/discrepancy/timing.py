@@ -58,6 +58,42 @@ KINK_FACTOR = 1.0
 #: Rows within this time of a kink are left out of the delay regression (s): the tracker's
 #: delay (latency plus a frame's age, ~5-30 ms) with a margin.
 KINK_GUARD_S = 0.04
+#: Latency of a tracker's own pipeline (exposure to the frame's arrival) that a log without
+#: sample timestamps is granted (s): optical motion capture over NatNet 3-10 ms, laser trackers
+#: up to ~15 ms (vendors' figures), with a margin. A common delay beyond this plus one frame
+#: and one loop cycle (the ages the log itself shows) has no timing evidence behind it: it is
+#: the fit using time as a free knob, e.g. a friction hysteresis mistaken for lag (issue #17).
+MAX_TRACKER_LATENCY_S = 0.02
+
+
+def frame_period_s(t_s: np.ndarray, tip_mm: np.ndarray) -> float:
+    """The tracker's frame period as the log shows it (s): the median time between rows whose
+    tip value changed (a sample-and-hold port repeats a frame until the next arrives); the
+    median row interval when every row changes; nan with fewer than 3 changes."""
+    t = np.asarray(t_s, dtype=float)
+    tip = np.asarray(tip_mm, dtype=float)
+    ok = np.all(np.isfinite(tip), axis=1)
+    t, tip = t[ok], tip[ok]
+    if t.size < 4:
+        return math.nan
+    changed = np.any(np.diff(tip, axis=0) != 0, axis=1)
+    tc = t[1:][changed]
+    if tc.size < 3:
+        return math.nan
+    return float(np.median(np.diff(tc)))
+
+
+def delay_bound_s(t_s: np.ndarray, tip_mm: np.ndarray) -> float:
+    """Largest common tracker delay the log's timing can support (s): the tracker pipeline's
+    latency (:data:`MAX_TRACKER_LATENCY_S`) + one tracker frame (the held frame's age, from
+    :func:`frame_period_s`) + one row (the row's own age). :data:`MAX_DELAY_S` when the log
+    shows no frame period."""
+    frame = frame_period_s(t_s, tip_mm)
+    rows = np.diff(np.asarray(t_s, dtype=float))
+    row = float(np.median(rows)) if rows.size else 0.0
+    if not math.isfinite(frame):
+        return MAX_DELAY_S
+    return min(MAX_DELAY_S, MAX_TRACKER_LATENCY_S + frame + row)
 
 
 @dataclass(frozen=True)
@@ -73,6 +109,7 @@ class TipTiming:
     classes: np.ndarray
     t_s: np.ndarray
     note: str = ""
+    suspect: str = ""
 
     @property
     def row_delay_s(self) -> np.ndarray:
@@ -84,12 +121,29 @@ class TipTiming:
         return _at(self.t_s - self.row_delay_s, self.t_s, np.asarray(tip_mm, dtype=float))
 
     def with_common_delay(
-        self, tip_meas: np.ndarray, tip_model: np.ndarray, start_s: float = 0.0
+        self,
+        tip_meas: np.ndarray,
+        tip_model: np.ndarray,
+        start_s: float = 0.0,
+        bound_s: float = MAX_DELAY_S,
     ) -> TipTiming:
         """The same pattern with its common delay fitted to ``tip_model`` (the best model's tip
-        at the row times, mm), starting from ``start_s`` (see module doc)."""
+        at the row times, mm), starting from ``start_s`` (see module doc).
+
+        The delay is bounded to [0, ``bound_s``] (a tracker shows the past, and no further back
+        than the log's timing supports, :func:`delay_bound_s`); a fitted delay outside is
+        clipped and the timing marked ``suspect``: what it absorbed is left to the physics."""
         rel = self.delay_s - self.delay_s.mean()
-        common = _common_delay(self.t_s, tip_meas, tip_model, rel[self.classes], start_s)
+        free = _common_delay(self.t_s, tip_meas, tip_model, rel[self.classes], start_s)
+        common = float(np.clip(free, 0.0, bound_s))
+        suspect = ""
+        if free != common:
+            suspect = (
+                f"the fit wanted a tracker delay of {1e3 * free:.1f} ms, outside the"
+                f" [0, {1e3 * bound_s:.1f}] ms the log's timing supports (latency allowance"
+                f" + one frame + one row): kept at {1e3 * common:.1f} ms; the rest of that"
+                " gap is physics, not lag"
+            )
         if self.period_rows == 1:
             note = f"constant tracker delay {1e3 * common:.1f} ms (no beat with the loop)"
         else:
@@ -98,7 +152,9 @@ class TipTiming:
                 f"tracker samples beat with the loop every {self.period_rows} cycles; delay per"
                 f" cycle phase [{pattern}] ms"
             )
-        return TipTiming(self.period_rows, rel + common, self.classes, self.t_s, note)
+        if suspect:
+            note += f" (SUSPECT: {suspect})"
+        return TipTiming(self.period_rows, rel + common, self.classes, self.t_s, note, suspect)
 
 
 def no_timing(t_s: np.ndarray) -> TipTiming:

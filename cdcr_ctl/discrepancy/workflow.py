@@ -50,7 +50,7 @@ from cdcr_ctl.discrepancy.selection import (
     select,
 )
 from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
-from cdcr_ctl.discrepancy.timing import estimate_timing
+from cdcr_ctl.discrepancy.timing import delay_bound_s, estimate_timing
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
 
@@ -59,7 +59,8 @@ from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
 class RunOutcome:
     """Per run: tip RMS gap (mm) and tension RMS gap (N) before and after the refit, and the
     tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove.
-    ``lag_s``: the tracker's mean delay behind the rows (the run's timing model)."""
+    ``lag_s``: the tracker's mean delay behind the rows (the run's timing model); ``lag_suspect``:
+    why that delay is not trusted (empty when the log's timing supports it)."""
 
     name: str
     tip_noise_floor_mm: float
@@ -69,6 +70,7 @@ class RunOutcome:
     tension_rms_after_N: float
     lag_s: float
     tables: list[Table]
+    lag_suspect: str
     t_s: np.ndarray
     tip_err_before_mm: np.ndarray
     tip_err_after_mm: np.ndarray
@@ -356,7 +358,8 @@ def _final_timing(
             start = _lag_of(d, run, nuis_after if rf is not None else _nuisance_fit(ri, d, d.r0))
             start += float(np.mean(run.timing.row_delay_s))
             model_tip = best.tip_map(sim.raw(best, ri).tip_mm)  # untimed, in the tracker's view
-            run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start_s=start)
+            bound = delay_bound_s(run.t_s, run.tip_mm)
+            run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start, bound)
             run.notes.append(run.timing.note)
         base = sim(run.spec, ri)
         base_all.append(base)
@@ -473,6 +476,7 @@ def _outcomes(
                 tension_rms_after_N=rms(Ta),
                 lag_s=float(np.mean(run.timing.row_delay_s)),
                 tables=tables,
+                lag_suspect=run.timing.suspect,
                 t_s=run.t_s,
                 tip_err_before_mm=eb,
                 tip_err_after_mm=ea,

@@ -10,7 +10,8 @@ dwell, which holds whatever the command was (errors-in-variables least squares):
 
 unknowns per dwell j: the bending vectors x_j (2S, rad), the anchor tensions T_j (K, N) and, where
 the friction state is not certain (:mod:`.dwell`), the mobilised fractions s_jk in [-1, 1];
-global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, pulley α/n).
+global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, lost motion b,
+pulley α/n).
 
 residuals per dwell, each divided by its standard deviation:
 
@@ -18,7 +19,9 @@ residuals per dwell, each divided by its standard deviation:
 * cell:    T_cell(x_j, T_j, s_j) - T_load cell                    (eq. 23, 29-32; N)
   (the tension entering the base hole, T_j exp(s μ Σ η), or beyond the pulleys at the actuator)
 * moment:  Σ_k T_jk F̄_k(s, μ) a_k(x_j) - m_req(x_j; EI, gravity) (eq. 8-15; 2S rows, N mm)
-* compat:  q_geom(x_j) + δ_in + δ_out - q_act                     (eq. 4, 33-37; mm)
+* compat:  q_geom(x_j) + δ_in + δ_out + d_jk b_k/2 - q_act        (eq. 4, 33-37; mm)
+  (b_k the cable's lost motion, d_jk = ±1 the direction of its last motion: the drive stands
+  half the play ahead of the cable, Yang et al. 2022 eq. 13-17, :mod:`cdcr_ctl.model.deadzone`)
   dropped for a cable whose measured tension is below ``slack_N`` (a slack cable is longer
   than its path)
 
@@ -188,6 +191,7 @@ class _Problem:
         self.block = [2 * S + K + len(u) for u in self.unc]
         self.offsets = np.concatenate(([0], np.cumsum(self.block)))
         self._ft_key: tuple[float, ...] | None = None
+        self._play_cache: dict[tuple[float, ...], list[list[float]]] = {}
         self._ft: ForceTransfer | None = None
         self.g_all = np.array([fp.to_var(fp.nominal) for fp in self.fps])
         self.set_stage(list(range(len(self.fps))), RESIDUAL_KINDS)
@@ -282,7 +286,43 @@ class _Problem:
             elif kind == "moment":
                 out.append(mom[a] / self.sig_M[j])
             else:
-                out.append((cab[a][3] - float(p.q_act_mm[a])) / self.sig_q[j][a])
+                # The drive stands ahead of the cable by what the play leaves
+                # (cdcr_ctl.model.deadzone): +-b/2 once a move exceeded the gap, less at the
+                # first dwell after a reversal when the step was shorter than the gap.
+                play = self.play_offsets(ft)[j][a]
+                out.append((cab[a][3] + play - float(p.q_act_mm[a])) / self.sig_q[j][a])
+        return out
+
+    def play_offsets(self, ft: ForceTransfer) -> list[list[float]]:
+        """Per point and cable, drive position minus cable position through the play (mm):
+        the play operator (:func:`cdcr_ctl.model.deadzone.play_forward`) run over each run's
+        dwells in order (between two dwells a cable moves one way, so the operator on the dwell
+        positions is exact), starting centred at the run's first dwell. Cached per widths."""
+        key = tuple(c.backlash_mm for c in ft.params.cables)
+        hit = self._play_cache.get(key)
+        if hit is not None:
+            return hit
+        out: list[list[float]] = []
+        last: dict[str, list[float]] = {}
+        for p in self.points:
+            x = [float(v) for v in p.q_act_mm]
+            prev = last.get(p.run)
+            y = []
+            for k, b in enumerate(key):
+                yp = prev[k] if prev is not None else x[k]
+                if not math.isfinite(x[k]):
+                    y.append(yp)
+                elif not math.isfinite(yp):
+                    y.append(x[k])
+                else:
+                    y.append(min(max(yp, x[k] - 0.5 * b), x[k] + 0.5 * b))
+            last[p.run] = y
+            out.append(
+                [x[k] - y[k] if math.isfinite(x[k] - y[k]) else 0.0 for k in range(len(key))]
+            )
+        if len(self._play_cache) > 64:
+            self._play_cache.clear()
+        self._play_cache[key] = out
         return out
 
     def residuals(self, z: np.ndarray) -> np.ndarray:
@@ -521,6 +561,11 @@ def identify(
     )
 
 
+def _exp(v: float) -> float:
+    """exp(v), inf above the float range (v > 709.78), nan for nan."""
+    return math.inf if v > 709.0 else math.exp(v)
+
+
 def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, int, int]:
     """Values, standard errors and 95 % intervals of the free globals at the solution ``z``."""
     lo, hi = prob.bounds()
@@ -550,7 +595,8 @@ def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, in
         sd = math.sqrt(max(float(cov[idx[c], idx[c]]), 0.0)) if keep[c] else math.nan
         if fp.log:
             std = v * sd
-            ci = (math.exp(z[c] - tq * sd), math.exp(z[c] + tq * sd))
+            # exp of a huge interval (a fit that does not explain its data) saturates at inf
+            ci = (_exp(z[c] - tq * sd), _exp(z[c] + tq * sd))
         else:
             std = sd
             ci = (v - tq * sd, v + tq * sd)

@@ -16,6 +16,11 @@ Identifiability (what shows the parameter in the data; derivations in :mod:`.est
 * EA_k and pretension T0_k (eq. 33-36): cable compatibility q_act = q_geom(pose) + δ, with
   δ = (∫T ds - T0 L_k)/EA_k linear in the measured tension level: EA_k from the slope, T0_k from
   the offset. Needs drive feedback, the tip (q_geom of the true pose) and a load cell on cable k.
+* b_k, lost motion (dead zone) between drive k and its cable (Yang et al. 2022 eq. 13-17): the
+  drive stands b_k/2 ahead of the cable in the direction of its last motion, so the compatibility
+  residual of the dwells after pulling in and after paying out differ by b_k at one pose (EA and
+  T0 change it with the tension, not with the direction). Needs drive feedback, the tip and both
+  motion directions; it is fitted with or without a load cell.
 * Pulley α (and n) (eq. 25-32): with load cells at the actuator, the ratio of actuator tension
   to the tension entering the robot (inferred from the moment balance); the friction exponent n
   from how that ratio changes with the tension level. With load cells at the robot base the
@@ -36,7 +41,7 @@ from cdcr_ctl.model.identification import ParamRef, get_value, with_values
 from cdcr_ctl.model.params import Location, RobotParams
 
 #: Kinds of fitted parameters, in report order.
-KINDS = ("EI", "mu", "EA", "pretension", "pulley_alpha", "pulley_n")
+KINDS = ("EI", "mu", "EA", "pretension", "backlash", "pulley_alpha", "pulley_n")
 #: Kinds fitted from the force side (tensions, moment balance) in the first stage.
 FORCE_KINDS = frozenset({"EI", "mu"})
 #: A segment whose dwells span less bend than this (rad) shows no stiffness.
@@ -184,6 +189,20 @@ def plan_parameters(
                     hi = max(10.0 * nom, 20.0)
                     fp = FitParameter(name, kind, k, (ref,), (1.0,), nom, 0.0, hi, log=False)
                 fit.append(fp)
+
+    for k in range(K):
+        name = f"{cable_name(k)}.backlash_mm"
+        nom = params.cables[k].backlash_mm
+        if not has_q:
+            fixed.append(NotIdentified(name, nom, "no drive feedback or command"))
+        elif not has_tip:
+            fixed.append(NotIdentified(name, nom, "no tracker tip: the cable position is unknown"))
+        elif not ({1.0, -1.0} <= dirs[k]):
+            fixed.append(NotIdentified(name, nom, "the cable did not move both ways"))
+        else:
+            ref = ParamRef("cable", k, "backlash_mm")
+            hi = max(5.0, 4.0 * nom)
+            fit.append(FitParameter(name, "backlash", k, (ref,), (1.0,), nom, 0.0, hi, log=False))
 
     names = _pulley_names(params)
     if names and fit_pulleys != "off":

@@ -111,10 +111,13 @@ def overlay_document(
                     f"{seg.name} backbone E_MPa {e.value * f:.6g} (EI {e.value:.5g} N mm^2): "
                     + _fmt_ci(e, f)
                 )
-        elif fp.kind in ("mu", "EA", "pretension"):
+        elif fp.kind in ("mu", "EA", "pretension", "backlash"):
             cab = robot.cables[fp.index]
             d = cab_doc.setdefault(cab.name, {"name": cab.name})
-            if fp.kind == "mu":
+            if fp.kind == "backlash":
+                d["backlash_mm"] = round(e.value, 6)
+                notes.append(f"{cab.name} backlash_mm {e.value:.4g}: {_fmt_ci(e)}")
+            elif fp.kind == "mu":
                 d["mu_disk"] = round(e.value, 5)
                 notes.append(f"{cab.name} mu_disk {e.value:.5g}: {_fmt_ci(e)}")
             elif fp.kind == "pretension":

@@ -299,8 +299,13 @@ class CCDiskModel(Compensator):
     ) -> np.ndarray:
         """q_nominal + delta of ``mode`` (off/model/measured), then the actuator effects, mm.
 
-        ``state`` is the object from :meth:`new_state` (mutated). Mode ``off`` still tracks the
-        friction memory so that switching modes mid-run starts from the right state.
+        Every effect of the model acts on every cycle: the force-transfer chain (friction,
+        elongation, coupling, gravity, pulleys) through delta, and the transmission effects
+        (the cables' dead zone with its direction memory, Yang et al. 2022 eq. 13-17) through
+        :meth:`actuator_command`. ``state`` is the object from :meth:`new_state`; the control
+        loop owns it and passes it every cycle (mutated here). Mode ``off`` sends q_nominal
+        alone but still tracks the friction and dead-zone memories, so that switching modes
+        mid-run starts from the right state.
         """
         if not isinstance(state, CompensationState):
             raise ModelError("q_command needs the state made by new_state()")
@@ -309,10 +314,15 @@ class CCDiskModel(Compensator):
         res = self.step(psi, state, "model" if mode == "off" else mode, measured_N)
         if mode == "off":
             q = np.asarray(q_nominal, dtype=float)
-        else:
-            # q_nominal + (q - q_geom), element by element as numpy would (same rounding)
-            qn = np.asarray(q_nominal, dtype=float).tolist()
-            q = np.array([n + (a - b) for n, a, b in zip(qn, res.q, res.q_geom, strict=True)])
+            if self.effects.actuator:
+                # The transmission memories (dead-zone direction) follow the command in every
+                # mode, so switching mode mid-run starts from the right pre-travel; ``off``
+                # sends the bare geometry.
+                self.actuator_command(q, state)
+            return q
+        # q_nominal + (q - q_geom), element by element as numpy would (same rounding)
+        qn = np.asarray(q_nominal, dtype=float).tolist()
+        q = np.array([n + (a - b) for n, a, b in zip(qn, res.q, res.q_geom, strict=True)])
         if not self.effects.actuator:
             return q
         return self.actuator_command(q, state)

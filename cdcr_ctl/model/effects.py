@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
 
+from cdcr_ctl.model.deadzone import dead_zone_inverse_list, play_forward
 from cdcr_ctl.model.params import CableParams, Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
@@ -49,13 +50,22 @@ STANDARD_GRAVITY_MM_S2 = (0.0, 0.0, -9810.0)
 class BacklashPlay:
     """Play of total width ``width_mm`` (per cable or one for all) between drive and cable.
 
-    Forward (:meth:`to_cable`): y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred
-    (y = 0 at x = 0). Inverse (:meth:`to_actuator`): x = y + sign * b/2 with the sign of the last
-    motion of the wanted cable position (kept while it does not move). State: (K, 2) array of
-    [last cable position (mm), last direction (+1/-1/0)]. Units mm.
+    Forward (:meth:`to_cable`): the play operator of :mod:`cdcr_ctl.model.deadzone`,
+    y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred (y = 0 at x = 0). Inverse
+    (:meth:`to_actuator`): :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`, x = y + c with
+    the pre-travel c moving towards +-b/2 in the direction of the last motion of the wanted cable
+    position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse).
+    State: (K, 2) array of [last cable position (forward) or last wanted cable position
+    (inverse), pre-travel c (inverse only)], mm; made by :meth:`new_state` and owned by the
+    caller (the control loop keeps it from cycle to cycle). Yang et al. 2022 eq. 13-17.
     """
 
     width_mm: float | tuple[float, ...]
+    max_step_mm: float = math.inf
+    #: half widths per cable count, made on first use (the loop's path stays in plain floats)
+    _halves: dict[int, list[float]] = field(
+        default_factory=dict, init=False, repr=False, compare=False, hash=False
+    )
 
     def _b(self, n: int) -> np.ndarray:
         b = np.broadcast_to(np.asarray(self.width_mm, dtype=float), (n,))
@@ -68,19 +78,35 @@ class BacklashPlay:
 
     def to_cable(self, q_act_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
         x = np.asarray(q_act_mm, dtype=float)
-        half = 0.5 * self._b(x.size)
-        y = np.clip(state[:, 0], x - half, x + half)
+        y = play_forward(x, state[:, 0], self._b(x.size))
         state[:, 0] = y
         return y
 
     def to_actuator(self, q_cable_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
-        y = np.asarray(q_cable_mm, dtype=float)
-        half = 0.5 * self._b(y.size)
-        dy = y - state[:, 0]
-        direction = np.where(dy > 1e-12, 1.0, np.where(dy < -1e-12, -1.0, state[:, 1]))
-        state[:, 0] = y
-        state[:, 1] = direction
-        return y + direction * half
+        y = np.asarray(q_cable_mm, dtype=float).tolist()
+        half = self._halves.get(len(y))
+        if half is None:
+            half = self._halves.setdefault(len(y), (0.5 * self._b(len(y))).tolist())
+        rows = state.tolist()
+        x = dead_zone_inverse_list(y, rows, half, self.max_step_mm)
+        state[:, :] = rows
+        return np.array(x)
+
+
+def with_cable_play(
+    params: RobotParams, effects: Effects, max_step_mm: float = math.inf
+) -> Effects:
+    """``effects`` with the cables' own lost motion (``CableParams.backlash_mm``) as the first
+    (drive-side) transmission effect, :class:`BacklashPlay` with per-cable widths (mm).
+
+    Unchanged when every cable has zero play or ``effects.actuator`` already holds a play (a
+    discrepancy candidate that brings its own). ``max_step_mm``: the inverse's pre-travel step
+    bound per call (see :mod:`cdcr_ctl.model.deadzone`).
+    """
+    widths = tuple(c.backlash_mm for c in params.cables)
+    if not any(w > 0 for w in widths) or any(isinstance(e, BacklashPlay) for e in effects.actuator):
+        return effects
+    return replace(effects, actuator=(BacklashPlay(widths, max_step_mm), *effects.actuator))
 
 
 @dataclass(frozen=True)
@@ -298,10 +324,13 @@ class DiskFriction(EffectTerm):
 
 
 class ReversalBacklash(EffectTerm):
-    """Backlash (play) between drive and cable, one width for all drives (:class:`BacklashPlay`).
+    """Lost motion (play) between drive and cable, one correction for all cables
+    (:class:`BacklashPlay`).
 
-    Parameter ``backlash_mm`` (mm, >= 0). Signature: a dead zone at every reversal whose width
-    is independent of speed and tension; the error keeps the sign of the last motion.
+    Parameter ``backlash_mm`` (mm, >= 0): added to each cable's configured play
+    (``CableParams.backlash_mm``, 0 when the config has none). Signature: a dead zone at every
+    reversal whose width is independent of speed and tension; the error keeps the sign of the
+    last motion.
     """
 
     name = "backlash"
@@ -312,15 +341,27 @@ class ReversalBacklash(EffectTerm):
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (EffectParam("backlash_mm", "mm", 0.2, 0.0, 20.0),)
 
-    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+    def _widths(self, base: ModelSpec, values: np.ndarray) -> tuple[float, ...]:
         b = max(float(values[0]), 0.0)
-        if b == 0.0:
+        return tuple(c.backlash_mm + b for c in base.params.cables)
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        if max(float(values[0]), 0.0) == 0.0:
             return base
-        act = (*base.effects.actuator, BacklashPlay(b))
-        return replace(base, effects=replace(base.effects, actuator=act))
+        w = self._widths(base, values)
+        # the play sits where the config's was, else after the drive-side effects (a scale)
+        old = base.effects.actuator
+        at = next((i for i, e in enumerate(old) if isinstance(e, BacklashPlay)), len(old))
+        rest = tuple(e for e in old if not isinstance(e, BacklashPlay))
+        params = _cables(base.params, backlash_mm=list(w))
+        act = (*rest[:at], BacklashPlay(w), *rest[at:])
+        return replace(base, params=params, effects=replace(base.effects, actuator=act))
 
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
-        return [FittedValue("drives", "", "backlash_mm", max(float(values[0]), 0.0))]
+        return [
+            FittedValue("cable", c.name, "backlash_mm", w)
+            for c, w in zip(base.params.cables, self._widths(base, values), strict=True)
+        ]
 
 
 class SegmentCoupling(EffectTerm):
@@ -410,6 +451,59 @@ class GravitySag(EffectTerm):
             FittedValue("segment", s.name, "disk_mass_g", a * m)
             for s, m in zip(base.params.segments, self._refs(base), strict=True)
         ]
+        if not base.effects.gravity:
+            out.append(FittedValue("model_effects", "", "gravity", True))
+        return out
+
+
+class GravityDirection(EffectTerm):
+    """The mount direction: gravity in the base frame turned away from the config's vector.
+
+    Parameters ``tilt_x``/``tilt_y`` (rad): g_new = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg, the
+    config's gravity vector (standard gravity along -z if it is zero) turned about the base x
+    and y axes; its size is kept (the mount is tilted, gravity is not stronger). A turn about
+    the gravity vector itself changes nothing, so two angles are all the direction has. When
+    the model has no disk mass or gravity off, the reference masses
+    (:data:`REFERENCE_DISK_MASS_G`) carry the sag. Signature: a sag whose direction in the base
+    frame is fixed and not the config's (sideways for a robot whose config says upright): the
+    error depends on the bending direction relative to the true gravity, not on time.
+    """
+
+    name = "gravity_direction"
+    title = "gravity direction (mount tilt)"
+    signature = "sag towards a fixed direction other than the config's gravity vector"
+    reference = "Qi et al. 2023 eq. 7-9 (external load W_e) with the mount direction fitted"
+
+    def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        return (
+            EffectParam("tilt_x", "rad", 0.05, -math.pi / 2, math.pi / 2),
+            EffectParam("tilt_y", "rad", 0.05, -math.pi / 2, math.pi / 2),
+        )
+
+    def _gravity(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
+        g = np.asarray(base.params.gravity_mm_s2, dtype=float)
+        if np.linalg.norm(g) == 0:
+            g = np.asarray(STANDARD_GRAVITY_MM_S2)
+        R = rotation_from_rotvec((float(values[0]), float(values[1]), 0.0))
+        return R @ g
+
+    def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        p = base.params
+        segs = p.segments
+        if not (base.effects.gravity and any(s.disk_mass_g > 0 for s in segs)):
+            segs = tuple(
+                replace(s, disk_mass_g=s.disk_mass_g or REFERENCE_DISK_MASS_G) for s in segs
+            )
+        g = tuple(float(v) for v in self._gravity(base, values))
+        return replace(
+            base,
+            params=replace(p, segments=segs, gravity_mm_s2=g),
+            effects=replace(base.effects, gravity=True),
+        )
+
+    def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
+        g = [round(float(v), 2) for v in self._gravity(base, values)]
+        out = [FittedValue("robot", "", "gravity_mm_s2", g)]
         if not base.effects.gravity:
             out.append(FittedValue("model_effects", "", "gravity", True))
         return out
@@ -555,6 +649,7 @@ CANDIDATES: tuple[EffectTerm, ...] = (
     ReversalBacklash(),
     SegmentCoupling(),
     GravitySag(),
+    GravityDirection(),
     PulleyLosses(),
     ActuatorScale(),
     TrackerFrameOffset(),

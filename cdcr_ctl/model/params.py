@@ -85,12 +85,15 @@ class CableParams:
     mu_disk: float = 0.0
     free_length_mm: float = 0.0
     pulleys: tuple[PulleyParams, ...] = ()
+    backlash_mm: float = 0.0
 
     def __post_init__(self) -> None:
         if not (self.routing_radius_mm > 0 and self.diameter_mm > 0 and self.EA_N > 0):
             raise ModelError(f"cable {self.name}: radius, diameter and EA must be positive")
         if self.pretension_N < 0 or self.mu_disk < 0 or self.free_length_mm < 0:
             raise ModelError(f"cable {self.name}: pretension, mu and free length must be >= 0")
+        if not (self.backlash_mm >= 0 and math.isfinite(self.backlash_mm)):
+            raise ModelError(f"cable {self.name}: backlash_mm must be finite and >= 0")
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,13 @@ Probability = Annotated[float, Field(ge=0, le=1)]
 
 
 class TruthEffects(Section):
-    """Physical effects of the simulated world beyond the robot section."""
+    """Physical effects of the simulated world beyond the robot section.
+
+    ``backlash_mm``: when > 0, this lost motion on every cable (else each truth cable's own
+    ``backlash_mm``). ``friction_law``: ``capstan`` (the controller's law, Qi et al. 2023 eq.
+    16-24) or ``wrap_power`` (friction density growing with the accumulated wrap, exponent
+    ``friction_exponent``; :mod:`cdcr_ctl.sim.friction_law` states the law).
+    """
 
     geometry: Literal["chord", "cc"] = "chord"
     backlash_mm: NonNegativeFloat = 0.0
@@ -38,6 +44,8 @@ class TruthEffects(Section):
     elongation: bool = True
     coupling: bool = True
     tracker_offset: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
+    friction_law: Literal["capstan", "wrap_power"] = "capstan"
+    friction_exponent: Annotated[float, Field(gt=0, le=4)] = 1.5
 
 
 class NoiseConfig(Section):

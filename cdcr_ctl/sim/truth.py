@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -20,8 +20,9 @@ import numpy as np
 from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import Effects, ForwardStepper
-from cdcr_ctl.model.effects import BacklashPlay
+from cdcr_ctl.model.effects import with_cable_play
 from cdcr_ctl.model.kinematics import chain
+from cdcr_ctl.sim.friction_law import use_friction_law
 from cdcr_ctl.sim.simconfig import LoadedSim
 
 log = logging.getLogger(__name__)
@@ -82,8 +83,13 @@ class TruthModel(SteppedTruth):
     def __init__(self, loaded: LoadedSim) -> None:
         rig, eff = loaded.rig, loaded.sim.effects
         self.params = robot_params(loaded.truth)
-        # Transmission effects the controller's config has no key for (actuator -> cable).
-        actuator = (BacklashPlay(eff.backlash_mm),) if eff.backlash_mm > 0 else ()
+        # Lost motion: each truth cable's own play (truth_robot.cables[].backlash_mm), or, when
+        # the world's effects.backlash_mm is set, that width on every cable.
+        if eff.backlash_mm > 0:
+            self.params = replace(
+                self.params,
+                cables=tuple(replace(c, backlash_mm=eff.backlash_mm) for c in self.params.cables),
+            )
         self.effects = Effects(
             disk_friction=eff.disk_friction,
             pulley_friction=eff.pulley_friction,
@@ -91,9 +97,10 @@ class TruthModel(SteppedTruth):
             coupling=eff.coupling,
             gravity=eff.gravity,
             geometry=eff.geometry,
-            actuator=actuator,
         )
+        self.effects = with_cable_play(self.params, self.effects)
         self.stepper = ForwardStepper(self.params, self.effects)
+        use_friction_law(self.stepper, eff.friction_law, eff.friction_exponent)
         by_cable = {d.cable: d for d in rig.drives}
         scale = eff.counts_per_mm_scale or [1.0] * len(rig.drives)
         # The truth's transmission: what the drives' counts really mean in cable millimetres.

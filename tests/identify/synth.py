@@ -88,6 +88,14 @@ def perturbed_world(
     return World(with_values(nominal, refs, values), Effects(geometry="chord"))
 
 
+def with_play(params: RobotParams, play_mm: tuple[float, ...]) -> RobotParams:
+    """``params`` with each cable's lost motion (mm) set."""
+    from dataclasses import replace
+
+    cables = tuple(replace(c, backlash_mm=b) for c, b in zip(params.cables, play_mm, strict=True))
+    return replace(params, cables=cables)
+
+
 def write_run(
     run_dir: Path,
     sweep: CalibrationSweep | Trajectory,

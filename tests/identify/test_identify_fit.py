@@ -20,20 +20,25 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, loadcell_locations, robot_params
 from cdcr_ctl.identify.dwell import extract_dwells
 from cdcr_ctl.identify.estimator import identify
+from cdcr_ctl.identify.gate import judge_identification
 from cdcr_ctl.identify.parameters import plan_parameters
 from cdcr_ctl.identify.pipeline import overlay_text
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
+from cdcr_ctl.model.effects import with_cable_play
 from cdcr_ctl.model.identification import get_value
 from cdcr_ctl.model.params import Effects
 from cdcr_ctl.runlog import load_run
 
 EFFECTS = Effects(geometry="chord", capstan_points=25)
+#: Lost motion of the made-up truth per cable (mm): 0.2-0.4 mm, as the default simulated world.
+PLAY_MM = (0.25, 0.4, 0.3)
 SPEC = SweepSpec(theta_step_deg=25.0, approach_step_deg=0.0, dwell_s=0.6, start_dwell_s=0.6)
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
-    world = synth.World(synth.perturbed_world(seed=7, pulleys=False).params, EFFECTS)
+    params = synth.with_play(synth.perturbed_world(seed=7, pulleys=False).params, PLAY_MM)
+    world = synth.World(params, with_cable_play(params, EFFECTS))
     run_dir = tmp_path_factory.mktemp("ident") / "sweep"
     synth.write_run(run_dir, calibration_sweep(1, SPEC), world, samples_per_dwell=8, seed=3)
     cfg = load_rig_config(synth.RIG_CONFIG)
@@ -65,12 +70,28 @@ def test_known_parameters_recovered(fitted, kind):
         assert abs(e.value - truth) < 5.0 * e.std + 1e-3 * truth, e.name
 
 
+def test_lost_motion_recovered(fitted):
+    """The dead zone of every cable (nominal 0) is found from the direction-dependent
+    compatibility residual (Yang et al. 2022 eq. 13-17)."""
+    world, res, _ = fitted
+    ests = [e for e in res.estimates if e.parameter.kind == "backlash"]
+    assert len(ests) == len(PLAY_MM)
+    for e in ests:
+        truth = _truth(world, e)
+        assert e.nominal == 0.0
+        # 0.02 mm: a tenth of the smallest play, and 8 x the tracker noise over the routing
+        # radius ratio the compatibility rows see (0.05 mm tip noise / sqrt(dwells)).
+        assert abs(e.value - truth) < 0.02, e.name
+
+
 def test_fit_explains_the_data_and_reports_what_stays_nominal(fitted):
     _, res, _ = fitted
     assert res.rms_after["tip"] < 0.1 * res.rms_before["tip"] + 0.02
     assert res.rms_after["cell"] < 0.2 * res.rms_before["cell"]
     assert any(f.name == "pulleys.alpha" for f in res.fixed)
     assert 0.3 < res.chi2_reduced < 5.0
+    # the misfit gate lets a fit through that explains its data
+    assert judge_identification(res).ok
 
 
 def test_overlay_loads_back_into_the_rig_config(fitted, tmp_path: Path):

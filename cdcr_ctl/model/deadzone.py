@@ -1,0 +1,100 @@
+"""Lost motion between drive and cable: the play operator and its rate-bounded inverse.
+
+Pure numpy, no I/O, no clocks. Units: mm of cable pulled in (the drive's position converted with
+``counts_per_mm``), per cable, shape (K,).
+
+The physics (Yang et al. 2022 eq. 13-17: a dead zone l_h at each reversal of a cable, the
+hysteresis the cable path adds between drive and joint; here cable slack, sheath play and gear
+backlash lumped into one play of total width b_k per cable). Forward, the *play operator*:
+
+    y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2)                                     (P)
+
+x the drive position, y the cable position; the cable follows only while the drive pushes on one
+side of the play, and stands still while the drive crosses the gap after a reversal. Starting
+centred (y = 0 at x = 0).
+
+The inverse (Yang's dead-zone compensation, eq. 13 with l_h = b/2 on the side of the motion):
+for a wanted cable path y(t) the drive must run ahead of it by half the play in the direction of
+the last motion,
+
+    x_k = y_k + c_k,   c_k -> +b_k/2 while y_k rises, -b_k/2 while it falls, kept while it holds
+    (direction memory).                                                                (D)
+
+Inserted into (P): while y rises with c = +b/2, clip(y_prev, y, y + b) = y (y_prev <= y), so the
+cable follows exactly; likewise falling. At a reversal the exact inverse steps x by b in one
+command, a velocity step the drive cannot follow (and the supervisor's velocity limit trips on).
+:func:`dead_zone_inverse` therefore moves the pre-travel c by at most ``max_step_mm`` per call
+(the control layer derives it from the cable velocity limit and the loop period), so the gap is
+crossed in ceil(b / max_step) cycles, during which the cable stands still as it would anyway.
+Limits: b = 0 gives x = y exactly; ``max_step_mm`` = inf gives the exact inverse of (P).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Motion of the wanted cable position below this (mm) keeps the direction memory (a pose
+#: that holds, or float noise of one; well below the smallest drive count of any config).
+DIRECTION_EPS_MM = 1e-9
+
+
+def play_forward(x_mm: np.ndarray, y_prev_mm: np.ndarray, width_mm: np.ndarray) -> np.ndarray:
+    """Cable position through the play (P): clip(y_prev, x - b/2, x + b/2), mm, shape (K,)."""
+    half = 0.5 * np.asarray(width_mm, dtype=float)
+    return np.clip(np.asarray(y_prev_mm, dtype=float), x_mm - half, x_mm + half)
+
+
+def dead_zone_inverse(
+    y_mm: np.ndarray,
+    y_prev_mm: np.ndarray,
+    c_prev_mm: np.ndarray,
+    width_mm: np.ndarray,
+    max_step_mm: float = math.inf,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Drive position for the wanted cable position ``y_mm`` (D), and the new pre-travel.
+
+    ``y_prev_mm``: the wanted cable position of the last call; ``c_prev_mm``: the pre-travel of
+    the last call (mm, in [-b/2, b/2]; 0 at the start, centred). The target pre-travel is
+    sign(y - y_prev) * b/2 (kept when y holds, the direction memory); c moves towards it by at
+    most ``max_step_mm``. Returns (x_mm, c_mm), both (K,).
+    """
+    y = np.asarray(y_mm, dtype=float)
+    half = 0.5 * np.asarray(width_mm, dtype=float)
+    c_prev = np.asarray(c_prev_mm, dtype=float)
+    dy = y - np.asarray(y_prev_mm, dtype=float)
+    target = np.where(dy > DIRECTION_EPS_MM, half, np.where(dy < -DIRECTION_EPS_MM, -half, c_prev))
+    c = c_prev + np.clip(target - c_prev, -max_step_mm, max_step_mm)
+    return y + c, c
+
+
+def dead_zone_inverse_list(
+    y_mm: list[float],
+    state: list[list[float]],
+    half_mm: list[float],
+    max_step_mm: float = math.inf,
+) -> list[float]:
+    """:func:`dead_zone_inverse` on plain floats for the control loop's few cables (the numpy
+    call costs ~7 us for K = 3, this ~2 us); ``state`` rows [y_prev, c] are updated in place."""
+    out = []
+    for k, y in enumerate(y_mm):
+        row = state[k]
+        dy = y - row[0]
+        c = row[1]
+        if dy > DIRECTION_EPS_MM:
+            target = half_mm[k]
+        elif dy < -DIRECTION_EPS_MM:
+            target = -half_mm[k]
+        else:
+            target = c
+        d = target - c
+        if d > max_step_mm:
+            d = max_step_mm
+        elif d < -max_step_mm:
+            d = -max_step_mm
+        c += d
+        row[0] = y
+        row[1] = c
+        out.append(y + c)
+    return out
