@@ -1,0 +1,257 @@
+"""The simulated EPOS's PDO service and its NMT/SDO gates: RPDOs applied through their mapping
+(synchronous ones at the next SYNC), TPDOs built through theirs (every n-th SYNC with the
+feedback lag, or on change), the per-SYNC work, NMT commands, boot and power cycle.
+
+A mixin of :class:`~cdcr_ctl.sim.epos.node.SimEpos` (the state lives on the node).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import can
+from canopen.sdo.exceptions import SdoAbortedError
+
+from cdcr_ctl.drives import epos
+from cdcr_ctl.drives.cia402 import Mode, State
+from cdcr_ctl.drives.emcy import PDO_LENGTH_ERROR
+from cdcr_ctl.sim.epos.objects import _LIVE
+
+#: One logger for the whole simulated node (the name it had before the node was split up).
+log = logging.getLogger("cdcr_ctl.sim.epos.node")
+
+
+@dataclass
+class _Pdo:
+    number: int
+    cob_id: int
+    transmission: int
+    entries: list[tuple[int, int, int]]  # (index, subindex, bytes)
+    counter: int = 0
+    last: bytes | None = None
+    pending: bytes | None = None  # synchronous RPDO data waiting for SYNC
+    #: TPDO: per entry a function giving its bytes (live objects read straight, see _readers).
+    readers: list[Callable[[], bytes]] | None = None
+
+
+class _PdoService:
+    """PDOs, SYNC, NMT and SDO gates of :class:`~cdcr_ctl.sim.epos.node.SimEpos`."""
+
+    # ================================================================== PDOs
+    def _rebuild_pdos(self) -> None:
+        """Read PDO communication and mapping parameters into fast tables; (re)subscribe RPDOs."""
+        for cob in list(self._rpdos):
+            self.network.unsubscribe(cob, self._on_rpdo)
+        self._rpdos, self._tpdos = {}, []
+        for i in range(4):
+            for comm, mapping, rx in (
+                (0x1400 + i, 0x1600 + i, True),
+                (0x1800 + i, 0x1A00 + i, False),
+            ):
+                cob = self._value(comm, 1)
+                if cob & epos.PDO_DISABLED:
+                    continue
+                entries = []
+                for s in range(1, self._value(mapping, 0) + 1):
+                    e = self._value(mapping, s)
+                    entries.append((e >> 16, (e >> 8) & 0xFF, (e & 0xFF) // 8))
+                pdo = _Pdo(i + 1, cob & 0x7FF, self._value(comm, 2), entries)
+                if rx:
+                    self._rpdos[pdo.cob_id] = pdo
+                else:
+                    self._tpdos.append(pdo)
+        for cob in self._rpdos:
+            self.network.subscribe(cob, self._on_rpdo)
+        self._pdo_dirty = False
+
+    def _operational(self) -> bool:
+        return not self.silent and not self._rebooting and self.node.nmt.state == "OPERATIONAL"
+
+    def _on_rpdo(self, can_id: int, data: bytearray, ts: float) -> None:
+        if not self._operational():
+            return
+        if self._pdo_dirty:
+            self._rebuild_pdos()
+        pdo = self._rpdos.get(can_id)
+        if pdo is None:
+            return
+        if len(data) < sum(n for _, _, n in pdo.entries):
+            self._fault(PDO_LENGTH_ERROR)
+            return
+        self.rpdo_count += 1
+        if pdo.transmission <= 240:
+            pdo.pending = bytes(data)  # synchronous: applied at the next SYNC
+        else:
+            self._apply_rpdo(pdo, bytes(data))
+            self._send_changed_tpdos()
+
+    def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
+        offset = 0
+        for index, sub, n in pdo.entries:
+            chunk = data[offset : offset + n]
+            offset += n
+            if index in (
+                epos.TARGET_POSITION,
+                epos.EPOS2_POSITION_MODE_SETPOINT,
+                epos.EPOS2_IP_DATA_RECORD,
+            ):
+                self._setpoint_since_sync = True
+            try:
+                self.node.set_data(index, sub, chunk)
+            except SdoAbortedError as exc:
+                log.warning(
+                    "node %d: RPDO write 0x%04X refused (0x%08X)", self.node_id, index, exc.code
+                )
+
+    def _tpdo_payload(self, pdo: _Pdo) -> bytes:
+        readers = pdo.readers
+        if readers is None:
+            readers = pdo.readers = self._readers(pdo)
+        return b"".join(read() for read in readers)
+
+    def _readers(self, pdo: _Pdo) -> list[Callable[[], bytes]]:
+        """Per TPDO entry, what ``node.get_data(index, sub)[:n]`` gives: for the live objects
+        (statusword, actual position, ...) the read callback's value encoded by the object
+        itself, without canopen's lookup per SYNC; for the rest canopen's get_data."""
+        out: list[Callable[[], bytes]] = []
+        for index, sub, n in pdo.entries:
+            if index in _LIVE:
+                obj = self.node._find_object(index, sub)
+
+                def read(index: int = index, sub: int = sub, n: int = n, obj=obj) -> bytes:
+                    return obj.encode_raw(self._on_read(index, sub, obj))[:n]
+
+            else:
+
+                def read(index: int = index, sub: int = sub, n: int = n) -> bytes:
+                    return self.node.get_data(index, sub)[:n]
+
+            out.append(read)
+        return out
+
+    def _send_changed_tpdos(self) -> None:
+        """Event-driven TPDOs (type 254/255): sent when their data changed."""
+        if not self._operational():
+            return
+        for pdo in self._tpdos:
+            if pdo.transmission >= 254:
+                payload = self._tpdo_payload(pdo)
+                if payload != pdo.last:
+                    pdo.last = payload
+                    self._send(pdo.cob_id, payload)
+
+    def _on_sync(self, can_id: int, data: bytearray, ts: float) -> None:
+        if self.silent:
+            return
+        now = self._now()
+        out: list[tuple[int, bytes]] = []
+        with self._lock:
+            self.sync_count += 1
+            self.sync_times_s.append(now)
+            if self._pdo_dirty:
+                self._rebuild_pdos()
+            operational = self._operational()
+            lag = self.lag_cycles
+            if operational and lag > 0:
+                # The position (and statusword) latched at this SYNC, before its set-point acts.
+                self._samples.append(self._sync_tpdos())
+                if len(self._samples) >= lag:
+                    out = self._samples.popleft()
+            elif not operational:
+                self._samples.clear()
+            if operational:
+                for pdo in self._rpdos.values():
+                    if pdo.pending is not None:
+                        pending, pdo.pending = pdo.pending, None
+                        self._apply_rpdo(pdo, pending)
+            if (
+                self.state is State.OPERATION_ENABLED
+                and self.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE)
+                and not self._setpoint_since_sync
+                and self.sync_count > 1
+            ):
+                self.missed_setpoints += 1
+            self._setpoint_since_sync = False
+            if self.advance_on_sync:
+                self.step(self.sync_period_s or self.interpolation_period_s)
+            if operational and lag <= 0:
+                out = self._sync_tpdos()
+        for cob, payload in out:
+            self._send(cob, payload)
+        self._send_changed_tpdos()
+        self.check_master_heartbeat(now)
+
+    def _sync_tpdos(self) -> list[tuple[int, bytes]]:
+        """The synchronous TPDOs due at this SYNC, with their data as of now (lock held)."""
+        out: list[tuple[int, bytes]] = []
+        for pdo in self._tpdos:
+            if 1 <= pdo.transmission <= 240:
+                pdo.counter += 1
+                if pdo.counter >= pdo.transmission:
+                    pdo.counter = 0
+                    out.append((pdo.cob_id, self._tpdo_payload(pdo)))
+            elif pdo.transmission == 0:
+                payload = self._tpdo_payload(pdo)
+                if payload != pdo.last:
+                    pdo.last = payload
+                    out.append((pdo.cob_id, payload))
+        return out
+
+    # ================================================================== NMT and SDO gates
+    def _on_sdo(self, can_id: int, data: bytearray, ts: float) -> None:
+        if not self.silent and self.node.nmt.state != "STOPPED":
+            self.node.sdo.on_request(can_id, data, ts)
+
+    def _on_nmt(self, can_id: int, data: bytearray, ts: float) -> None:
+        if self.silent or len(data) < 2:
+            return
+        cmd, nid = data[0], data[1]
+        if nid not in (0, self.node_id):
+            return
+        self.node.nmt.on_command(can_id, data, ts)
+        if cmd == 0x81:
+            self.power_cycle()
+        elif cmd == 0x82:
+            self._reset_communication()
+            self.boot()
+
+    def power_cycle(self) -> None:
+        """Reset node (NMT 0x81) or power off and on: application and communication objects
+        back to their defaults, SWITCH ON DISABLED, the incremental encoder restarts at 0,
+        boot-up message. Also a fault hook (a drive that restarts behind the master's back)."""
+        self._rebooting = True  # no PDO is processed while the drive restarts
+        with self._lock:
+            self.state = State.SWITCH_ON_DISABLED
+            self.controlword = 0
+            self.mode = 0
+            self._homed = False
+            self.offset = -self.motor.x
+            self._hold_here()
+            for index in [i for i in self.node.data_store if i >= 0x2000]:
+                del self.node.data_store[index]
+            self._params.clear()
+            self._reset_communication()
+            self.boot()
+            self._rebooting = False
+
+    def _reset_communication(self) -> None:
+        for index in [i for i in self.node.data_store if 0x1000 <= i < 0x2000]:
+            del self.node.data_store[index]
+        for key in [k for k in self._params if 0x1000 <= k[0] < 0x2000]:
+            del self._params[key]
+        self._watch_master(0)
+        self._pdo_dirty = True
+
+    def boot(self) -> None:
+        """Power on: boot-up message, PRE-OPERATIONAL, heartbeat if 0x1017 says so."""
+        self.node.nmt.send_command(0x82)  # -> INITIALISING, sends the boot-up message
+        self.node.nmt.send_command(0x80)  # -> PRE-OPERATIONAL, heartbeat producer starts
+
+    def _send(self, cob_id: int, data: bytes) -> None:
+        """Send a frame; a node stepped without a bus (tests, plant studies) sends nothing."""
+        try:
+            self.network.send_message(cob_id, data)
+        except (RuntimeError, can.CanError) as exc:
+            log.debug("node %d: 0x%03X not sent (%s)", self.node_id, cob_id, exc)
