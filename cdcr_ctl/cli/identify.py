@@ -167,6 +167,20 @@ def fit_and_write(cfg_path: Path, run_dirs: list[Path], out: Path) -> Path:
     show_default=True,
     help="Fraction of each keypoint run (its end, by time) held out of the fit.",
 )
+@click.option(
+    "--max-points",
+    type=click.IntRange(10, 100_000),
+    default=60,
+    show_default=True,
+    help="Most keypoint rows fitted (evenly spread over the fitted part).",
+)
+@click.option(
+    "--max-nfev",
+    type=click.IntRange(1, 1000),
+    default=20,
+    show_default=True,
+    help="Least-squares evaluations of the keypoint fit.",
+)
 @click.pass_obj
 def identify_cmd(
     obj: Ctx,
@@ -176,6 +190,8 @@ def identify_cmd(
     log_kind: str,
     tip_noise_mm: float,
     holdout: float,
+    max_points: int,
+    max_nfev: int,
 ) -> None:
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
 
@@ -200,7 +216,9 @@ def identify_cmd(
                     "mixed log kinds: "
                     + ", ".join(f"{r}: {k}" for r, k in zip(runs, kinds, strict=True))
                 )
-            opt = KeypointOptions(holdout=holdout, tip_noise_mm=tip_noise_mm)
+            opt = KeypointOptions(
+                holdout=holdout, tip_noise_mm=tip_noise_mm, max_points=max_points, max_nfev=max_nfev
+            )
             ov, lines = fit_lab_logs(cfg, runs, out, kinds, opt, [str(r) for r in runs])
             click.echo("\n".join(lines), err=True)
             obj.emit(

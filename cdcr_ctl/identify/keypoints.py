@@ -46,8 +46,8 @@ from cdcr_ctl.identify.estimator import (
     RESIDUAL_KINDS,
     FitOptions,
     Identification,
+    _estimates,
     _Problem,
-    identify,
     initial_nuisance,
 )
 from cdcr_ctl.identify.logkind import detect_kind, keypoint_points, split_by_time, thin
@@ -61,7 +61,7 @@ from cdcr_ctl.runlog import load_run
 #: Fraction of each run's time span held out (the end of the run).
 HOLDOUT_FRACTION = 0.3
 #: Most rows fitted (evenly spread over the fitted part of the runs).
-MAX_FIT_POINTS = 120
+MAX_FIT_POINTS = 60
 #: Tracker noise assumed for a single keypoint row (mm, per axis).
 TIP_NOISE_MM = 0.05
 #: Tolerances of observability: relative for positive parameters, absolute for hole offsets.
@@ -79,6 +79,7 @@ class KeypointOptions:
     max_rel: float = MAX_REL
     max_offset_rad: float = MAX_OFFSET_RAD
     kind: str | None = None  # None: detect per run
+    max_nfev: int = 20  # least-squares evaluations per stage (each costs one Jacobian)
 
 
 @dataclass
@@ -226,7 +227,7 @@ def identify_keypoint_runs(
     fit_pts = thin(fit_all, opt.max_points)
     if len(fit_pts) < 10:
         raise RigError(f"identification: only {len(fit_pts)} rows to fit from")
-    fopt = FitOptions(tip_floor_mm=opt.tip_noise_mm, slack_compat=True, max_nfev=40)
+    fopt = FitOptions(tip_floor_mm=opt.tip_noise_mm, slack_compat=True, max_nfev=opt.max_nfev)
     fps = candidates(params)
     # observability at the nominal parameters, poses and tensions fitted
     prob = _Problem(params, effects, fit_pts, locs, fps, fopt)
@@ -246,7 +247,7 @@ def identify_keypoint_runs(
             "identification: nothing identifiable in these runs: "
             + "; ".join(f"{f.name}: {f.reason}" for f in fixed)
         )
-    ident = identify(params, effects, fit_pts, locs, [fps[i] for i in keep], fixed, fopt)
+    ident = _fit(prob, nuis, [fps[i] for i in keep], fixed, fopt)
     held_keys = {(p.run, p.index) for p in held_pts}
     h_nom, f_nom, _ = heldout_rmse(params, effects, runs, held_keys)
     h_fit, f_fit, failed = heldout_rmse(ident.fitted, effects, runs, held_keys)
@@ -261,6 +262,60 @@ def identify_keypoint_runs(
     ident.warnings[:0] = warnings
     return KeypointIdentification(
         kinds, ident, obs, heldout, len(points), len(fit_pts), time.monotonic() - t0, warnings
+    )
+
+
+def _fit(
+    prob0: _Problem,
+    nuis: np.ndarray,
+    fps: list[FitParameter],
+    fixed: list[NotIdentified],
+    fopt: FitOptions,
+) -> Identification:
+    """Joint fit of ``fps`` from the nuisance of the observability step (one stage: the
+    poses and tensions are already fitted at the nominal parameters)."""
+    prob = _Problem(prob0.base, prob0.effects, prob0.points, prob0.locations, fps, fopt)
+    prob.set_stage(list(range(len(fps))), RESIDUAL_KINDS)
+    before = prob.kind_residuals(prob.pack(nuis))
+    nuis, sol = prob.solve(nuis, fopt.max_nfev)
+    estimates, chi2, m, n = _estimates(prob, sol.x)
+    after = prob.kind_residuals(sol.x)
+    S = prob.S
+    poses = np.array(
+        [nuis[prob.offsets[j] : prob.offsets[j] + 2 * S] for j in range(len(prob.points))]
+    )
+    s_fit = np.array(
+        [
+            prob.split_block(j, nuis[prob.offsets[j] : prob.offsets[j + 1]])[2]
+            for j in range(len(prob.points))
+        ]
+    )
+    warnings = [
+        f"{e.name}: fitted value {e.value:.4g} is on its bound" for e in estimates if e.at_bound
+    ]
+
+    def rms(res: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+        return {
+            k: float(np.sqrt(np.mean(v**2))) if v.size else math.nan for k, (_, v) in res.items()
+        }
+
+    return Identification(
+        nominal=prob0.base,
+        fitted=prob.params_of(prob.g_all),
+        estimates=estimates,
+        fixed=fixed,
+        points=prob.points,
+        rms_before=rms(before),
+        rms_after=rms(after),
+        residuals_before=before,
+        residuals_after=after,
+        poses=poses,
+        s=s_fit,
+        chi2_reduced=chi2,
+        n_residuals=m,
+        n_unknowns=n,
+        stages=[f"joint fit: cost {sol.cost:.4g}, {sol.nfev} evaluations, {sol.message}"],
+        warnings=warnings,
     )
 
 
