@@ -104,6 +104,7 @@ class KeypointIdentification:
     n_fit: int
     fit_time_s: float
     warnings: list[str]
+    holdout: float = HOLDOUT_FRACTION
 
 
 def candidates(params: RobotParams) -> list[FitParameter]:
@@ -261,7 +262,15 @@ def identify_keypoint_runs(
         )
     ident.warnings[:0] = warnings
     return KeypointIdentification(
-        kinds, ident, obs, heldout, len(points), len(fit_pts), time.monotonic() - t0, warnings
+        kinds,
+        ident,
+        obs,
+        heldout,
+        len(points),
+        len(fit_pts),
+        time.monotonic() - t0,
+        warnings,
+        opt.holdout,
     )
 
 
@@ -326,7 +335,7 @@ def report_lines(res: KeypointIdentification) -> list[str]:
     out = [f"log kind: {k}" for k in res.kinds.values()]
     out.append(
         f"{res.n_points} rows with a tip; {res.n_fit} fitted (first "
-        f"{100 * (1 - HOLDOUT_FRACTION):.0f} % of each run by time, thinned), "
+        f"{100 * (1 - res.holdout):.0f} % of each run by time, thinned), "
         f"{res.heldout.n_rows} held out"
     )
     out += res.observability.lines()
