@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -133,11 +134,17 @@ def discrepancy(rows: int, seed: int) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         run, _ = make_keypoint_log(m.params, m.effects, Path(tmp), rows, seed)
         t0 = time.perf_counter()
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         cmd = [sys.executable, "-m", "cdcr_ctl", "discrepancy", "--rig-config", str(CONFIG)]
         out = subprocess.run([*cmd, str(run)], capture_output=True, text=True)
         dt = time.perf_counter() - t0
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
     print(out.stdout[-3000:], out.stderr[-2000:])
-    print(f"discrepancy on a {rows}-row keypoint log: {dt:.1f} s wall (exit {out.returncode})")
+    print(
+        f"discrepancy on a {rows}-row keypoint log: {dt:.1f} s wall, {cpu:.1f} s CPU "
+        f"(exit {out.returncode})"
+    )
 
 
 def main() -> None:
