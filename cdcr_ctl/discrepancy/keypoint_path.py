@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify.keypoints import (
     KeypointIdentification,
     KeypointOptions,
@@ -36,8 +37,12 @@ from cdcr_ctl.runlog import load_run
 
 
 def is_keypoint_log(run_dir: str | Path) -> bool:
-    """Whether the run is a keypoint log (:func:`cdcr_ctl.identify.logkind.detect_kind`)."""
-    return detect_kind(load_run(run_dir))[0] == "keypoint"
+    """Whether the run is a keypoint log (:func:`cdcr_ctl.identify.logkind.detect_kind`); a
+    run the detection cannot classify (no tip, no actuator columns) is left to the loop path."""
+    try:
+        return detect_kind(load_run(run_dir))[0] == "keypoint"
+    except RigError:
+        return False
 
 
 def reversals_from_path(q_mm: np.ndarray, eps_mm: float = KEYPOINT_DIRECTION_EPS_MM) -> np.ndarray:
