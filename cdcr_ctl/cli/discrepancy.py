@@ -93,7 +93,12 @@ def discrepancy(
     ``overlays:`` list (the daemon loads it at start); no effect named: nothing written, exit 1.
     """
     from cdcr_ctl.discrepancy import analyse
+    from cdcr_ctl.discrepancy.keypoint_path import analyse_keypoints, is_keypoint_log
     from cdcr_ctl.discrepancy.report import config_fragment, summary_lines, write_report
+
+    if all(is_keypoint_log(r) for r in run_dirs):
+        _keypoint_discrepancy(obj, run_dirs, rig_config, max_points, analyse_keypoints)
+        return
     from cdcr_ctl.model.effects import CANDIDATES, candidate
 
     terms = CANDIDATES
@@ -176,3 +181,35 @@ def apply_overlay(fragment: str, run_dir: Path, dest: Path) -> None:
         except RigError:
             dest.unlink(missing_ok=True)
             raise
+
+
+def _keypoint_discrepancy(obj: Ctx, run_dirs, rig_config, max_points, analyse_keypoints) -> None:
+    """Keypoint logs (rows seconds apart, no commanded pose): :mod:`..discrepancy.keypoint_path`."""
+    from cdcr_ctl.config import load_rig_config
+
+    cfg_path = rig_config or obj.config
+    if cfg_path is None:
+        cfg_file = Path(run_dirs[0]) / "config.yaml"
+        if not cfg_file.is_file():
+            raise click.UsageError("keypoint logs carry no config: give --rig-config RIG")
+        cfg_path = str(cfg_file)
+    res = analyse_keypoints(
+        load_rig_config(cfg_path), list(run_dirs), max_points=min(max_points, 40)
+    )
+    h = res.refit.heldout
+    result = {
+        "verdict": res.verdict,
+        "effect": None,
+        "reversals": res.reversals,
+        "tracker_lag_s": None,
+        "refit": [
+            {"name": e.name, "value": e.value, "ci95": list(e.ci95)}
+            for e in res.refit.ident.estimates
+        ],
+        "fixed": [f.name for f in res.refit.ident.fixed],
+        "heldout_tip_rmse_mm": [h.rmse_nominal, h.rmse_fitted],
+        "explained_percent": 100 * res.explained,
+        "rows_without_solution": len(h.failed),
+        "elapsed_s": res.elapsed_s,
+    }
+    obj.emit(result, "\n".join(res.lines()))

@@ -193,9 +193,53 @@ def fit_and_write(
     is_flag=True,
     help="Write the overlay even when the fit does not explain the data (marked as a misfit).",
 )
+@click.option(
+    "--log-kind",
+    type=click.Choice(["auto", "loadcell", "tip", "keypoint", "pulls"]),
+    default="auto",
+    show_default=True,
+    help="Kind of the --from-run logs (auto: from the columns and the row timing).",
+)
+@click.option(
+    "--tip-noise-mm",
+    type=float,
+    default=0.05,
+    show_default=True,
+    help="Tracker noise per axis of one keypoint row (weights the tip residuals).",
+)
+@click.option(
+    "--holdout",
+    type=float,
+    default=0.3,
+    show_default=True,
+    help="Fraction of each keypoint run (its end, by time) held out of the fit.",
+)
+@click.option(
+    "--max-points",
+    type=click.IntRange(10, 100_000),
+    default=60,
+    show_default=True,
+    help="Most keypoint rows fitted (evenly spread over the fitted part).",
+)
+@click.option(
+    "--max-nfev",
+    type=click.IntRange(1, 1000),
+    default=20,
+    show_default=True,
+    help="Least-squares evaluations of the keypoint fit.",
+)
 @click.pass_obj
 def identify_cmd(
-    obj: Ctx, out: Path, from_runs: tuple[Path, ...], quick: bool, accept_misfit: bool
+    obj: Ctx,
+    out: Path,
+    from_runs: tuple[Path, ...],
+    quick: bool,
+    log_kind: str,
+    tip_noise_mm: float,
+    holdout: float,
+    max_points: int,
+    max_nfev: int,
+    accept_misfit: bool,
 ) -> None:
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
 
@@ -211,7 +255,28 @@ def identify_cmd(
     cfg_path = Path(obj.config)
     cfg = load_rig_config(cfg_path)
     runs = list(from_runs)
-    if not runs:
+    if runs:
+        from cdcr_ctl.identify.keypoints import KeypointOptions
+        from cdcr_ctl.identify.lablogs import fit_lab_logs, run_kinds
+
+        kinds = run_kinds(runs, log_kind)
+        if any(k != "loadcell" for k in kinds):
+            if "loadcell" in kinds:
+                raise click.UsageError(
+                    "mixed log kinds: "
+                    + ", ".join(f"{r}: {k}" for r, k in zip(runs, kinds, strict=True))
+                )
+            opt = KeypointOptions(
+                holdout=holdout, tip_noise_mm=tip_noise_mm, max_points=max_points, max_nfev=max_nfev
+            )
+            ov, lines = fit_lab_logs(cfg, runs, out, kinds, opt, [str(r) for r in runs])
+            click.echo("\n".join(lines), err=True)
+            obj.emit(
+                {"overlay": None if ov is None else str(ov), "runs": [str(r) for r in runs]},
+                text=str(ov) if ov else "no overlay written (see the report)",
+            )
+            return
+    else:
         runs = run_sweep(obj.socket, len(cfg.robot.segments), cfg.limits.bend_rad, quick)
     overlay = fit_and_write(cfg_path, runs, out, accept_misfit=accept_misfit)
     obj.emit({"overlay": str(overlay), "runs": [str(r) for r in runs]}, text=str(overlay))

@@ -54,6 +54,7 @@ from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.parameters import FORCE_KINDS, FitParameter, NotIdentified, apply_values
 from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.model.transfer import ForceTransfer
 
 RESIDUAL_KINDS = ("tip", "cell", "moment", "compat")
@@ -70,7 +71,10 @@ class FitOptions:
 
     ``tip_floor_mm``: tracker; ``tension_floor_N``: load cell; ``q_floor_mm``: drive position
     (counts resolution and following error); ``moment_floor_Nmm``: model tolerance of the moment
-    balance. ``slack_N``: below it a cable's compatibility is not used. ``max_nfev``: function
+    balance. ``slack_N``: below it a cable's compatibility is not used. ``slack_compat``: write
+    compatibility as q(T) - max(q_act, q(T=0)), which a slack cable (longer than its path at
+    zero tension) meets with T = 0 and a taut one as before (for logs without load cells, where
+    slack is not measured). ``max_nfev``: function
     evaluations per stage. ``max_rel_ci``: a parameter whose 95 % half-interval exceeds this
     fraction of its value is reported as poorly identified (and, for pulleys with cells at the
     robot base, put back to nominal and the fit repeated without it).
@@ -83,6 +87,7 @@ class FitOptions:
     slack_N: float = 0.1
     max_nfev: int = 60
     max_rel_ci: float = 0.5
+    slack_compat: bool = False
 
 
 @dataclass(frozen=True)
@@ -290,7 +295,10 @@ class _Problem:
                 # (cdcr_ctl.model.deadzone): +-b/2 once a move exceeded the gap, less at the
                 # first dwell after a reversal when the step was shorter than the gap.
                 play = self.play_offsets(ft)[j][a]
-                out.append((cab[a][3] + play - float(p.q_act_mm[a])) / self.sig_q[j][a])
+                q_meas = float(p.q_act_mm[a])
+                if self.opt.slack_compat:
+                    q_meas = max(q_meas, ft.cable(P, a, 0.0, s[a], Fb[a], Eb[a])[3])
+                out.append((cab[a][3] + play - q_meas) / self.sig_q[j][a])
         return out
 
     def play_offsets(self, ft: ForceTransfer) -> list[list[float]]:
@@ -417,6 +425,7 @@ def initial_nuisance(
     (load cells through the nominal friction, else the nominal statics, else T0)."""
     ft = ForceTransfer(params, effects)
     S, K = params.n_segments, params.n_cables
+    Bpinv = np.linalg.pinv(cable_matrix_x(params))
     out: list[float] = []
     for p, u in zip(points, unc, strict=True):
         xs: list[float] = []
@@ -426,10 +435,12 @@ def initial_nuisance(
             th = 2.0 * math.atan2(rho, pz)  # tip of an arc: rho/z = tan(theta/2)
             ph = math.atan2(py, px)
             xs = [th * math.cos(ph), th * math.sin(ph)]
-        else:
+        elif np.all(np.isfinite(p.psi_cmd)):
             for i in range(S):
                 th, ph = float(p.psi_cmd[i, 0]), float(p.psi_cmd[i, 1])
                 xs += [th * math.cos(ph), th * math.sin(ph)]
+        else:  # no commanded pose (a keypoint log): the rigid-cable inverse of eq. 4
+            xs = [float(v) for v in Bpinv @ np.nan_to_num(p.q_act_mm)]
         s = [float(v) * (0.9 if k in u else 1.0) for k, v in enumerate(p.s)]
         P = ft.pose(xs)
         Fb, Eb = ft.factors(P, s)

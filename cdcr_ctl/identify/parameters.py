@@ -50,7 +50,8 @@ MIN_BEND_RANGE_RAD = 0.2
 
 @dataclass(frozen=True)
 class FitParameter:
-    """One fitted scalar. ``refs[j]`` gets ``value * scales[j]`` (natural units).
+    """One fitted scalar. ``refs[j]`` gets ``value * scales[j] + offsets[j]`` (natural units;
+    ``offsets`` empty means zeros: a hole-angle offset of a segment is value 0 + nominal angles).
 
     ``name`` is the report name (``c1.mu_disk``, ``seg1.EI_Nmm2``, ``pulleys.alpha``); ``kind``
     one of :data:`KINDS`; ``index`` the cable/segment index (-1 for pulleys); bounds in
@@ -66,6 +67,7 @@ class FitParameter:
     lower: float
     upper: float
     log: bool = True
+    offsets: tuple[float, ...] = ()
 
     def to_var(self, value: float) -> float:
         return math.log(value) if self.log else float(value)
@@ -95,9 +97,10 @@ def apply_values(
     refs: list[ParamRef] = []
     vals: list[float] = []
     for fp, v in zip(fps, values, strict=True):
-        for ref, sc in zip(fp.refs, fp.scales, strict=True):
+        offs = fp.offsets or (0.0,) * len(fp.refs)
+        for ref, sc, off in zip(fp.refs, fp.scales, offs, strict=True):
             refs.append(ref)
-            vals.append(float(v) * sc)
+            vals.append(float(v) * sc + off)
     return with_values(params, refs, vals) if refs else params
 
 

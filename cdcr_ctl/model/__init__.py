@@ -18,7 +18,7 @@ Modules, one job each:
 """
 
 from cdcr_ctl.model.compensation import CCDiskModel, CompensationState, Compensator
-from cdcr_ctl.model.forward import ForwardModel, ForwardResult, ForwardStepper
+from cdcr_ctl.model.forward import ForwardModel, ForwardResult, ForwardStepper, Replay, replay
 from cdcr_ctl.model.friction import FrictionState
 from cdcr_ctl.model.params import (
     ActuatorEffect,
@@ -43,7 +43,9 @@ __all__ = [
     "ForwardStepper",
     "FrictionState",
     "PulleyParams",
+    "Replay",
     "RobotParams",
     "SegmentParams",
     "Transfer",
+    "replay",
 ]

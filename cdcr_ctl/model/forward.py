@@ -40,6 +40,8 @@ _H_X = 1e-7  # rad, finite-difference step of the bending vectors
 _H_S = 1e-7  # finite-difference step of the friction fraction
 _MODE_ROUNDS = 12
 _MAX_DX = 0.3  # rad, largest change of a bending vector component per Newton step
+#: A stepper that cannot solve a step at once splits it into up to 2**SUBSTEP_LEVELS sub-steps.
+SUBSTEP_LEVELS = 4
 
 
 @dataclass(frozen=True)
@@ -136,15 +138,28 @@ class ForwardModel:
             elif modes[k] == FREE:
                 modes[k] = STICK
         total_it = 0
-        for _ in range(_MODE_ROUNDS):
+        seen: set[tuple[str, ...]] = {tuple(modes)}
+        one_at_a_time = False
+        rounds = _MODE_ROUNDS
+        r = 0
+        while True:
             z, it, res = self._newton(z, q_act, w_prev, modes, sigma, hold)
             total_it += it
-            changed = self._update_modes(z, q_act, w_prev, modes, sigma, hold)
+            changed = self._update_modes(z, q_act, w_prev, modes, sigma, hold, one_at_a_time)
             if not changed:
                 break
-        else:
-            if res > 1e-6:
-                raise ModelError("forward model: friction/slack modes did not settle")
+            r += 1
+            key = tuple(modes)
+            if key in seen and not one_at_a_time:
+                # the active set cycles (changing every violated mode at once flips the others
+                # back): from here on change only the most violated mode per round
+                one_at_a_time = True
+                rounds = r + _MODE_ROUNDS + 3 * K
+            seen.add(key)
+            if r >= rounds:
+                if res > 1e-6:
+                    raise ModelError("forward model: friction/slack modes did not settle")
+                break
         if res > 1e-6:
             raise ModelError(f"forward model did not converge (residual {res:.3g})")
         return self._result(z, modes, total_it, res, w_prev)
@@ -331,18 +346,20 @@ class ForwardModel:
                 break
         return z, it, norm
 
-    def _update_modes(self, z, q_act, w_prev, modes, sigma, hold) -> bool:
+    def _update_modes(self, z, q_act, w_prev, modes, sigma, hold, one_at_a_time=False) -> bool:
+        """Change the modes whose conditions ``z`` violates; all of them, or with
+        ``one_at_a_time`` only the most violated one (scaled like the residuals: rad-equivalent).
+        Returns whether a mode changed."""
         S2, K = 2 * self.S, self.K
         P, Fb, Eb, _, cab = self._raw(z)
-        changed = False
         tol_w = 1e-9
+        changes: list[tuple[float, int, str, float]] = []  # (violation, cable, mode, value)
         for k in range(K):
             T_k = z[S2 + k]
             s_k = z[S2 + K + k]
             m = modes[k]
             if m != SLACK and T_k < -1e-9:
-                modes[k] = SLACK
-                changed = True
+                changes.append((-T_k / self._T_scale, k, SLACK, 0.0))
                 continue
             if m == SLACK:
                 # taut again when the cable at zero tension would be shorter than its path.
@@ -350,18 +367,23 @@ class ForwardModel:
                 # direction (no stick memory survives slack): FREE with s = +1 for this step.
                 _, _, _, q0 = self.ft.cable(P, k, 0.0, s_k, Fb[k], Eb[k])
                 if q_act[k] > q0 + 1e-12:
-                    modes[k] = FREE
-                    hold[k] = 1.0 if self.ft.has_friction[k] else hold[k]
-                    changed = True
+                    changes.append(((q_act[k] - q0) * self._w_len, k, FREE, 0.0))
                 continue
             if m == STICK and abs(s_k) > 1.0 + 1e-12:
-                modes[k] = SLIDE
-                sigma[k] = 1.0 if s_k > 0 else -1.0
-                changed = True
+                changes.append((abs(s_k) - 1.0, k, SLIDE, 1.0 if s_k > 0 else -1.0))
             elif m == SLIDE and (cab[k][2] - w_prev[k]) * sigma[k] < -tol_w:
-                modes[k] = STICK
-                changed = True
-        return changed
+                changes.append((-(cab[k][2] - w_prev[k]) * sigma[k] * self._w_len, k, STICK, 0.0))
+        if not changes:
+            return False
+        if one_at_a_time:
+            changes = [max(changes)]
+        for _, k, mode, value in changes:
+            modes[k] = mode
+            if mode == SLIDE:
+                sigma[k] = value
+            elif mode == FREE and self.ft.has_friction[k]:
+                hold[k] = 1.0
+        return True
 
     def _result(self, z, modes, it, res, w_prev) -> ForwardResult:
         S2, K = 2 * self.S, self.K
@@ -419,6 +441,7 @@ class ForwardStepper:
         self._x: np.ndarray | None = None
         self._T: np.ndarray | None = None
         self._modes: tuple[str, ...] | None = None
+        self._q: np.ndarray | None = None  # last solved cable displacement (mm)
         self.last: ForwardResult | None = None
 
     def cable_displacement(self, q_act_mm: np.ndarray) -> np.ndarray:
@@ -431,17 +454,105 @@ class ForwardStepper:
     def step(self, q_act_mm: np.ndarray) -> ForwardResult:
         """Solve the pose for actuator positions ``q_act_mm`` (K,), mm; updates the memory.
 
-        Warm-started from the last solution and its cable modes; if that fails, retried once
-        with every cable starting in stick. Raises :class:`ModelError` if both fail.
+        Warm-started from the last solution and its cable modes; if that fails, retried with
+        every cable starting in stick, then from the straight pose, then along the straight path
+        from the last solved cable displacement in 2, 4, ... ``2**SUBSTEP_LEVELS`` equal
+        sub-steps (a quasi-static path between two keypoints: the friction memory follows it),
+        and last from the straight pose with no friction memory. Raises :class:`ModelError` if
+        every attempt fails (no static solution found); the memory then stays at the last
+        solved pose.
         """
         q = self.cable_displacement(q_act_mm)
+        res = self._solve_from_memory(q)
+        if res is None:
+            res = self._substep(q)
+        self._accept(res, q)
+        return res
+
+    def _solve_from_memory(self, q: np.ndarray) -> ForwardResult | None:
         try:
-            res = self.model.solve(q, self.state, self._x, self._T, self._modes)
+            return self.model.solve(q, self.state, self._x, self._T, self._modes)
         except ModelError:
-            res = self.model.solve(q, self.state, self._x, self._T, None)
+            pass
+        try:
+            return self.model.solve(q, self.state, self._x, self._T, None)
+        except ModelError:
+            pass
+        try:  # the last pose can be a poor start after a large step: start straight
+            return self.model.solve(q, self.state, None, None, None)
+        except ModelError:
+            return None
+
+    def _accept(self, res: ForwardResult, q: np.ndarray) -> None:
         self.state = res.state
         self._x = res.x
         self._T = res.tension_distal_N
         self._modes = res.modes
+        self._q = q
         self.last = res
-        return res
+
+    def _substep(self, q: np.ndarray) -> ForwardResult:
+        start = (self.state, self._x, self._T, self._modes, self._q, self.last)
+        q0 = np.zeros_like(q) if self._q is None else self._q
+        err = "no attempt"
+        for level in range(1, SUBSTEP_LEVELS + 1):
+            n = 2**level
+            ok = True
+            for i in range(1, n + 1):
+                qi = q0 + (q - q0) * (i / n)
+                res = self._solve_from_memory(qi)
+                if res is None:
+                    ok = False
+                    err = f"sub-step {i}/{n} failed"
+                    break
+                self._accept(res, qi)
+            if ok:
+                return res
+            self.state, self._x, self._T, self._modes, self._q, self.last = start
+        try:  # last resort: a static pose without the friction memory of the path
+            return self.model.solve(q, None, None, None, None)
+        except ModelError:
+            pass
+        raise ModelError(
+            f"forward model: no static solution for cable displacements "
+            f"{np.round(q, 3).tolist()} mm ({err} with {2**SUBSTEP_LEVELS} sub-steps)"
+        )
+
+
+@dataclass(frozen=True)
+class Replay:
+    """A logged actuator path solved row by row (:func:`replay`).
+
+    ``tip_mm`` (N, 3) base frame, NaN on a failed row; ``x`` (N, 2S) bending vectors (rad);
+    ``tension_base_N``/``tension_actuator_N`` (N, K); ``failed``: (row, reason) of every row with
+    no static solution (the replay went on from the last solved pose).
+    """
+
+    tip_mm: np.ndarray
+    x: np.ndarray
+    tension_base_N: np.ndarray
+    tension_actuator_N: np.ndarray
+    failed: list[tuple[int, str]]
+
+
+def replay(stepper: ForwardStepper, q_act_mm: np.ndarray) -> Replay:
+    """Solve every row of ``q_act_mm`` (N, K), mm, in order with ``stepper`` (memory kept).
+
+    A row whose solve fails is named in :attr:`Replay.failed` with the reason and left NaN;
+    the next row starts from the last solved pose and friction state.
+    """
+    q = np.asarray(q_act_mm, dtype=float)
+    N, K, S2 = q.shape[0], stepper.model.K, 2 * stepper.model.S
+    tip = np.full((N, 3), np.nan)
+    x = np.full((N, S2), np.nan)
+    tb = np.full((N, K), np.nan)
+    ta = np.full((N, K), np.nan)
+    failed: list[tuple[int, str]] = []
+    for i in range(N):
+        try:
+            r = stepper.step(q[i])
+        except ModelError as exc:
+            failed.append((i, str(exc)))
+            continue
+        tip[i], x[i], tb[i], ta[i] = r.tip_mm, r.x, r.tension_base_N, r.tension_actuator_N
+    return Replay(tip, x, tb, ta, failed)
