@@ -9,7 +9,6 @@ closes the bus, in that order, and every step runs even if an earlier one failed
 from __future__ import annotations
 
 import logging
-import math
 import signal
 import threading
 import time
@@ -21,17 +20,19 @@ import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.clock import LoopClock
-from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig, RunInfo
+from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig
 from cdcr_ctl.control.ports import RigIO, RobotModelPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.daemon import recovery
+from cdcr_ctl.daemon.commands_drive import DriveCommands
+from cdcr_ctl.daemon.commands_log import LogCommands
+from cdcr_ctl.daemon.commands_run import RUN_PICKUP_TIMEOUT_S, RunCommands
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.joystick import JoystickSession
 from cdcr_ctl.daemon.notify import SystemdNotifier
-from cdcr_ctl.daemon.planning import LEAD_IN_CABLE_FRACTION, peak_cable_speed, plan_lead_in
-from cdcr_ctl.daemon.protocol import ProtocolError, Request, check_jog_speed
+from cdcr_ctl.daemon.protocol import Request
 from cdcr_ctl.daemon.server import ControlServer
-from cdcr_ctl.errors import RigError
+from cdcr_ctl.daemon.status import StatusCommands, _trip_dict
 from cdcr_ctl.runlog.annotate import annotate_when_ended
 from cdcr_ctl.runlog.live import LiveView, live_view_for
 
@@ -41,11 +42,9 @@ log = logging.getLogger(__name__)
 LOOP_JOIN_TIMEOUT_S = 2.0
 #: Commands answered without the command lock: they never wait behind loading or planning.
 UNLOCKED_COMMANDS = ("stop", "shutdown", "status")
-#: Longest wait of a run request (trajectory, jog, joystick) for the loop to take it up (s).
-RUN_PICKUP_TIMEOUT_S = 1.0
 
 
-class Daemon:
+class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
     """Wires config, model, I/O, loop and control socket; :meth:`serve` runs until stopped."""
 
     def __init__(
@@ -212,292 +211,6 @@ class Daemon:
         with self._cmd_lock:
             return method(req.args)
 
-    def _cmd_status(self, args: Any) -> dict[str, Any]:
-        fb = self.io.drives.feedback()
-        force, force_age = self.io.tensions.latest()
-        tip, tip_age = self.io.tip.latest()
-        trip = self.supervisor.trip
-        snap = self.loop.snapshot()
-        return {
-            "state": self.state,
-            "rig": self.cfg.name,
-            "design": self.cfg.design,
-            "config": str(self.config_path),
-            "enabled": self.enabled,
-            "homed": self.homed,
-            "compensation": self.loop.cfg.compensation,
-            "drives": recovery.drive_status(self.cfg, fb),
-            "tension_N": [None if not math.isfinite(v) else round(float(v), 3) for v in force],
-            "tension_age_s": [
-                None if not math.isfinite(v) else round(float(v), 4) for v in force_age
-            ],
-            "tip_mm": [None if not math.isfinite(v) else round(float(v), 3) for v in tip],
-            "tip_age_s": None if not math.isfinite(tip_age) else round(tip_age, 4),
-            "fault": None if trip is None else _trip_dict(trip),
-            "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
-            "safety": self._safety_status(),
-            "run": snap.pop("run"),
-            "runs": [r.__dict__ for r in self.loop.history[-10:]],
-            "loop": snap,
-            "logging": self._manual_sink is not None,
-            "joystick": None if self._session is None else self._session.status(),
-        }
-
-    def _cmd_enable(self, args: Any) -> dict[str, Any]:
-        if self.supervisor.trip is not None:
-            raise RigError(f"supervisor tripped ({self.supervisor.trip.cause}): reset-fault first")
-        self.io.drives.enable()
-        self.loop.drives_reenabled()
-        self.enabled = True
-        self.state = "enabled"
-        return {"enabled": True}
-
-    def _cmd_disable(self, args: Any) -> dict[str, Any]:
-        self.loop.request_stop(Reaction.HALT)
-        self.io.drives.disable()
-        self.enabled = False
-        self.state = "ready"
-        return {"enabled": False}
-
-    def _cmd_home(self, args: Any) -> dict[str, Any]:
-        if self.loop.current_run is not None:
-            raise RigError("a run is in progress: stop it before homing")
-        if self.enabled:
-            # Homing on the current position (37) declares the arm straight there: bring a bent
-            # arm straight first, at the lead-in's cable speed.
-            recovery.straighten(self)
-        self.loop.pause(True)
-        home: list[int] | None = None
-        try:
-            home = self.io.drives.home()
-            # The new home before the loop sends again: no cycle with the old one.
-            self.loop.set_home(home)
-        finally:
-            self.loop.pause(False)
-        # Reply once the loop has taken the home up (status shows the new home).
-        self._wait_cycles(2)
-        self.homed = True
-        return {
-            "home_counts": list(home),
-            "position_counts": [f.position_counts for f in self.io.drives.feedback()],
-        }
-
-    def _require_ready(self) -> None:
-        if not self.enabled:
-            raise RigError("drives are disabled: run `cdcr-ctl enable` first")
-        if self.supervisor.trip is not None:
-            raise RigError(f"supervisor tripped ({self.supervisor.trip.cause}): reset-fault first")
-
-    def _cmd_jog(self, args: Any) -> dict[str, Any]:
-        self._require_ready()
-        S, K = self.model.n_segments, self.model.n_cables
-        if args.segment is not None:
-            if args.segment > S:
-                raise ProtocolError(f"rig has {S} segment(s)", field="args.segment")
-            if not 0 <= args.theta_rad <= self.cfg.limits.bend_rad:
-                raise ProtocolError(
-                    f"outside [0, {self.cfg.limits.bend_rad}] rad (limits.bend_rad)",
-                    field="args.theta_rad",
-                )
-            check_jog_speed(args.speed, self.cfg.limits.bend_rad)
-            start = self.loop.psi_cmd
-            goal = start.copy()
-            goal[args.segment - 1] = (args.theta_rad, args.phi_rad)
-            traj = self._jog_move(start, goal, args.speed)
-            run = self._last_run = self.loop.follow(traj, f"jog seg{args.segment}", None, None)
-            self._wait_picked_up(run)
-            return {"run": run.id, "duration_s": run.duration_s}
-        if args.cable > K:
-            raise ProtocolError(f"rig has {K} cables", field="args.cable")
-        lo, hi = self.cfg.limits.cable_displacement_mm
-        if not lo - hi <= args.delta_mm <= hi - lo:
-            raise ProtocolError("larger than the displacement range", field="args.delta_mm")
-        self.loop.jog_cable(args.cable - 1, args.delta_mm)
-        return {"cable": args.cable, "delta_mm": args.delta_mm}
-
-    def _jog_move(self, start: np.ndarray, goal: np.ndarray, speed: float) -> Any:
-        """A jog move at ``speed`` (rad/s), slowed so its fastest cable (in the mode in force)
-        stays within ``LEAD_IN_CABLE_FRACTION`` of the velocity limit."""
-        tj = self.new_trajectory
-        traj = tj.move(start, goal, speed_rad_s=speed)
-        v_allowed = LEAD_IN_CABLE_FRACTION * self.cfg.limits.cable_velocity_mm_s
-        peak = peak_cable_speed(self.model, traj, self.loop.cfg.compensation)
-        if peak > v_allowed:
-            speed *= 0.98 * v_allowed / peak
-            log.info("jog slowed to %.4f rad/s (cables %.1f mm/s at the speed asked)", speed, peak)
-            traj = tj.move(start, goal, speed_rad_s=speed)
-        return traj
-
-    def _with_lead_in(self, traj: Any, mode: str | None = None) -> Any:
-        """``traj`` after a hold for a compensation switch and a lead-in move from the commanded
-        pose, each within the cable velocity limit (:func:`.planning.plan_lead_in`)."""
-        mode = mode or self.loop.cfg.compensation
-        force_N, _ = self.io.tensions.latest()
-        plan = plan_lead_in(
-            self.model,
-            np.array(self.loop.psi_cmd, dtype=float),
-            self.loop.q_cmd if self.loop.counters.cycles else None,
-            traj,
-            mode,
-            self.cfg.limits.cable_velocity_mm_s,
-            measured_N=force_N if np.isfinite(force_N).all() else None,
-            state=self.loop.model_state(),
-        )
-        if plan.hold_s or plan.speed_rad_s != self.new_trajectory.LEAD_IN_SPEED_RAD_S:
-            log.info(
-                "lead-in: hold %.2f s for the mode switch, move at %.4f rad/s (cables %.1f mm/s)",
-                plan.hold_s,
-                plan.speed_rad_s,
-                plan.peak_mm_s,
-            )
-        return plan.trajectory
-
-    def _cmd_trajectory(self, args: Any) -> dict[str, Any]:
-        self._require_ready()
-        if args.file is not None:
-            # Read, parsed and validated in the intake process; mapped here.
-            traj = self.intake.load(self.intake.prepare_file(args.file), args.name)
-        else:
-            traj = self.new_trajectory.from_samples(
-                args.samples,
-                n_segments=self.model.n_segments,
-                bend_limit_rad=self.cfg.limits.bend_rad,
-                source=f"request {args.name!r}",
-            )
-        traj = self._with_lead_in(traj, args.compensation)
-        sink = None
-        if args.log:
-            sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
-            self._log_traffic(sink)
-        run = self._last_run = self.loop.follow(traj, args.name, args.compensation, sink)
-        return self._started(run)
-
-    def _started(self, run: RunInfo, **extra: Any) -> dict[str, Any]:
-        """Reply to a command that started ``run``, once the loop has taken it up."""
-        self._wait_picked_up(run)
-        return {
-            "run": run.id,
-            "duration_s": run.duration_s,
-            "log_dir": run.log_dir,
-            "compensation": run.compensation,
-            **extra,
-        }
-
-    def _cmd_joystick(self, args: Any) -> dict[str, Any]:
-        """A live end-following session from the rig's joystick (:mod:`.joystick`): the stick
-        is opened now and closed when the run ends (stop, ``seconds``, a trip, a new run)."""
-        self._require_ready()
-        prev = self._session
-        if prev is not None and prev.active:
-            if prev.run.state == "running":
-                raise RigError(
-                    f"joystick session {prev.run.id} is running: `cdcr-ctl stop` it first"
-                )
-            prev.close()  # its run has ended; its watcher had not caught up yet
-        last = self._last_run
-        if last is not None and last.state == "running":
-            # The session plans from the commanded pose: it must be standing still.
-            raise RigError(f"run {last.name!r} is in progress: stop it first")
-        opener = self._open_joystick
-        if opener is None:
-            from cdcr_ctl.sensors.joystick import open_joystick as opener
-        session = JoystickSession.open(
-            self.cfg,
-            self.config_path,
-            self.loop.psi_cmd,
-            opener,
-            duration_s=math.inf if args.seconds is None else args.seconds,
-        )
-        try:
-            sink = None
-            if args.log:
-                sink = self.new_sink(args.name, args.compensation or self.loop.cfg.compensation)
-                self._log_traffic(sink)
-            self.supervisor.add_check(session.check)
-            run = self._last_run = self.loop.follow(
-                session.source, args.name, args.compensation, sink
-            )
-        except BaseException:
-            session.close()
-            raise
-        session.attach(run, self.supervisor)
-        self._session = session
-        return self._started(run, device=session.device)
-
-    def _wait_picked_up(self, run: Any) -> None:
-        """Return once the loop runs ``run`` (or ended it), so the reply to a run request
-        (trajectory, jog, joystick) means the run is running and a ``status`` right after it
-        shows it. Bounded: ``RUN_PICKUP_TIMEOUT_S`` (a loop that is not running does not hold
-        the reply up)."""
-        end = time.monotonic() + RUN_PICKUP_TIMEOUT_S
-        while self.loop.running and time.monotonic() < end and run.state == "running":
-            if self.loop.current_run is run:
-                return
-            time.sleep(self.loop.cfg.period_s / 2)
-
-    def _wait_cycles(self, n: int) -> None:
-        """Return after ``n`` more loop cycles (a command posted before them has been taken
-        up); bounded by ``RUN_PICKUP_TIMEOUT_S``, at once when the loop is not running."""
-        start = self.loop.counters.cycles
-        end = time.monotonic() + RUN_PICKUP_TIMEOUT_S
-        while (
-            self.loop.running and self.loop.counters.cycles < start + n and time.monotonic() < end
-        ):
-            time.sleep(self.loop.cfg.period_s / 2)
-
-    def _cmd_stop(self, args: Any) -> dict[str, Any]:
-        """Set the loop's stop flag (no lock, no queue) and answer once the loop has acted:
-        the reply names the cycle that sent the stop and how many cycles it took."""
-        reaction = Reaction.QUICK_STOP if args.mode == "quick_stop" else Reaction.HALT
-        acted = recovery.stop_now(self, reaction)
-        if reaction is Reaction.QUICK_STOP:
-            self.enabled = False
-            self.state = "stopped"
-        return {"stopped": args.mode, **acted}
-
-    def _cmd_log_start(self, args: Any) -> dict[str, Any]:
-        if self._manual_sink is not None:
-            raise RigError("a manual log is already running")
-        self._manual_sink = self.new_sink(args.name, self.loop.cfg.compensation)
-        self._log_traffic(self._manual_sink)
-        self.loop.attach_sink(self._manual_sink)
-        return {"log_dir": str(getattr(self._manual_sink, "run_dir", ""))}
-
-    def _cmd_log_stop(self, args: Any) -> dict[str, Any]:
-        if self._manual_sink is None:
-            raise RigError("no manual log is running")
-        out = str(getattr(self._manual_sink, "run_dir", ""))
-        self._close_manual_sink()
-        return {"log_dir": out}
-
-    def _close_manual_sink(self) -> None:
-        sink, self._manual_sink = self._manual_sink, None
-        if sink is not None:
-            self.loop.attach_sink(None)
-            sink.close("log stopped", outcome="completed")
-
-    def _cmd_compensation(self, args: Any) -> dict[str, Any]:
-        self.loop.set_compensation(args.mode)
-        return {"compensation": args.mode}
-
-    def _cmd_reset_fault(self, args: Any) -> dict[str, Any]:
-        if not args.confirm:
-            raise ProtocolError("set confirm: true to reset a fault", field="args.confirm")
-        return recovery.reset_fault(self)
-
-    def _cmd_shutdown(self, args: Any) -> dict[str, Any]:
-        self.request_stop("shutdown requested")
-        return {"stopping": True}
-
-    # ------------------------------------------------------------------ helpers
-    def _log_traffic(self, sink: Any) -> None:
-        """Raw CAN traffic into the run directory, from now until the next run or shutdown."""
-        start = getattr(self.io.drives, "log_traffic", None)
-        path = getattr(sink, "can_log_path", None)
-        if start is not None and path is not None and self.cfg.can.log_traffic:
-            tap = getattr(sink, "can_tap", None)  # the run's MCAP /can channel
-            start(path("asc"), tap) if tap is not None else start(path("asc"))
-
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:
             self.enabled = False
@@ -520,43 +233,6 @@ class Daemon:
                 name="drive-fault-record",
                 daemon=True,
             ).start()
-
-    def _safety_status(self) -> dict[str, Any]:
-        """What the layers below the supervisor latched: the drive group's first fault with the
-        SYNC counts when it was latched and when the quick stop went out, and a sensor link
-        that failed (each only when the I/O offers it)."""
-        out: dict[str, Any] = {"later_trips": self.supervisor.later_trips}
-        group = getattr(self.io.drives, "group", None)
-        if group is not None:
-            fault = group.fault()
-            out["drives"] = {
-                "sync_count": group.sync_count,
-                "fault": None if fault is None else fault.text,
-                # the faulted drive's 0x603F and 0x1003, read after the fault ('' until then)
-                "diagnosis": None if fault is None else getattr(fault, "diagnosis", ""),
-                "fault_at_sync": group.fault_at_sync,
-                "quick_stop_at_sync": group.quick_stop_at_sync,
-                "traffic_log_failure": getattr(group, "traffic_failure", None),
-            }
-        sampler = getattr(self.io.tensions, "sampler", None)
-        if sampler is not None:
-            failure = getattr(sampler, "failure", None)
-            out["load_cells"] = {"failure": None if failure is None else str(failure)}
-        tracker = getattr(self.io.tip, "tracker", None)
-        if tracker is not None:
-            failure = getattr(tracker, "failure", None)
-            out["tracker"] = {"failure": None if failure is None else str(failure)}
-        return out
-
-    def _status_line(self) -> str:
-        run = self.loop.snapshot()["run"]
-        trip = self.supervisor.trip
-        parts = [self.state, "enabled" if self.enabled else "disabled"]
-        if run:
-            parts.append(f"run {run['name']} {run['elapsed_s']:.1f}/{run['duration_s']:.1f} s")
-        if trip:
-            parts.append(f"trip {trip.cause}")
-        return ", ".join(parts)
 
 
 #: How long the run.yaml record of a drive fault waits for the drive's diagnosis (s).
@@ -589,10 +265,17 @@ def record_drive_fault(group: Any, fault: Any, run_dir: str) -> None:
         log.exception("recording the drive fault in %s failed", run_dir)
 
 
-def _trip_dict(t: Trip) -> dict[str, Any]:
-    return {
-        "cause": t.cause,
-        "reaction": t.reaction.name,
-        "detail": t.detail,
-        "t_s": round(t.t_s, 4),
-    }
+__all__ = [
+    "DIAGNOSIS_WAIT_S",
+    "LOOP_JOIN_TIMEOUT_S",
+    "RUN_PICKUP_TIMEOUT_S",
+    "UNLOCKED_COMMANDS",
+    "Daemon",
+    "DriveCommands",
+    "LogCommands",
+    "RigIO",
+    "RunCommands",
+    "StatusCommands",
+    "_trip_dict",
+    "record_drive_fault",
+]

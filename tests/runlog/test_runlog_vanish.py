@@ -15,6 +15,7 @@ import yaml
 
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, load_run, sample_columns
 from cdcr_ctl.runlog import writer as writer_mod
+from cdcr_ctl.runlog.writer import files as writer_files
 
 #: fsync interval of these tests (s); detection must come within one interval plus the writer's
 #: drain period and a scheduling margin (the machine may be loaded: the margin is generous, the
@@ -109,7 +110,7 @@ def test_full_disk_run_yaml_names_the_cause(tmp_path, monkeypatch):
             tmp.unlink()
             raise
 
-    monkeypatch.setattr(writer_mod, "_write_atomic_bytes", full_disk_new_file)
+    monkeypatch.setattr(writer_files, "_write_atomic_bytes", full_disk_new_file)
     w._file = _FullFile(w._file)
     _feed_until(w, lambda: w.failure is not None)
     assert "No space left on device" in (w.failure or "")

@@ -1,0 +1,161 @@
+"""The loop's records and constants: its config, a run as ``status`` shows it, the hold setpoint,
+the posted-command form, the per-stage cycle counters (:data:`STAGES`) and the tip history the
+tracker-divergence check compares against.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: Cable offsets (jogs, re-enable slack, compensation switches) ramp out at this fraction of the
+#: cable velocity limit.
+OFFSET_RAMP_FRACTION = 0.5
+#: Python's GIL switch interval while the loop runs (s); see :meth:`ControlLoop.start`.
+GIL_SWITCH_INTERVAL_S = 5e-5
+#: Tracker-vs-model divergence: how much longer than the tracker sample's age the world may lag
+#: the command (drive following delay, the tracker's own exposure-to-send latency), s.
+DIVERGENCE_LAG_S = 0.05
+#: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
+OPERATOR_STOP = "operator_stop"
+
+
+class Hold:
+    """A constant setpoint."""
+
+    def __init__(self, psi: np.ndarray) -> None:
+        self._psi = np.array(psi, dtype=float)
+
+    @property
+    def duration_s(self) -> float:
+        return math.inf
+
+    def sample(self, t_s: float) -> np.ndarray:
+        return self._psi
+
+
+@dataclass
+class RunInfo:
+    """One run (trajectory or jog) as shown in ``status``."""
+
+    id: str
+    name: str
+    state: str  # running | completed | stopped | tripped
+    duration_s: float
+    compensation: str
+    started_t_s: float
+    elapsed_s: float = 0.0
+    end_reason: str = ""
+    log_dir: str = ""
+
+
+@dataclass
+class LoopConfig:
+    """Loop parameters derived from the rig config (see :func:`cdcr_ctl.control.build`)."""
+
+    period_s: float
+    counts_per_mm: np.ndarray  # (K,)
+    compensation: str = "model"
+    cable_velocity_mm_s: float = 50.0
+
+
+#: A command posted to the loop thread: (kind, payload). Kinds: ``follow`` (source, run, sink),
+#: ``offset`` (cable offset target, mm), ``home`` (counts), ``sink``, ``mode``, ``stop``
+#: (Reaction), ``reenabled``. Applied at the start of the next cycle in the order posted.
+_Command = tuple[str, Any]
+
+
+#: Stages of a cycle timed by :class:`LoopCounters` (``time.perf_counter`` marks): read inputs
+#: and pending commands, sample the setpoint; inverse kinematics and compensation; limits and
+#: faults; RPDOs + SYNC out; the log row.
+STAGES = ("inputs", "model", "checks", "send", "log")
+
+
+@dataclass
+class LoopCounters:
+    """Loop statistics (written by the loop thread only). ``stage_s``: wall time spent per
+    stage (:data:`STAGES`) summed over all cycles; ``stage_max_us``: the longest of each;
+    ``work_cpu_s``: the loop thread's CPU time in the cycles' work (``time.thread_time``);
+    ``cpu_s``: the loop thread's CPU time when it stopped (waiting and spinning included)."""
+
+    cycles: int = 0
+    #: Cycles whose work ran past the period; deadlines missed because of them (no cycle ran).
+    long_cycles: int = 0
+    missed_cycles: int = 0
+    #: Operator stops acted on from the stop flag (:class:`StopFlag`).
+    flag_stops: int = 0
+    rows_logged: int = 0
+    rows_dropped: int = 0
+    trips: int = 0
+    last_cycle_us: float = 0.0
+    max_cycle_us: float = 0.0
+    cpu_s: float = 0.0
+    work_cpu_s: float = 0.0
+    stage_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    stage_max_us: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    _timed_from: int = 0
+
+    def stage_mean_us(self) -> dict[str, float]:
+        """Mean wall time per cycle of each stage (us) since the last :meth:`reset_timing`."""
+        n = max(self.cycles - self._timed_from, 1)
+        return {k: round(v / n * 1e6, 1) for k, v in self.stage_s.items()}
+
+    def work_cpu_us(self) -> float:
+        """Mean CPU time of a cycle's work (us) since the last :meth:`reset_timing`."""
+        return self.work_cpu_s / max(self.cycles - self._timed_from, 1) * 1e6
+
+    def reset_timing(self) -> None:
+        """Start the stage times and the longest cycle afresh (e.g. after start-up)."""
+        self._timed_from = self.cycles
+        self.max_cycle_us = 0.0
+        self.work_cpu_s = 0.0
+        for k in STAGES:
+            self.stage_s[k] = 0.0
+            self.stage_max_us[k] = 0.0
+
+    def _stages(self, marks: Sequence[float]) -> None:
+        """Add one cycle's stage times from its ``len(STAGES) + 1`` perf_counter marks."""
+        total, worst = self.stage_s, self.stage_max_us
+        for name, t0, t1 in zip(STAGES, marks, marks[1:], strict=False):
+            dt = t1 - t0
+            total[name] += dt
+            if dt * 1e6 > worst[name]:
+                worst[name] = dt * 1e6
+
+
+class TipHistory:
+    """The model's tip over the last fraction of a second, to compare a tracker sample with the
+    command of the time it shows (robot base frame, mm; loop clock, s).
+
+    A tracker sample ``age`` s old shows the world as it was then, and the world lags the command
+    by the drives' following delay: comparing it with the current command's tip would count the
+    distance the tip travelled meanwhile as divergence (at 100 mm/s and 50 ms, 5 mm).
+    :meth:`distance` is the smallest distance from the sample to the model tips commanded between
+    ``age + lag_s`` and ``age - period`` s ago.
+    """
+
+    def __init__(self, capacity: int) -> None:
+        self._t = np.full(capacity, -np.inf)
+        self._tip = np.full((capacity, 3), np.nan)
+        self._i = 0
+
+    def add(self, t_s: float, tip_mm: np.ndarray) -> None:
+        i = self._i % len(self._t)
+        self._t[i] = t_s
+        self._tip[i] = tip_mm
+        self._i += 1
+
+    def distance(
+        self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
+    ) -> float:
+        """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
+        [now - age - lag, now - age + period]; the newest model tip when none is in the window."""
+        t_sample = now_s - age_s
+        sel = (self._t >= t_sample - lag_s) & (self._t <= t_sample + period_s)
+        if not sel.any():
+            sel = self._t == self._t.max()
+        return float(np.min(np.linalg.norm(self._tip[sel] - tip_mm, axis=1)))

@@ -1,0 +1,94 @@
+"""The daemon's status: the ``status`` command (drives, sensors, supervisor, loop, runs), what the
+layers below the supervisor latched, and the one-line status for systemd.
+
+:class:`StatusCommands` is a mixin of :class:`~cdcr_ctl.daemon.service.Daemon`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from cdcr_ctl.control.supervisor import Trip
+from cdcr_ctl.daemon import recovery
+
+
+class StatusCommands:
+    """Status building (mixin of the daemon)."""
+
+    def _cmd_status(self, args: Any) -> dict[str, Any]:
+        fb = self.io.drives.feedback()
+        force, force_age = self.io.tensions.latest()
+        tip, tip_age = self.io.tip.latest()
+        trip = self.supervisor.trip
+        snap = self.loop.snapshot()
+        return {
+            "state": self.state,
+            "rig": self.cfg.name,
+            "design": self.cfg.design,
+            "config": str(self.config_path),
+            "enabled": self.enabled,
+            "homed": self.homed,
+            "compensation": self.loop.cfg.compensation,
+            "drives": recovery.drive_status(self.cfg, fb),
+            "tension_N": [None if not math.isfinite(v) else round(float(v), 3) for v in force],
+            "tension_age_s": [
+                None if not math.isfinite(v) else round(float(v), 4) for v in force_age
+            ],
+            "tip_mm": [None if not math.isfinite(v) else round(float(v), 3) for v in tip],
+            "tip_age_s": None if not math.isfinite(tip_age) else round(tip_age, 4),
+            "fault": None if trip is None else _trip_dict(trip),
+            "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
+            "safety": self._safety_status(),
+            "run": snap.pop("run"),
+            "runs": [r.__dict__ for r in self.loop.history[-10:]],
+            "loop": snap,
+            "logging": self._manual_sink is not None,
+            "joystick": None if self._session is None else self._session.status(),
+        }
+
+    def _safety_status(self) -> dict[str, Any]:
+        """What the layers below the supervisor latched: the drive group's first fault with the
+        SYNC counts when it was latched and when the quick stop went out, and a sensor link
+        that failed (each only when the I/O offers it)."""
+        out: dict[str, Any] = {"later_trips": self.supervisor.later_trips}
+        group = getattr(self.io.drives, "group", None)
+        if group is not None:
+            fault = group.fault()
+            out["drives"] = {
+                "sync_count": group.sync_count,
+                "fault": None if fault is None else fault.text,
+                # the faulted drive's 0x603F and 0x1003, read after the fault ('' until then)
+                "diagnosis": None if fault is None else getattr(fault, "diagnosis", ""),
+                "fault_at_sync": group.fault_at_sync,
+                "quick_stop_at_sync": group.quick_stop_at_sync,
+                "traffic_log_failure": getattr(group, "traffic_failure", None),
+            }
+        sampler = getattr(self.io.tensions, "sampler", None)
+        if sampler is not None:
+            failure = getattr(sampler, "failure", None)
+            out["load_cells"] = {"failure": None if failure is None else str(failure)}
+        tracker = getattr(self.io.tip, "tracker", None)
+        if tracker is not None:
+            failure = getattr(tracker, "failure", None)
+            out["tracker"] = {"failure": None if failure is None else str(failure)}
+        return out
+
+    def _status_line(self) -> str:
+        run = self.loop.snapshot()["run"]
+        trip = self.supervisor.trip
+        parts = [self.state, "enabled" if self.enabled else "disabled"]
+        if run:
+            parts.append(f"run {run['name']} {run['elapsed_s']:.1f}/{run['duration_s']:.1f} s")
+        if trip:
+            parts.append(f"trip {trip.cause}")
+        return ", ".join(parts)
+
+
+def _trip_dict(t: Trip) -> dict[str, Any]:
+    return {
+        "cause": t.cause,
+        "reaction": t.reaction.name,
+        "detail": t.detail,
+        "t_s": round(t.t_s, 4),
+    }

@@ -1,0 +1,129 @@
+"""The run-log factory: one :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` per run with the
+rig's metadata, config copies and (``run.mcap``) second sink; the daemon's ``run_sink_factory``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import yaml
+
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
+from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
+from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata
+from cdcr_ctl.runlog.writer.thread import DEFAULT_QUEUE_ROWS, RunLogWriter
+
+if TYPE_CHECKING:
+    from cdcr_ctl.config.schema import RigConfig
+
+
+class RunLogFactory:
+    """Makes one :class:`RunLogWriter` per run with the rig's metadata and config copy.
+
+    Called as ``factory(name, compensation, trajectory="")`` (the daemon's ``run_sink_factory``).
+    ``config_text`` is the rig config file as loaded; ``effective_config`` (optional) the
+    validated config with defaults filled, written as ``config_effective.yaml``.
+    """
+
+    def __init__(
+        self,
+        base_dir: str | Path,
+        *,
+        rig: str,
+        design: str,
+        rate_hz: float,
+        n_segments: int,
+        n_cables: int,
+        config_text: str | None = None,
+        config_source: str = "",
+        effective_config: str | None = None,
+        fsync_every_s: float = 0.5,
+        extra_columns: Sequence[str] = LOOP_EXTRA_COLUMNS,
+        max_queued_rows: int = DEFAULT_QUEUE_ROWS,
+        on_failure: Callable[[str], None] | None = None,
+        mcap: bool = False,
+        tip_from_psi: Callable[[Any], Any] | None = None,
+    ) -> None:
+        self.base_dir = Path(base_dir)
+        #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
+        #: tip of a commanded pose for its ``/tip/model`` channel.
+        self.second_sink = McapSinkFactory(tip_from_psi, rate_hz) if mcap else None
+        self.rig, self.design, self.rate_hz = rig, design, float(rate_hz)
+        self.n_segments, self.n_cables = n_segments, n_cables
+        self.config_text, self.config_source = config_text, config_source
+        self.effective_config = effective_config
+        self.fsync_every_s = fsync_every_s
+        self.extra_columns = tuple(extra_columns)
+        self.max_queued_rows = max_queued_rows
+        self.on_failure = on_failure
+        sample_columns(n_segments, n_cables, self.extra_columns)  # fail early on bad names
+
+    @classmethod
+    def from_config(
+        cls,
+        cfg: RigConfig,
+        config_path: str | Path,
+        *,
+        n_segments: int | None = None,
+        n_cables: int | None = None,
+        base_dir: str | Path | None = None,
+        **kwargs: Any,
+    ) -> RunLogFactory:
+        """Factory for a validated rig config read from ``config_path``.
+
+        The log directory is ``cfg.logging.directory`` (relative to the config file's folder if
+        relative) unless ``base_dir`` is given; counts default to the config's segments and
+        cables. Raises :class:`RigError` naming the file if the config cannot be re-read.
+        """
+        path = Path(config_path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise RigError(f"{path}: cannot read the config for the run logs: {exc}") from exc
+        if base_dir is None:
+            base_dir = Path(cfg.logging.directory)
+            if not base_dir.is_absolute():
+                base_dir = path.parent / base_dir
+        effective = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+        return cls(
+            base_dir,
+            rig=cfg.name,
+            design=cfg.design,
+            rate_hz=cfg.control.rate_hz,
+            n_segments=n_segments or len(cfg.robot.segments),
+            n_cables=n_cables or len(cfg.robot.cables),
+            config_text=text,
+            config_source=str(path.resolve()),
+            effective_config=effective,
+            fsync_every_s=cfg.logging.fsync_every_s,
+            mcap=cfg.logging.mcap,
+            **kwargs,
+        )
+
+    def __call__(self, name: str, compensation: str, trajectory: str = "") -> RunLogWriter:
+        meta = RunMetadata(
+            name=name,
+            rig=self.rig,
+            design=self.design,
+            compensation=compensation,
+            rate_hz=self.rate_hz,
+            trajectory=trajectory or name,
+        )
+        extra = {EFFECTIVE_CONFIG_YAML: self.effective_config} if self.effective_config else None
+        return RunLogWriter.create(
+            self.base_dir,
+            meta,
+            self.n_segments,
+            self.n_cables,
+            self.extra_columns,
+            config_text=self.config_text,
+            config_source=self.config_source,
+            extra_files=extra,
+            fsync_every_s=self.fsync_every_s,
+            max_queued_rows=self.max_queued_rows,
+            on_failure=self.on_failure,
+            second_sink=self.second_sink,
+        )
