@@ -154,6 +154,9 @@ def test_session_steers_follows_and_stop_ends_it_with_a_complete_log(tmp_path):
                 and not session.source.follow.busy
             )
         )
+        # The script's four frames arrive at 0, 0.6, 1.2 and 1.5 s of stick time; the follow move
+        # can end before the last one is read (a busy machine delays the reader), so wait for it.
+        assert _wait(lambda: c.call("status")["joystick"]["reports"] >= 4)
         st = c.call("status")
         js = st["joystick"]
         assert js["active"] and js["connected"] and js["reports"] >= 4
