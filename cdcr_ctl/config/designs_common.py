@@ -1,0 +1,52 @@
+"""What the two design sections of the rig config share (:mod:`cdcr_ctl.config.designs`):
+tolerances, the check that a design's section is present exactly for that design, the drives'
+counts_per_mm check, and raising the collected problems as :class:`ConfigErrors`."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from pydantic import Field
+
+from cdcr_ctl.config.keys import KeyPath, format_key
+from cdcr_ctl.errors import ConfigError, ConfigErrors
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+#: Relative mismatch allowed between a drive's counts_per_mm and the design's transmission.
+COUNTS_PER_MM_REL_TOL = 1e-3
+#: Absolute mismatch allowed between segment length and its sub-joint geometry (mm).
+LENGTH_TOL_MM = 1e-6
+
+
+def check_design_section(design: str, key: str, section: object) -> None:
+    """Section ``key`` (``ujoint``/``vertebra``) is present exactly when ``design`` is ``key``
+    (ValueError otherwise); called by ``RigConfig``'s validator of that key."""
+    if design == key and section is None:
+        raise ValueError(f"design {key} needs a '{key}:' section")
+    if design != key and section is not None:
+        raise ValueError(f"a '{key}:' section is only for design {key}")
+
+
+def _check_counts(
+    cfg: Any, expected: float, source: str, only: str | None = None, index: int | None = None
+) -> list[tuple[KeyPath, str, Any]]:
+    out: list[tuple[KeyPath, str, Any]] = []
+    for i, drv in enumerate(cfg.drives):
+        if only is not None and drv.cable != only:
+            continue
+        if abs(abs(drv.counts_per_mm) - expected) > COUNTS_PER_MM_REL_TOL * expected:
+            out.append(
+                (
+                    ("drives", i, "counts_per_mm"),
+                    f"does not match {source} ({expected:.6g} counts per mm)",
+                    drv.counts_per_mm,
+                )
+            )
+    return out
+
+
+def _raise_problems(problems: list[tuple[KeyPath, str, Any]], source: str) -> None:
+
+    if problems:
+        raise ConfigErrors([ConfigError(source, format_key(k), m, v) for k, m, v in problems])
