@@ -1,0 +1,139 @@
+"""Tracker frames: rotations (rotation vector, quaternion) and the tracker -> robot base transform.
+
+Pure numpy, no I/O. The tracker reports the rigid body's pose in its own frame and units:
+position ``p_b`` (units) and rotation ``R_tb`` (body -> tracker). With ``s`` = mm per unit,
+``(R_mb, t_mb)`` = ``marker_to_tip`` (tip frame -> body frame, mm) and ``(R_bt, t_bt)`` =
+``base_from_tracker`` (tracker frame -> base frame, mm)::
+
+    p_tip_tracker_mm = s * p_b + R_tb @ t_mb
+    p_tip_base_mm    = R_bt @ p_tip_tracker_mm + t_bt
+    R_base_tip       = R_bt @ R_tb @ R_mb
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdcr_ctl.config.tracking import RigidTransformConfig, TrackerConfig
+
+#: Unit quaternions must have a norm within this of 1 (float32 rounding is ~1e-7).
+QUATERNION_NORM_TOL = 1e-3
+
+
+# -- rotations ------------------------------------------------------------------------------
+
+
+def rotation_from_rotvec(rotvec: np.ndarray | list[float]) -> np.ndarray:
+    """Rotation matrix of a rotation vector (axis * angle, rad), by Rodrigues' formula."""
+    v = np.asarray(rotvec, dtype=float)
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-12:
+        return np.eye(3)
+    k = v / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def rotation_from_quaternion(q_xyzw: np.ndarray | tuple[float, ...]) -> np.ndarray:
+    """Rotation matrix of a quaternion (x, y, z, w; scalar last), normalised first.
+
+    ValueError when the norm is not within :data:`QUATERNION_NORM_TOL` of 1 or not finite.
+    """
+    q = np.asarray(q_xyzw, dtype=float)
+    n = float(np.linalg.norm(q))
+    if not (math.isfinite(n) and abs(n - 1.0) <= QUATERNION_NORM_TOL):
+        raise ValueError(f"not a unit quaternion (norm {n})")
+    x, y, z, w = q / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (x, y, z, w; w >= 0) of a rotation matrix (Shepperd's method)."""
+    m = np.asarray(R, dtype=float)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    out = np.asarray(q) / np.linalg.norm(q)
+    return -out if out[3] < 0 else out
+
+
+# -- frames ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrackerTransform:
+    """Tracker-frame body pose -> tip in the robot base frame (see the module docstring).
+
+    ``R_base_tracker``, ``t_base_tracker_mm``: base_from_tracker; ``R_body_tip``,
+    ``t_body_tip_mm``: marker_to_tip (the tip in the body frame); ``mm_per_unit``: tracker scale.
+    """
+
+    R_base_tracker: np.ndarray
+    t_base_tracker_mm: np.ndarray
+    R_body_tip: np.ndarray
+    t_body_tip_mm: np.ndarray
+    mm_per_unit: float
+
+    @classmethod
+    def identity(cls, mm_per_unit: float = 1.0) -> TrackerTransform:
+        """No alignment, tip at the body origin."""
+        return cls(np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), mm_per_unit)
+
+    @classmethod
+    def from_transforms(
+        cls,
+        base_from_tracker: RigidTransformConfig,
+        marker_to_tip: RigidTransformConfig,
+        mm_per_unit: float,
+    ) -> TrackerTransform:
+        """From the two config transforms (rotation vectors in rad, translations in mm)."""
+        return cls(
+            rotation_from_rotvec(base_from_tracker.rotvec_rad),
+            np.asarray(base_from_tracker.translation_mm, dtype=float),
+            rotation_from_rotvec(marker_to_tip.rotvec_rad),
+            np.asarray(marker_to_tip.translation_mm, dtype=float),
+            float(mm_per_unit),
+        )
+
+    @classmethod
+    def from_config(cls, cfg: TrackerConfig) -> TrackerTransform:
+        """From a tracker config section."""
+        return cls.from_transforms(cfg.base_from_tracker, cfg.marker_to_tip, cfg.mm_per_unit)
+
+    def tip_in_base(
+        self, position_units: np.ndarray | tuple[float, ...], R_tracker_body: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(tip position in the base frame (mm), R_base_tip) for a body pose in tracker units."""
+        p_tracker_mm = self.mm_per_unit * np.asarray(position_units, dtype=float)
+        p_tracker_mm = p_tracker_mm + R_tracker_body @ self.t_body_tip_mm
+        p_base = self.R_base_tracker @ p_tracker_mm + self.t_base_tracker_mm
+        return p_base, self.R_base_tracker @ R_tracker_body @ self.R_body_tip
+
+    def body_in_tracker(
+        self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Inverse of :meth:`tip_in_base`: (body position in tracker units, R_tracker_body)."""
+        R_tb = self.R_base_tracker.T @ np.asarray(R_base_tip, dtype=float) @ self.R_body_tip.T
+        p_tracker_mm = self.R_base_tracker.T @ (
+            np.asarray(p_tip_base_mm, dtype=float) - self.t_base_tracker_mm
+        )
+        return (p_tracker_mm - R_tb @ self.t_body_tip_mm) / self.mm_per_unit, R_tb
