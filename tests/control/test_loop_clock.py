@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
 import pytest
 from test_loop import CPM, LIM, FakeDrives, FakeModel, FakeTension, ListSink, Ramp, wait_until
 
 from cdcr_ctl.control.clock import wall_clock
-from cdcr_ctl.control.loop import ControlLoop, LoopConfig
+from cdcr_ctl.control.loop import COMMAND_STEP_FRACTION, ControlLoop, LoopConfig
 from cdcr_ctl.control.ports import NoTip
 from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.control.timing import Ticker
@@ -74,3 +75,59 @@ def test_the_default_clock_is_the_wall_clock():
     loop = _loop(None)
     assert isinstance(loop.ticker, Ticker) and isinstance(wall_clock(0.01), Ticker)
     assert abs(loop.ticker.now() - time.monotonic()) < 1.0
+
+
+class SelfRampingModel(FakeModel):
+    """Like the universal-joint model: its mode ``model`` command starts from the bare geometry
+    and moves its compensation term towards +2 mm on every cable by at most ``frac`` of the
+    velocity limit per cycle, on its own; mode ``off`` sits 1 mm below the geometry (so a switch
+    to ``model`` is a step up the loop's offset ramp takes out, in the same direction)."""
+
+    def __init__(self, v_dt_mm: float, frac: float = 0.9) -> None:
+        self.step = frac * v_dt_mm
+
+    def new_state(self):
+        return {"delta": 0.0}
+
+    def q_command(self, psi, q_nominal, state, mode, measured_N):
+        if mode != "model":
+            state["delta"] = 0.0
+            return q_nominal - 1.0
+        state["delta"] = min(2.0, state["delta"] + self.step)
+        return q_nominal + state["delta"]
+
+
+def test_an_offset_ramp_and_a_self_ramping_model_stay_within_the_velocity_limit_together():
+    # Switching off -> model: the loop takes the step into an offset it ramps out at half the
+    # limit, while the model ramps its own term at 0.9 of the limit, the same way. Each alone is
+    # within the limit; added they were not (1.4x, as the universal-joint demo tripped). The loop
+    # gives the offset only what the model's step leaves of COMMAND_STEP_FRACTION of the limit.
+    v = 100.0  # mm/s, LoopConfig's cable_velocity_mm_s below
+    v_dt = v * PERIOD
+    clock = SimClock(PERIOD, advance=lambda t0, t1: None)
+    loop = ControlLoop(
+        LoopConfig(period_s=PERIOD, counts_per_mm=CPM, compensation="off", cable_velocity_mm_s=v),
+        SelfRampingModel(v_dt),
+        FakeDrives(),
+        FakeTension(),
+        NoTip(),
+        Supervisor(LIM, use_tension=True),
+        clock=clock,
+    )
+    clock.busy = lambda: loop.busy
+    loop.start()
+    try:
+        sink = ListSink()
+        first = loop.follow(Ramp(0.0, 0.02), "off", "off", ListSink())
+        assert wait_until(lambda: first.state != "running")
+        run = loop.follow(Ramp(0.0, 0.3), "switch", "model", sink)
+        assert wait_until(lambda: run.state != "running")
+    finally:
+        loop.stop()
+    assert run.state == "completed", run.end_reason
+    q = np.array([[r[f"cable{k}_q_cmd_mm"] for k in range(1, 4)] for r in sink.rows])
+    # From the last "off" command (-1 mm) on, no cycle steps further than the loop promises
+    # (COMMAND_STEP_FRACTION of the limit), up to float rounding.
+    steps = np.abs(np.diff(np.vstack(([-1.0] * 3, q)), axis=0))
+    assert steps.max() <= COMMAND_STEP_FRACTION * v_dt + 1e-9
+    assert q[-1] == pytest.approx([2.0] * 3)  # the offset ramped out, the model's term arrived

@@ -25,6 +25,7 @@ from dataclasses import field
 from cdcr_ctl.control.loop.commands import LoopCommands
 from cdcr_ctl.control.loop.cycle import ControlLoop, log
 from cdcr_ctl.control.loop.records import (
+    COMMAND_STEP_FRACTION,
     DIVERGENCE_LAG_S,
     GIL_SWITCH_INTERVAL_S,
     OFFSET_RAMP_FRACTION,
@@ -41,6 +42,7 @@ from cdcr_ctl.control.loop.rows import CycleRow, RowLayout, RowSink
 from cdcr_ctl.control.stopflag import StopFlag
 
 __all__ = [
+    "COMMAND_STEP_FRACTION",
     "DIVERGENCE_LAG_S",
     "GIL_SWITCH_INTERVAL_S",
     "OFFSET_RAMP_FRACTION",

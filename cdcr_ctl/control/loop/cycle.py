@@ -20,6 +20,7 @@ import numpy as np
 from cdcr_ctl.control.clock import LoopClock, wall_clock
 from cdcr_ctl.control.loop.commands import LoopCommands
 from cdcr_ctl.control.loop.records import (
+    COMMAND_STEP_FRACTION,
     DIVERGENCE_LAG_S,
     OFFSET_RAMP_FRACTION,
     OPERATOR_STOP,
@@ -184,11 +185,6 @@ class ControlLoop(LoopCommands):
         run = self._run
         if run is not None:
             run.elapsed_s = min(t_run, run.duration_s)
-        # Offsets ramp at half the velocity limit, leaving the other half to the trajectory.
-        gap = self._q_offset_target - self._q_offset
-        if gap.any():
-            step = OFFSET_RAMP_FRACTION * self.cfg.cable_velocity_mm_s * self.cfg.period_s
-            self._q_offset += np.clip(gap, -step, step)
         m1 = clock()
 
         # Inverse kinematics and compensation
@@ -211,6 +207,19 @@ class ControlLoop(LoopCommands):
             # and let it ramp out instead of jumping (and tripping the velocity limit).
             self._q_offset = self._q_cmd - q_cmd
             self._q_offset_target = np.zeros_like(self._q_offset)
+        # Offsets ramp at up to half the velocity limit, and only within what the model's own
+        # step this cycle leaves of COMMAND_STEP_FRACTION of the limit: a model that rate-limits
+        # its own compensation (the universal-joint arm's dead zone) and the offset ramp must not
+        # add up to more than the limit the supervisor enforces.
+        gap = self._q_offset_target - self._q_offset
+        if gap.any():
+            v_dt = self.cfg.cable_velocity_mm_s * self.cfg.period_s
+            ramp = OFFSET_RAMP_FRACTION * v_dt
+            budget = COMMAND_STEP_FRACTION * v_dt
+            base = q_cmd + self._q_offset - self._q_cmd  # this cycle's step without the ramp
+            lo = np.minimum(np.maximum(-ramp, -budget - base), 0.0)
+            hi = np.maximum(np.minimum(ramp, budget - base), 0.0)
+            self._q_offset += np.clip(gap, lo, hi)
         q_cmd = q_cmd + self._q_offset
         m2 = clock()
 

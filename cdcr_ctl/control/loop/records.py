@@ -15,6 +15,9 @@ import numpy as np
 #: Cable offsets (jogs, re-enable slack, compensation switches) ramp out at this fraction of the
 #: cable velocity limit.
 OFFSET_RAMP_FRACTION = 0.5
+#: An offset ramps only while the whole command step of the cycle stays within this fraction of
+#: the cable velocity limit (the margin keeps the supervisor's check from firing on rounding).
+COMMAND_STEP_FRACTION = 0.95
 #: Python's GIL switch interval while the loop runs (s); see :meth:`ControlLoop.start`.
 GIL_SWITCH_INTERVAL_S = 5e-5
 #: Tracker-vs-model divergence: how much longer than the tracker sample's age the world may lag
