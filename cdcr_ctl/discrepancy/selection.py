@@ -33,58 +33,55 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares, lsq_linear
+from scipy.optimize import lsq_linear
 
-from cdcr_ctl.discrepancy.alignment import AlignedRun
-from cdcr_ctl.discrepancy.simulate import Prediction
-from cdcr_ctl.model.effects import EffectParam, EffectTerm, ModelSpec
+from cdcr_ctl.discrepancy.design import (
+    Design,
+    ModelFit,
+    active_terms,
+    build_design,
+    entry_vector,
+    lag1_autocorrelation,
+    measurement_vector,
+    predicted_vector,
+)
+from cdcr_ctl.discrepancy.nonlinear_refit import (
+    FRESH_JACOBIAN_MAX_PARAMS,
+    Refit,
+    apply_all,
+    refit,
+    split_values,
+)
+from cdcr_ctl.model.effects import EffectTerm
 
-#: Refits of at most this many simulated parameters use a fresh Jacobian at every iterate.
-FRESH_JACOBIAN_MAX_PARAMS = 3
+__all__ = [
+    "FRESH_JACOBIAN_MAX_PARAMS",
+    "T_CRIT_5FOLDS",
+    "Design",
+    "ModelFit",
+    "Refit",
+    "Selection",
+    "_Grams",
+    "_bounds",
+    "_residual",
+    "active_terms",
+    "apply_all",
+    "build_design",
+    "entry_vector",
+    "fit_linear",
+    "lag1_autocorrelation",
+    "measurement_vector",
+    "predicted_vector",
+    "refit",
+    "select",
+    "split_values",
+]
+
 T_CRIT_5FOLDS = 2.132  # one-sided 95 % quantile of Student's t with 4 degrees of freedom
-
-
-@dataclass
-class Design:
-    """The stacked, noise-normalised residual problem of one or more runs.
-
-    ``r0`` (M,) baseline residuals; ``G`` (M, P) effect columns; ``Nu`` (M, Q) nuisance columns;
-    ``fold`` (M,) block of each entry; ``run`` (M,) run index; ``row`` (M,) row in that run;
-    ``chan`` (M,) 0..2 tip axes, 3+k tension of cable k. ``cols``: (term, parameter) per column.
-    """
-
-    r0: np.ndarray
-    G: np.ndarray
-    Nu: np.ndarray
-    fold: np.ndarray
-    run: np.ndarray
-    row: np.ndarray
-    chan: np.ndarray
-    cols: list[tuple[EffectTerm, EffectParam]]
-    steps: np.ndarray
-    nu_names: list[str]
-
-
-@dataclass
-class ModelFit:
-    """One candidate set fitted in linearised form (values per column of its terms)."""
-
-    terms: tuple[EffectTerm, ...]
-    values: np.ndarray
-    sse: float
-    cv_sse: float
-    cv_fold_sse: np.ndarray
-    n_params: int
-    aic: float = math.nan
-    bic: float = math.nan
-
-    @property
-    def name(self) -> str:
-        return " + ".join(t.name for t in self.terms) if self.terms else "baseline"
 
 
 @dataclass
@@ -105,160 +102,6 @@ class Selection:
     n_eff: float
     baseline_ms: float
     reasons: list[str] = field(default_factory=list)
-
-
-def measurement_vector(run: AlignedRun, pred: Prediction) -> tuple[np.ndarray, ...]:
-    """Normalised residuals (measured - predicted) of one run, with row and channel indices."""
-    parts, rows, chans = [], [], []
-    e = (run.tip_mm - pred.tip_mm) / run.sigma_tip_mm
-    for a in range(3):
-        ok = np.isfinite(e[:, a])
-        parts.append(e[ok, a])
-        rows.append(np.flatnonzero(ok))
-        chans.append(np.full(ok.sum(), a))
-    if run.tension_N is not None:
-        eT = (run.tension_N - pred.tension_N) / run.sigma_tension_N
-        for k in range(run.n_cables):
-            ok = np.isfinite(eT[:, k])
-            parts.append(eT[ok, k])
-            rows.append(np.flatnonzero(ok))
-            chans.append(np.full(ok.sum(), 3 + k))
-    return np.concatenate(parts), np.concatenate(rows), np.concatenate(chans)
-
-
-def entry_vector(
-    run: AlignedRun, tip_mm: np.ndarray, tension_N: np.ndarray, rows: np.ndarray, chans: np.ndarray
-) -> np.ndarray:
-    """Tip (mm, channels 0-2) and tension (N, channels 3..) series at the (row, channel) entries
-    of :func:`measurement_vector`, each divided by its noise sigma (dimensionless)."""
-    out = np.empty(len(rows))
-    tip = chans < 3
-    out[tip] = tip_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
-    if (~tip).any():
-        out[~tip] = tension_N[rows[~tip], chans[~tip] - 3] / run.sigma_tension_N
-    return out
-
-
-def predicted_vector(run: AlignedRun, pred: Prediction, rows: np.ndarray, chans: np.ndarray):
-    """Normalised predictions at the (row, channel) entries of :func:`measurement_vector`."""
-    return entry_vector(run, pred.tip_mm, pred.tension_N, rows, chans)
-
-
-def active_terms(
-    runs: Sequence[AlignedRun], terms: Sequence[EffectTerm]
-) -> tuple[list[EffectTerm], list[str]]:
-    """Terms that can act on these runs, and a note for each one skipped."""
-    notes, out = [], []
-    tensions = any(r.has_tensions for r in runs)
-    for t in terms:
-        why = t.not_applicable(runs[0].spec)
-        if why is None and t.needs_tensions and not tensions:
-            why = "needs measured tensions; the logs have no tension columns"
-        if (
-            why is None
-            and t.kind == "measurement"
-            and not any(np.isfinite(r.tip_mm).any() for r in runs)
-        ):
-            why = "acts on the tracker; the logs have no tip columns"
-        if why:
-            notes.append(f"skipped {t.name}: {why}")
-        else:
-            out.append(t)
-    return out, notes
-
-
-def build_design(
-    runs: Sequence[AlignedRun],
-    terms: Sequence[EffectTerm],
-    baselines: Sequence[Prediction],
-    folds: int,
-    sim: Callable[[ModelSpec, int], Prediction],
-) -> Design:
-    """Residuals, secant columns of every parameter, nuisance columns (see module doc)."""
-    r_all, fold_all, run_all, row_all, chan_all = [], [], [], [], []
-    per_run_cols: list[list[np.ndarray]] = []
-    cols: list[tuple[EffectTerm, EffectParam]] = []
-    steps: list[float] = []
-    for t in terms:
-        for p in t.parameters(runs[0].spec):
-            cols.append((t, p))
-            steps.append(p.step)
-    nu_blocks = []
-    nu_names: list[str] = []
-    for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
-        r, rows, chans = measurement_vector(run, base)
-        y0 = predicted_vector(run, base, rows, chans)
-        G = np.zeros((len(r), len(cols)))
-        c = 0
-        for t in terms:
-            params = t.parameters(run.spec)
-            for j, p in enumerate(params):
-                v = np.zeros(len(params))
-                v[j] = p.step
-                spec = t.apply(run.spec, v)
-                if t.kind == "measurement":
-                    tip = spec.tip_map(base.tip_mm)
-                    pj = Prediction(tip, base.tension_N, base.psi, 0)
-                else:
-                    pj = sim(spec, ri)
-                G[:, c] = (predicted_vector(run, pj, rows, chans) - y0) / p.step
-                c += 1
-        per_run_cols.append([G])
-        # nuisance: tracker lag (s) and per-cable tension offsets (N), this run only
-        nu = []
-        names = []
-        if (chans < 3).any():
-            # tip(t - L) = tip - L v + (L^2 / 2) a: on a fast, turning tip (several segments)
-            # 10-20 ms of lag is a shift of 1-2 mm whose second-order term is several noise
-            # sigmas; v and a of the untimed series at the tracker's instants (Prediction)
-            if base.tip_velocity_mm_s is not None and base.tip_accel_mm_s2 is not None:
-                v, a = base.tip_velocity_mm_s, base.tip_accel_mm_s2
-            else:
-                v = np.gradient(base.tip_mm, run.t_s, axis=0)
-                a = np.gradient(v, run.t_s, axis=0)
-            tip = chans < 3
-            for col_mm, name in ((-v, "tracker lag (s)"), (0.5 * a, "tracker lag^2 (s^2)")):
-                col = np.zeros(len(r))
-                col[tip] = col_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
-                nu.append(col)
-                names.append(f"{run.name}: {name}")
-        for k in range(run.n_cables):
-            m = chans == 3 + k
-            if m.any():
-                col = np.zeros(len(r))
-                col[m] = 1.0 / run.sigma_tension_N
-                nu.append(col)
-                names.append(f"{run.name}: cable{k + 1} load-cell offset (N)")
-        nu_blocks.append(np.column_stack(nu) if nu else np.zeros((len(r), 0)))
-        nu_names += names
-        t_row = run.t_s[rows]
-        edges = np.linspace(run.t_s[0], run.t_s[-1], folds + 1)
-        f = np.clip(np.searchsorted(edges, t_row, side="right") - 1, 0, folds - 1)
-        r_all.append(r)
-        fold_all.append(f)
-        run_all.append(np.full(len(r), ri))
-        row_all.append(rows)
-        chan_all.append(chans)
-    M = sum(len(x) for x in r_all)
-    Q = sum(b.shape[1] for b in nu_blocks)
-    Nu = np.zeros((M, Q))
-    o = q = 0
-    for b in nu_blocks:
-        Nu[o : o + len(b), q : q + b.shape[1]] = b
-        o += len(b)
-        q += b.shape[1]
-    return Design(
-        r0=np.concatenate(r_all),
-        G=np.vstack([c[0] for c in per_run_cols]),
-        Nu=Nu,
-        fold=np.concatenate(fold_all),
-        run=np.concatenate(run_all),
-        row=np.concatenate(row_all),
-        chan=np.concatenate(chan_all),
-        cols=cols,
-        steps=np.asarray(steps),
-        nu_names=nu_names,
-    )
 
 
 class _Grams:
@@ -319,25 +162,6 @@ def fit_linear(d: Design, g: _Grams, terms: tuple[EffectTerm, ...]) -> ModelFit:
         pf = g.solve(trA, trb, lo, hi)
         cv[f] = g.sse(g.AtA[f][sub], g.Atr[f][sel], g.rr[f], pf)
     return ModelFit(terms, p[: len(cols)], sse, float(cv.sum()), cv, len(cols))
-
-
-def lag1_autocorrelation(res: np.ndarray, d: Design) -> float:
-    """Mean lag-1 autocorrelation of the residual series of each (run, channel)."""
-    rhos, weights = [], []
-    for key in np.unique(d.run * 1000 + d.chan):
-        m = (d.run * 1000 + d.chan) == key
-        x = res[m]
-        if x.size < 20:
-            continue
-        x = x - x.mean()
-        den = float(x @ x)
-        if den <= 0:
-            continue
-        rhos.append(float(x[1:] @ x[:-1]) / den)
-        weights.append(x.size)
-    if not rhos:
-        return 0.0
-    return float(np.clip(np.average(rhos, weights=weights), 0.0, 0.995))
 
 
 def select(
@@ -447,139 +271,3 @@ def _residual(d: Design, fit: ModelFit) -> np.ndarray:
     hi = np.r_[[d.cols[c][1].upper for c in cols], np.inf * np.ones(d.Nu.shape[1])]
     p = _Grams.solve(A.T @ A, A.T @ d.r0, lo, hi)
     return d.r0 - A @ p
-
-
-@dataclass
-class Refit:
-    """The nonlinear refit of the chosen terms."""
-
-    terms: tuple[EffectTerm, ...]
-    values: np.ndarray
-    ci95: np.ndarray  # half widths, same units as values
-    names: list[str]
-    units: list[str]
-    predictions: list[Prediction]
-    nuisance: np.ndarray
-    nfev: int
-    n_eff: float
-    mean_square: float  # in-sample mean square of the normalised residuals (nuisance removed)
-
-
-def split_values(terms: Sequence[EffectTerm], spec: ModelSpec, values: np.ndarray):
-    out, o = [], 0
-    for t in terms:
-        n = len(t.parameters(spec))
-        out.append(values[o : o + n])
-        o += n
-    return out
-
-
-def apply_all(terms: Sequence[EffectTerm], spec: ModelSpec, values: np.ndarray) -> ModelSpec:
-    for t, v in zip(terms, split_values(terms, spec, values), strict=True):
-        spec = t.apply(spec, v)
-    return spec
-
-
-def refit(
-    d: Design,
-    runs: Sequence[AlignedRun],
-    fit: ModelFit,
-    sim: Callable[[ModelSpec, int], Prediction],
-    max_nfev: int = 8,
-    on_eval: Callable[[], None] | None = None,
-) -> Refit:
-    """Nonlinear least squares of ``fit.terms`` with full forward simulations (see module doc)."""
-    terms = fit.terms
-    cols = [i for i, (t, _) in enumerate(d.cols) if t in terms]
-    J0 = d.G[:, cols]
-    Nu = d.Nu
-    Qn, _ = np.linalg.qr(Nu) if Nu.shape[1] else (np.zeros((len(d.r0), 0)), None)
-
-    def project(x: np.ndarray) -> np.ndarray:
-        return x - Qn @ (Qn.T @ x) if Qn.shape[1] else x
-
-    Jp = project(J0) if J0.ndim == 2 else J0
-    meas = []  # measured normalised values per entry
-    for ri, run in enumerate(runs):
-        m = d.run == ri
-        rows, chans = d.row[m], d.chan[m]
-        v = np.empty(m.sum())
-        tip = chans < 3
-        v[tip] = run.tip_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
-        if (~tip).any():
-            v[~tip] = run.tension_N[rows[~tip], chans[~tip] - 3] / run.sigma_tension_N
-        meas.append(v)
-    cache: dict[bytes, tuple[np.ndarray, list[Prediction]]] = {}
-
-    def preds(p: np.ndarray) -> tuple[np.ndarray, list[Prediction]]:
-        key = np.asarray(p, dtype=float).tobytes()
-        if key not in cache:
-            out, ps = [], []
-            for ri, run in enumerate(runs):
-                spec = apply_all(terms, run.spec, p)
-                pr = sim(spec, ri)
-                m = d.run == ri
-                out.append(meas[ri] - predicted_vector(run, pr, d.row[m], d.chan[m]))
-                ps.append(pr)
-            if on_eval is not None:
-                on_eval()
-            cache[key] = (np.concatenate(out), ps)
-        return cache[key]
-
-    def fun(p: np.ndarray) -> np.ndarray:
-        return project(preds(p)[0])
-
-    lo = np.array([d.cols[c][1].lower for c in cols])
-    hi = np.array([d.cols[c][1].upper for c in cols])
-    span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-    x0 = np.clip(fit.values, np.where(np.isfinite(lo), lo + 1e-9 * span, lo), hi - 1e-9 * span)
-    steps = np.abs(d.steps[cols])
-    needs_sim = [c for c in cols if d.cols[c][0].kind != "measurement"]
-    fresh = 0 < len(needs_sim) <= FRESH_JACOBIAN_MAX_PARAMS
-
-    def jac(p: np.ndarray) -> np.ndarray:
-        # few simulated parameters: a fresh forward-difference Jacobian at every iterate (the
-        # secant from 0 can be poor for effects that change the model's character, e.g. rigid ->
-        # elastic); many: the chord method with the secant columns
-        if not fresh:
-            return -Jp
-        f0 = fun(p)
-        J = np.empty((len(f0), len(p)))
-        for j in range(len(p)):
-            h = 0.05 * steps[j]
-            if p[j] + h > hi[j]:
-                h = -h
-            q = p.copy()
-            q[j] += h
-            J[:, j] = (fun(q) - f0) / h
-        return J
-
-    sol = least_squares(
-        fun,
-        x0,
-        jac=jac,
-        bounds=(lo, hi),
-        x_scale=steps,
-        max_nfev=max_nfev,
-        method="trf",
-        ftol=1e-4,
-        xtol=1e-4,
-    )
-    p = sol.x
-    r_full, ps = preds(p)
-    nuis = np.linalg.lstsq(Nu, r_full, rcond=None)[0] if Nu.shape[1] else np.zeros(0)
-    res = r_full - Nu @ nuis if Nu.shape[1] else r_full
-    N = len(res)
-    rho = lag1_autocorrelation(res, d)
-    n_eff = max(N * (1.0 - rho) / (1.0 + rho), 10.0)
-    dof = max(N - len(p) - Nu.shape[1], 1)
-    s2 = float(res @ res) / dof
-    Jf = -jac(p)
-    try:
-        cov = s2 * np.linalg.pinv(Jf.T @ Jf) * (N / n_eff)
-        ci = 1.96 * np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    except np.linalg.LinAlgError:
-        ci = np.full(len(p), np.nan)
-    names = [d.cols[c][1].name for c in cols]
-    units = [d.cols[c][1].unit for c in cols]
-    return Refit(terms, p, ci, names, units, ps, nuis, int(sol.nfev), n_eff, float(res @ res) / N)

@@ -1,0 +1,231 @@
+"""The linearised design of the discrepancy fit: residual vectors and sensitivity columns.
+
+Step 1 of :mod:`cdcr_ctl.discrepancy.selection`: the normalised measurement/prediction vectors,
+the secant sensitivity columns G_j of every candidate parameter and the nuisance columns
+(tracker lag, load-cell offsets) as a :class:`Design`; :class:`ModelFit` (one linearised fit)
+and the residuals' lag-1 autocorrelation that sets the effective sample size.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdcr_ctl.discrepancy.alignment import AlignedRun
+from cdcr_ctl.discrepancy.simulate import Prediction
+from cdcr_ctl.model.effects import EffectParam, EffectTerm, ModelSpec
+
+
+@dataclass
+class Design:
+    """The stacked, noise-normalised residual problem of one or more runs.
+
+    ``r0`` (M,) baseline residuals; ``G`` (M, P) effect columns; ``Nu`` (M, Q) nuisance columns;
+    ``fold`` (M,) block of each entry; ``run`` (M,) run index; ``row`` (M,) row in that run;
+    ``chan`` (M,) 0..2 tip axes, 3+k tension of cable k. ``cols``: (term, parameter) per column.
+    """
+
+    r0: np.ndarray
+    G: np.ndarray
+    Nu: np.ndarray
+    fold: np.ndarray
+    run: np.ndarray
+    row: np.ndarray
+    chan: np.ndarray
+    cols: list[tuple[EffectTerm, EffectParam]]
+    steps: np.ndarray
+    nu_names: list[str]
+
+
+@dataclass
+class ModelFit:
+    """One candidate set fitted in linearised form (values per column of its terms)."""
+
+    terms: tuple[EffectTerm, ...]
+    values: np.ndarray
+    sse: float
+    cv_sse: float
+    cv_fold_sse: np.ndarray
+    n_params: int
+    aic: float = math.nan
+    bic: float = math.nan
+
+    @property
+    def name(self) -> str:
+        return " + ".join(t.name for t in self.terms) if self.terms else "baseline"
+
+
+def measurement_vector(run: AlignedRun, pred: Prediction) -> tuple[np.ndarray, ...]:
+    """Normalised residuals (measured - predicted) of one run, with row and channel indices."""
+    parts, rows, chans = [], [], []
+    e = (run.tip_mm - pred.tip_mm) / run.sigma_tip_mm
+    for a in range(3):
+        ok = np.isfinite(e[:, a])
+        parts.append(e[ok, a])
+        rows.append(np.flatnonzero(ok))
+        chans.append(np.full(ok.sum(), a))
+    if run.tension_N is not None:
+        eT = (run.tension_N - pred.tension_N) / run.sigma_tension_N
+        for k in range(run.n_cables):
+            ok = np.isfinite(eT[:, k])
+            parts.append(eT[ok, k])
+            rows.append(np.flatnonzero(ok))
+            chans.append(np.full(ok.sum(), 3 + k))
+    return np.concatenate(parts), np.concatenate(rows), np.concatenate(chans)
+
+
+def entry_vector(
+    run: AlignedRun, tip_mm: np.ndarray, tension_N: np.ndarray, rows: np.ndarray, chans: np.ndarray
+) -> np.ndarray:
+    """Tip (mm, channels 0-2) and tension (N, channels 3..) series at the (row, channel) entries
+    of :func:`measurement_vector`, each divided by its noise sigma (dimensionless)."""
+    out = np.empty(len(rows))
+    tip = chans < 3
+    out[tip] = tip_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
+    if (~tip).any():
+        out[~tip] = tension_N[rows[~tip], chans[~tip] - 3] / run.sigma_tension_N
+    return out
+
+
+def predicted_vector(run: AlignedRun, pred: Prediction, rows: np.ndarray, chans: np.ndarray):
+    """Normalised predictions at the (row, channel) entries of :func:`measurement_vector`."""
+    return entry_vector(run, pred.tip_mm, pred.tension_N, rows, chans)
+
+
+def active_terms(
+    runs: Sequence[AlignedRun], terms: Sequence[EffectTerm]
+) -> tuple[list[EffectTerm], list[str]]:
+    """Terms that can act on these runs, and a note for each one skipped."""
+    notes, out = [], []
+    tensions = any(r.has_tensions for r in runs)
+    for t in terms:
+        why = t.not_applicable(runs[0].spec)
+        if why is None and t.needs_tensions and not tensions:
+            why = "needs measured tensions; the logs have no tension columns"
+        if (
+            why is None
+            and t.kind == "measurement"
+            and not any(np.isfinite(r.tip_mm).any() for r in runs)
+        ):
+            why = "acts on the tracker; the logs have no tip columns"
+        if why:
+            notes.append(f"skipped {t.name}: {why}")
+        else:
+            out.append(t)
+    return out, notes
+
+
+def build_design(
+    runs: Sequence[AlignedRun],
+    terms: Sequence[EffectTerm],
+    baselines: Sequence[Prediction],
+    folds: int,
+    sim: Callable[[ModelSpec, int], Prediction],
+) -> Design:
+    """Residuals, secant columns of every parameter, nuisance columns (see module doc)."""
+    r_all, fold_all, run_all, row_all, chan_all = [], [], [], [], []
+    per_run_cols: list[list[np.ndarray]] = []
+    cols: list[tuple[EffectTerm, EffectParam]] = []
+    steps: list[float] = []
+    for t in terms:
+        for p in t.parameters(runs[0].spec):
+            cols.append((t, p))
+            steps.append(p.step)
+    nu_blocks = []
+    nu_names: list[str] = []
+    for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
+        r, rows, chans = measurement_vector(run, base)
+        y0 = predicted_vector(run, base, rows, chans)
+        G = np.zeros((len(r), len(cols)))
+        c = 0
+        for t in terms:
+            params = t.parameters(run.spec)
+            for j, p in enumerate(params):
+                v = np.zeros(len(params))
+                v[j] = p.step
+                spec = t.apply(run.spec, v)
+                if t.kind == "measurement":
+                    tip = spec.tip_map(base.tip_mm)
+                    pj = Prediction(tip, base.tension_N, base.psi, 0)
+                else:
+                    pj = sim(spec, ri)
+                G[:, c] = (predicted_vector(run, pj, rows, chans) - y0) / p.step
+                c += 1
+        per_run_cols.append([G])
+        # nuisance: tracker lag (s) and per-cable tension offsets (N), this run only
+        nu = []
+        names = []
+        if (chans < 3).any():
+            # tip(t - L) = tip - L v + (L^2 / 2) a: on a fast, turning tip (several segments)
+            # 10-20 ms of lag is a shift of 1-2 mm whose second-order term is several noise
+            # sigmas; v and a of the untimed series at the tracker's instants (Prediction)
+            if base.tip_velocity_mm_s is not None and base.tip_accel_mm_s2 is not None:
+                v, a = base.tip_velocity_mm_s, base.tip_accel_mm_s2
+            else:
+                v = np.gradient(base.tip_mm, run.t_s, axis=0)
+                a = np.gradient(v, run.t_s, axis=0)
+            tip = chans < 3
+            for col_mm, name in ((-v, "tracker lag (s)"), (0.5 * a, "tracker lag^2 (s^2)")):
+                col = np.zeros(len(r))
+                col[tip] = col_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
+                nu.append(col)
+                names.append(f"{run.name}: {name}")
+        for k in range(run.n_cables):
+            m = chans == 3 + k
+            if m.any():
+                col = np.zeros(len(r))
+                col[m] = 1.0 / run.sigma_tension_N
+                nu.append(col)
+                names.append(f"{run.name}: cable{k + 1} load-cell offset (N)")
+        nu_blocks.append(np.column_stack(nu) if nu else np.zeros((len(r), 0)))
+        nu_names += names
+        t_row = run.t_s[rows]
+        edges = np.linspace(run.t_s[0], run.t_s[-1], folds + 1)
+        f = np.clip(np.searchsorted(edges, t_row, side="right") - 1, 0, folds - 1)
+        r_all.append(r)
+        fold_all.append(f)
+        run_all.append(np.full(len(r), ri))
+        row_all.append(rows)
+        chan_all.append(chans)
+    M = sum(len(x) for x in r_all)
+    Q = sum(b.shape[1] for b in nu_blocks)
+    Nu = np.zeros((M, Q))
+    o = q = 0
+    for b in nu_blocks:
+        Nu[o : o + len(b), q : q + b.shape[1]] = b
+        o += len(b)
+        q += b.shape[1]
+    return Design(
+        r0=np.concatenate(r_all),
+        G=np.vstack([c[0] for c in per_run_cols]),
+        Nu=Nu,
+        fold=np.concatenate(fold_all),
+        run=np.concatenate(run_all),
+        row=np.concatenate(row_all),
+        chan=np.concatenate(chan_all),
+        cols=cols,
+        steps=np.asarray(steps),
+        nu_names=nu_names,
+    )
+
+
+def lag1_autocorrelation(res: np.ndarray, d: Design) -> float:
+    """Mean lag-1 autocorrelation of the residual series of each (run, channel)."""
+    rhos, weights = [], []
+    for key in np.unique(d.run * 1000 + d.chan):
+        m = (d.run * 1000 + d.chan) == key
+        x = res[m]
+        if x.size < 20:
+            continue
+        x = x - x.mean()
+        den = float(x @ x)
+        if den <= 0:
+            continue
+        rhos.append(float(x[1:] @ x[:-1]) / den)
+        weights.append(x.size)
+    if not rhos:
+        return 0.0
+    return float(np.clip(np.average(rhos, weights=weights), 0.0, 0.995))
