@@ -6,7 +6,7 @@ drive give the same positions, one and two SYNCs later."""
 from __future__ import annotations
 
 import can
-from drivesim import bus_cfg, channel, drive_cfgs
+from drivesim import bus_cfg, channel, drain, drive_cfgs
 
 from cdcr_ctl.drives.epos import parse_tpdo_feedback
 from cdcr_ctl.drives.group import DriveGroup
@@ -30,8 +30,9 @@ def positions_with_lag(lag: int) -> list[int]:
         g.configure()
         g.enable()
         assert sim.node(1).position_counts == 0
-        while spy.recv(0.05) is not None:  # drain
-            pass
+        # Drain what enabling sent, bounded in time: heartbeats keep coming, and two producers
+        # whose phases interleave left no 50 ms gap to end the open-ended drain this used to be.
+        drain(spy, max_s=0.5)
         for k in range(N):
             g.send_cycle([300 * k])
             while True:  # this SYNC's TPDO (each cycle waits for it: nothing piles up)
