@@ -33,8 +33,13 @@ class ForwardStepper:
         params: RobotParams,
         effects: Effects | None = None,
         state: FrictionState | None = None,
+        tol: float | None = None,
     ) -> None:
-        self.model = ForwardModel(params, effects)
+        """``tol``: the Newton tolerance of :class:`ForwardModel` (largest scaled residual,
+        rad-equivalent; its default when None)."""
+        self.model = (
+            ForwardModel(params, effects) if tol is None else ForwardModel(params, effects, tol=tol)
+        )
         self.reset(state)
 
     def reset(self, state: FrictionState | None = None) -> None:
