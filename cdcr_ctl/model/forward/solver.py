@@ -8,11 +8,10 @@ for the equations. :class:`ForwardResult` is one solved pose.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.friction import FrictionState, direction_update
@@ -350,21 +349,20 @@ class ForwardModel:
         if self._lu_key != key:
             J = self._assemble(self._Jraw, modes)
             self._lu_key = key
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("error", LinAlgWarning)
-                    warnings.simplefilter("error", RuntimeWarning)
-                    lu = lu_factor(J, check_finite=False)
-                piv = np.abs(np.diag(lu[0]))
-                # a pivot far below the largest (relative to float64 precision) is singular
-                ok = bool(np.all(np.isfinite(piv))) and piv.min() > 1e-13 * max(piv.max(), 1e-300)
-            except (LinAlgWarning, RuntimeWarning, ValueError):
-                ok = False
-            self._lu = (lu, None) if ok else (None, J)
-        lu, J = self._lu
+            # LAPACK getrf directly: no warnings machinery (not thread-safe), info > 0 on an
+            # exactly zero pivot
+            lu, piv, info = dgetrf(J)
+            d = np.abs(np.diag(lu))
+            # a pivot far below the largest (relative to float64 precision) is singular
+            ok = info == 0 and bool(np.all(np.isfinite(d))) and d.min() > 1e-13 * d.max()
+            self._lu = (lu, piv) if ok else (None, J)
+        lu, other = self._lu
         if lu is not None:
-            return lu_solve(lu, -r, check_finite=False)
-        return np.linalg.lstsq(J, -r, rcond=None)[0]
+            dz, info = dgetrs(lu, other, -r)
+            if info == 0:
+                return dz
+            return np.linalg.lstsq(self._assemble(self._Jraw, modes), -r, rcond=None)[0]
+        return np.linalg.lstsq(other, -r, rcond=None)[0]
 
     def _update_modes(
         self, z, q_act, w_prev, modes, sigma, hold, one_at_a_time=False, raw=None
