@@ -105,7 +105,7 @@ __all__ = [
     type=click.IntRange(10, 100_000),
     default=150,
     show_default=True,
-    help="Most keypoint rows fitted per run (its first rows; the replay starts at the run's start).",
+    help="Most keypoint rows fitted per run (its first; replayed from the run's start).",
 )
 @click.option(
     "--max-nfev",
