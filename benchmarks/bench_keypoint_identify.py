@@ -170,18 +170,20 @@ def coverage(seeds: int, rows: int, first_seed: int, jobs: int, tip_only: bool, 
 
     t0 = time.perf_counter()
     args = [(s, rows, not tip_only, mp) for s in range(first_seed, first_seed + seeds)]
-    with ProcessPoolExecutor(jobs) as pool:
-        outs = list(pool.map(_one_seed, args))
     per: dict[str, list[bool]] = {}
-    for o in outs:
-        bad = [n for n, v in o["est"].items() if not v[3]]
-        print(
-            f"seed {o['seed']}: fitted/true held-out RMSE {o['ratio']:.3f}, reduced chi2 "
-            f"{o['chi2']:.3g}, {o['cpu']:.0f} s CPU; fixed: {', '.join(o['fixed']) or 'none'}; "
-            f"CI misses: {', '.join(bad) or 'none'}"
-        )
-        for n, v in o["est"].items():
-            per.setdefault(n, []).append(v[3])
+    outs = []
+    with ProcessPoolExecutor(jobs) as pool:
+        for o in pool.map(_one_seed, args):  # printed as each seed finishes, in seed order
+            outs.append(o)
+            bad = [n for n, v in o["est"].items() if not v[3]]
+            print(
+                f"seed {o['seed']}: fitted/true held-out RMSE {o['ratio']:.3f}, reduced chi2 "
+                f"{o['chi2']:.3g}, {o['cpu']:.0f} s CPU; fixed: {', '.join(o['fixed']) or 'none'}; "
+                f"CI misses: {', '.join(bad) or 'none'}",
+                flush=True,
+            )
+            for n, v in o["est"].items():
+                per.setdefault(n, []).append(v[3])
     print(f"per parameter, seeds whose 95 % CI contains the truth ({seeds} seeds):")
     for n, v in per.items():
         print(f"  {n:<26} {sum(v)}/{len(v)}")

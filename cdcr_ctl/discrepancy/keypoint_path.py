@@ -82,6 +82,7 @@ class KeypointDiscrepancy:
     refit: KeypointIdentification
     explained: float  # share of the held-out tip mean square error the refit removes
     elapsed_s: float
+    effect: Estimate | None = None  # the named lost motion (:func:`named_play`), if any
 
     def lines(self) -> list[str]:
         out = [self.verdict]
@@ -135,4 +136,12 @@ def analyse_keypoints(
             "NO EFFECT AND NO PARAMETRIC REFIT EXPLAINS THIS: the refit does not improve the "
             f"held-out rows ({h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm)"
         )
-    return KeypointDiscrepancy(verdict, reversals, spacing, refit, explained, time.monotonic() - t0)
+    return KeypointDiscrepancy(
+        verdict,
+        reversals,
+        spacing,
+        refit,
+        explained,
+        time.monotonic() - t0,
+        play if explained > 0 else None,
+    )
