@@ -221,7 +221,10 @@ def discrepancy(rows: int, seed: int, backlash_mm: float) -> None:
         dt = time.perf_counter() - t0
         c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
-    print(out.stdout[-3000:], out.stderr[-2000:])
+    text = out.stdout
+    print(
+        text if len(text) < 6000 else text[:3000] + "\n[...]\n" + text[-2500:], out.stderr[-2000:]
+    )
     print(
         f"discrepancy on a {rows}-row keypoint log: {dt:.1f} s wall, {cpu:.1f} s CPU "
         f"(exit {out.returncode})"
