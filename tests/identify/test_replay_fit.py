@@ -77,6 +77,8 @@ def test_fit_from_the_config_recovers_the_world_within_its_interval(model, tmp_p
     assert abs(sol.chi2_reduced - 1.0) < 5 * math.sqrt(2.0 / sol.n_residuals)
 
 
+# a few s CPU measured; the limit guards a hang, not speed (the machine may be loaded)
+@pytest.mark.timeout(400)
 def test_a_hidden_transmission_play_is_fitted_as_backlash(model, tmp_path):
     """A world with 0.4 mm of lost motion on every cable: the candidate cables.backlash_mm
     (added to the config's play) is fitted near 0.4 mm, and its interval excludes 0."""
