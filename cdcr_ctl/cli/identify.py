@@ -103,16 +103,16 @@ __all__ = [
 @click.option(
     "--max-points",
     type=click.IntRange(10, 100_000),
-    default=60,
+    default=150,
     show_default=True,
-    help="Most keypoint rows fitted (evenly spread over the fitted part).",
+    help="Most keypoint rows fitted per run (its first; replayed from the run's start).",
 )
 @click.option(
     "--max-nfev",
     type=click.IntRange(1, 1000),
-    default=20,
+    default=30,
     show_default=True,
-    help="Least-squares evaluations of the keypoint fit.",
+    help="Least-squares iterations of the keypoint fit (each one forward replay per parameter).",
 )
 @click.pass_obj
 def identify_cmd(
