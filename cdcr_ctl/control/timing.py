@@ -15,6 +15,7 @@ import ctypes.util
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,6 +150,27 @@ class Ticker:
             if missed > 0:
                 self.stats.skipped += missed
                 self._n += missed
+
+
+def timer_floor(period_s: float, until: Callable[[], bool], max_cycles: int) -> np.ndarray:
+    """The machine's floor (issue #21): a bare loop on a :class:`Ticker` of ``period_s`` (the
+    control loop's clock, sleep and spin method) doing no work, until ``until()`` is true or
+    ``max_cycles`` ran. Returns each cycle's lateness (s) counted as the control loop's rows
+    count it: from its deadline, plus one period per deadline skipped before it. Run it in a
+    process of its own (scheduled as the daemon is) while the loop runs: whatever lateness it
+    shows, the machine (its load, its timer, the scheduler) causes, not the control plane."""
+    ticker = Ticker(period_s)
+    out = np.empty(max_cycles)
+    skipped_before = 0
+    n = 0
+    while n < max_cycles and not until():
+        _deadline, lateness = ticker.wait()
+        out[n] = lateness + skipped_before * period_s
+        n += 1
+        skipped = ticker.stats.skipped
+        ticker.done()
+        skipped_before = ticker.stats.skipped - skipped
+    return out[:n]
 
 
 def try_realtime(priority: int, lock_memory: bool) -> list[str]:
