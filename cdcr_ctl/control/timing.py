@@ -173,6 +173,22 @@ def timer_floor(period_s: float, until: Callable[[], bool], max_cycles: int) -> 
     return out[:n]
 
 
+def raise_loop_priority() -> str | None:
+    """(In the loop thread.) Under SCHED_FIFO/SCHED_RR, one priority step above the process's
+    other threads (which inherited :func:`try_realtime`'s): a socket or sensor thread of the
+    same policy then never keeps the loop's core from it. Returns a log line, None under
+    SCHED_OTHER (nothing to raise)."""
+    if not realtime_thread():
+        return None
+    try:
+        policy = os.sched_getscheduler(0)
+        prio = min(os.sched_getparam(0).sched_priority + 1, os.sched_get_priority_max(policy))
+        os.sched_setscheduler(0, policy, os.sched_param(prio))
+    except OSError as exc:
+        return f"loop thread priority not raised ({exc.strerror})"
+    return f"loop thread at real-time priority {prio}"
+
+
 def try_realtime(priority: int, lock_memory: bool) -> list[str]:
     """Ask for SCHED_FIFO at ``priority`` and mlockall; return log lines saying what was granted."""
     notes = []

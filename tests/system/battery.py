@@ -38,6 +38,10 @@ from cdcr_ctl.daemon.client import DaemonError
 from cdcr_ctl.runlog import load_run
 
 FLOOR_SCRIPT = Path(__file__).with_name("timer_floor.py")
+#: The floor's SCHED_FIFO priority (0: SCHED_OTHER): the daemon's loop thread's when a caller
+#: runs the daemon real-time (``bench_stop_battery.py --rt``: ``control.realtime_priority`` + 1,
+#: :func:`cdcr_ctl.control.timing.raise_loop_priority`).
+FLOOR_PRIORITY = 0
 #: Lateness quantiles compared (loop against floor).
 QUANTILES = (50.0, 99.0, 99.9, 100.0)
 
@@ -172,7 +176,7 @@ class Floor:
     """``timer_floor.py`` in its own process for a window: ``with Floor(period) as f: ...``, then
     ``f.lateness_us`` (one value per cycle it ran)."""
 
-    def __init__(self, period_s: float, tmp: Path, priority: int = 0) -> None:
+    def __init__(self, period_s: float, tmp: Path, priority: int = FLOOR_PRIORITY) -> None:
         self.period_s, self.priority = period_s, priority
         self.out = tmp / f"floor-{os.getpid()}-{time.monotonic_ns()}.npy"
         self.lateness_us = np.zeros(0)
@@ -247,6 +251,7 @@ def run_one(
     stop_after_s: float,
     period_s: float,
     tmp: Path,
+    floor_priority: int = FLOOR_PRIORITY,
 ) -> dict:
     """A trajectory, ``stressor`` in a thread, ``stop`` after ``stop_after_s``; the record."""
     started = start_run(work)
@@ -256,7 +261,7 @@ def run_one(
         before = c.call("status")
     t_before = time.monotonic()
     result: dict[str, Any] = {}
-    with Floor(period_s, tmp) as floor:
+    with Floor(period_s, tmp, floor_priority) as floor:
         th = threading.Thread(target=lambda: result.update(reply=stressor(work)), daemon=True)
         th.start()
         time.sleep(stop_after_s)
@@ -284,6 +289,12 @@ def run_one(
         "lateness_max_us": la["timing"]["lateness_max_us"],
         "lateness_histogram": la["timing"]["lateness_histogram"],
         "drive_faults": [t for t in after["trips"] if t["cause"].startswith(("fault", "emcy"))],
+        # Every trip of the window but the operator's stop (a lost heartbeat, no feedback, ...).
+        "trips": [
+            f"{t['cause']}: {t['detail']}"[:90]
+            for t in after["trips"]
+            if t not in before["trips"] and t["cause"] != "operator_stop"
+        ],
         "fault": after["fault"],
         "floor_us": quantiles_us(floor.lateness_us),
         "floor_cycles": len(floor.lateness_us),

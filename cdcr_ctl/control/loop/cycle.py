@@ -41,6 +41,7 @@ from cdcr_ctl.control.ports import (
 )
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
+from cdcr_ctl.control.timing import raise_loop_priority
 from cdcr_ctl.errors import ModelError
 
 # The logger keeps the name it had when the loop was one module.
@@ -138,6 +139,9 @@ class ControlLoop(LoopCommands):
         # collector's full passes stay short while the loop runs (they run in whatever thread
         # allocates, this one included).
         gc.freeze()
+        note = raise_loop_priority()
+        if note:
+            log.info("realtime: %s", note)
         cpu0 = time.thread_time()
         if self._clock is None:
             self.ticker = wall_clock(self.cfg.period_s)
