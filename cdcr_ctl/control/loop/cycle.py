@@ -41,6 +41,7 @@ from cdcr_ctl.control.ports import (
 )
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
+from cdcr_ctl.control.timing import raise_loop_priority
 from cdcr_ctl.errors import ModelError
 
 # The logger keeps the name it had when the loop was one module.
@@ -91,6 +92,11 @@ class ControlLoop(LoopCommands):
         self.stop_flag = StopFlag()
         self._flag_seen = 0
         self._missed_now = 0
+        #: The previous cycle's work when it ran past the period (us), else 0: its row cannot
+        #: know (it is written during the cycle), so the next row says so.
+        self._long_prev_us = 0.0
+        #: The global (missed, long) counters before the current run's first row.
+        self._run_base = (0, 0)
         #: An event of this cycle decided outside the checks (an operator stop) for its row.
         self._row_event = ""
         self._thread: threading.Thread | None = None
@@ -133,6 +139,9 @@ class ControlLoop(LoopCommands):
         # collector's full passes stay short while the loop runs (they run in whatever thread
         # allocates, this one included).
         gc.freeze()
+        note = raise_loop_priority()
+        if note:
+            log.info("realtime: %s", note)
         cpu0 = time.thread_time()
         if self._clock is None:
             self.ticker = wall_clock(self.cfg.period_s)
@@ -151,8 +160,12 @@ class ControlLoop(LoopCommands):
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
             self.counters.cycles += 1
-            if dt_us > self.cfg.period_s * 1e6:
+            # On a simulated clock (lock-step) the clock waits for the work: no cycle is late
+            # on it, and a row must not depend on the host's speed.
+            long_cycle = self._clock is None and dt_us > self.cfg.period_s * 1e6
+            if long_cycle:
                 self.counters.long_cycles += 1
+            self._long_prev_us = dt_us if long_cycle else 0.0
             skipped = self.ticker.stats.skipped
             self.ticker.done()
             # Deadlines skipped after this cycle: the next row says so (its lateness counts
@@ -288,6 +301,8 @@ class ControlLoop(LoopCommands):
                 continue
             if sink.write(row):
                 self.counters.rows_logged += 1
+                if sink is self._sink and self._run is not None:
+                    self._count_run_row(self._run)
             else:
                 self.counters.rows_dropped += 1
             failure = getattr(sink, "failure", None)
@@ -303,6 +318,21 @@ class ControlLoop(LoopCommands):
             self._end_after_cycle = None
         self.counters._stages((m0, m1, m2, m3, m4, clock()))
 
+    def _count_run_row(self, run: RunInfo) -> None:
+        """The run's share of the global counters, up to the row just logged (see RunInfo)."""
+        c = self.counters
+        if run.rows == 0:
+            # What the first row reports happened before it: not yet in the base.
+            self._run_base = (
+                c.missed_cycles - self._missed_now,
+                c.long_cycles - (1 if self._long_prev_us else 0),
+            )
+            run.first_cycle = c.cycles
+        run.rows += 1
+        run.last_cycle = c.cycles
+        run.missed_cycles = c.missed_cycles - self._run_base[0]
+        run.long_cycles = c.long_cycles - self._run_base[1]
+
     def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event) -> CycleRow:
         layout = self._row_layout
         # One fresh array: later cycles may reuse the arrays they were given.
@@ -315,6 +345,9 @@ class ControlLoop(LoopCommands):
             # The deadlines before this cycle were skipped: its lateness counts from the first.
             lateness_s += missed * self.cfg.period_s
             note = f"late: {missed} cycles missed"
+            event = f"{event}; {note}" if event else note
+        if self._long_prev_us:
+            note = f"long: previous cycle {self._long_prev_us:.0f} us"
             event = f"{event}; {note}" if event else note
         return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)
 
