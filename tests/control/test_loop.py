@@ -343,3 +343,30 @@ def test_jogs_after_a_new_run_in_the_same_cycle_add_up_and_are_kept():
     finally:
         loop.stop()
     assert drives.sent[-1] == [2100, 200, 300]
+
+
+def test_home_holds_a_compensation_that_is_not_zero_at_straight():
+    """Home makes the drives' positions the straight pose. The model's command there is not
+    zero here (FakeModel adds 0.1 mm in 'model' mode, as a fitted mount tilt does): the home
+    holds it in the offset instead of stepping to it, and the next run ramps it in."""
+    loop, drives, _, sup = make_loop()
+    loop.start()
+    try:
+        assert wait_until(lambda: len(drives.sent) > 5)
+        home = list(drives.pos)
+        loop.set_home(home)
+        n0 = len(drives.sent)
+        assert wait_until(lambda: len(drives.sent) > n0 + 10)
+        # no step: every cycle after the home sends where the drives were homed
+        assert all(s == home for s in drives.sent[n0 + 1 :]), drives.sent[n0 : n0 + 5]
+        sink = ListSink()
+        run = loop.follow(Ramp(0.5, 0.1), "ramp", "model", sink)
+        assert wait_until(lambda: run.state != "running")
+        n1 = len(drives.sent)
+        assert wait_until(lambda: len(drives.sent) > n1 + 10)
+    finally:
+        loop.stop()
+    assert run.state == "completed", run.end_reason
+    assert sup.trip is None
+    # theta 0.5 -> q1 = 5 mm, + 0.1 mm of compensation ramped in: 5100 counts from home
+    assert drives.sent[-1][0] == home[0] + 5100
