@@ -29,6 +29,12 @@ _H_X = 1e-7  # rad
 _H_S = 1e-6
 _X_BOUND = 3.2  # rad, bound of each bending-vector component
 _T_MAX = 1e3  # N
+#: Drive travel (mm) after which a cable's position in its play is known whatever it was at the
+#: start of the run: the play operator forgets its start once the drive's range since then
+#: exceeds the width b (from either end of the gap, a range >= b pushes the cable against the
+#: same side). 1 mm is above any lost motion of a usable rig (issue #17 worlds: 0.2-0.4 mm);
+#: the width used is the larger of this and twice the config's largest backlash_mm.
+PLAY_SETTLE_MM = 1.0
 
 
 def single_blas():
@@ -78,6 +84,7 @@ class _Problem:
             self.sig_M.append(
                 max(options.moment_floor_Nmm, math.sqrt(sum((sT[k] * r[k]) ** 2 for k in range(K))))
             )
+        self.play_known = self._play_known(fps)
         self.block = [2 * S + K + len(u) for u in self.unc]
         self.offsets = np.concatenate(([0], np.cumsum(self.block)))
         self._ft_key: tuple[float, ...] | None = None
@@ -85,6 +92,33 @@ class _Problem:
         self._ft: ForceTransfer | None = None
         self.g_all = np.array([fp.to_var(fp.nominal) for fp in self.fps])
         self.set_stage(list(range(len(self.fps))), RESIDUAL_KINDS)
+
+    def _play_known(self, fps: Sequence[FitParameter]) -> list[list[bool]]:
+        """Per point and cable: whether its position in the play is known (see
+        :data:`PLAY_SETTLE_MM`). The play state at the start of a run is unknown (a run that
+        follows another one in the same session starts wherever that one left the cable in
+        its gap), so the compatibility rows before the drive has ranged over the gap are not
+        used; the mask comes from the logged drive positions only, not from the fitted
+        widths, so the rows stay fixed during the fit. Everything is known when the model has
+        no play and none is fitted."""
+        widths = [c.backlash_mm for c in self.base.cables]
+        if not any(fp.kind == "backlash" for fp in fps) and not any(w > 0 for w in widths):
+            return [[True] * self.K for _ in self.points]
+        settle = max(PLAY_SETTLE_MM, 2.0 * max(widths))
+        span: dict[str, list[tuple[float, float]]] = {}
+        out: list[list[bool]] = []
+        for p in self.points:
+            x = [float(v) for v in p.q_act_mm]
+            prev = span.get(p.run)
+            cur = []
+            for k in range(self.K):
+                lo, hi = prev[k] if prev is not None else (math.inf, -math.inf)
+                if math.isfinite(x[k]):
+                    lo, hi = min(lo, x[k]), max(hi, x[k])
+                cur.append((lo, hi))
+            span[p.run] = cur
+            out.append([hi - lo >= settle for lo, hi in cur])
+        return out
 
     # ------------------------------------------------------------------ layout
     def set_stage(self, free: Sequence[int], kinds: Sequence[str]) -> None:
@@ -101,10 +135,13 @@ class _Problem:
             if "moment" in self.kinds:
                 rows += [("moment", a) for a in range(2 * self.S)]
             if "compat" in self.kinds:
+                known = self.play_known[len(self.rows)]
                 for k in range(self.K):
                     T = float(p.tension_N[k])
-                    if math.isfinite(float(p.q_act_mm[k])) and not (
-                        math.isfinite(T) and T < self.opt.slack_N
+                    if (
+                        known[k]
+                        and math.isfinite(float(p.q_act_mm[k]))
+                        and not (math.isfinite(T) and T < self.opt.slack_N)
                     ):
                         rows.append(("compat", k))
             self.rows.append(rows)
