@@ -127,7 +127,8 @@ def identify_cmd(
     max_nfev: int,
     accept_misfit: bool,
 ) -> None:
-    """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
+    """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, lost motion,
+    mount tilt (gravity direction), pulleys.
 
     Needs --config (the controller's rig config: nominal values, geometry, load-cell places).
     Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does

@@ -344,3 +344,48 @@ def test_jogs_after_a_new_run_in_the_same_cycle_add_up_and_are_kept():
     finally:
         loop.stop()
     assert drives.sent[-1] == [2100, 200, 300]
+
+
+class StraightOffsetModel(FakeModel):
+    """'model' compensation adds 0.5 mm at every pose, straight included (as a fitted mount
+    tilt does): more than one cycle's velocity budget (100 mm/s x 2 ms = 0.2 mm)."""
+
+    def q_command(self, psi, q_nominal, state, mode, measured_N):
+        state["calls"] += 1
+        return q_nominal + (0.5 if mode == "model" else 0.0)
+
+
+def test_home_ramps_in_a_compensation_that_is_not_zero_at_straight():
+    """Home makes the drives' positions the straight pose. The model's command there is not
+    zero: the home starts from it in the offset and ramps it in (at most half the velocity
+    limit per cycle) instead of stepping 0.5 mm in one cycle (250 mm/s: a velocity trip)."""
+    drives = FakeDrives()
+    sup = Supervisor(LIM, use_tension=True)
+    loop = ControlLoop(
+        LoopConfig(
+            period_s=0.002, counts_per_mm=CPM, compensation="off", cable_velocity_mm_s=100.0
+        ),
+        StraightOffsetModel(),
+        drives,
+        FakeTension(),
+        NoTip(),
+        sup,
+        home_counts=[0, 0, 0],
+    )
+    loop.start()
+    try:
+        assert wait_until(lambda: len(drives.sent) > 5)
+        loop.set_compensation("model")
+        n_mode = len(drives.sent)
+        assert wait_until(lambda: len(drives.sent) > n_mode + 30)
+        home = list(drives.pos)
+        n0 = len(drives.sent) - 1  # from the last command before the home
+        loop.set_home(home)
+        assert wait_until(lambda: len(drives.sent) > n0 + 30)
+    finally:
+        loop.stop()
+    assert sup.trip is None, sup.trip
+    sent = np.array(drives.sent[n0:], dtype=float)
+    steps = np.abs(np.diff(sent, axis=0)) / np.abs(CPM)  # mm per cycle
+    assert steps.max() <= 0.5 * 0.2 + 1e-3  # the offset ramp: half the limit per cycle
+    np.testing.assert_allclose(sent[-1], np.array(home) + 0.5 * CPM)

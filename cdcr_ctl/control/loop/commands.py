@@ -27,6 +27,7 @@ from cdcr_ctl.control.loop.records import (
 from cdcr_ctl.control.ports import SetpointSource
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import Reaction, Trip
+from cdcr_ctl.errors import ModelError
 
 
 class LoopCommands:
@@ -225,9 +226,23 @@ class LoopCommands:
             self.home_counts = payload
             self._psi_cmd = np.zeros_like(self._psi_cmd)
             self._source, self._t_source0 = Hold(self._psi_cmd), now
-            self._q_offset[:] = 0.0
-            self._q_offset_target[:] = 0.0
             self._model_state = self.model.new_state()
+            # Home makes the drives' zero the straight pose. A model whose compensation is not
+            # zero there (a fitted mount tilt: the sideways disk weights need uneven tensions
+            # at straight) would step the first command by it (0.17 mm in one cycle on the
+            # hard simulated world: a velocity trip): start from it in the offset and ramp it
+            # out at once, as a mode switch does.
+            mode = "model" if self._mode == "measured" else self._mode
+            try:
+                psi0 = self._psi_cmd
+                q_home = self.model.q_command(
+                    psi0, self.model.q_nominal(psi0), self._model_state, mode, None
+                )
+            except ModelError:  # the cycle trips on it (model_unreachable) as before
+                q_home = np.zeros_like(self._q_offset)
+            self._q_offset = -np.asarray(q_home, dtype=float)
+            self._q_offset_target = np.zeros_like(self._q_offset)
+            self._q_cmd = np.zeros_like(self._q_offset)
         elif kind == "sink":
             self._manual_sink = payload
         elif kind == "pose":
