@@ -227,6 +227,7 @@ class LoopCommands:
             self._psi_cmd = np.zeros_like(self._psi_cmd)
             self._source, self._t_source0 = Hold(self._psi_cmd), now
             self._model_state = self.model.new_state()
+            self._measured_slew.reset()
             # Home makes the drives' zero the straight pose. A model whose compensation is not
             # zero there (a fitted mount tilt: the sideways disk weights need uneven tensions
             # at straight) would step the first command by it (0.17 mm in one cycle on the
@@ -251,6 +252,7 @@ class LoopCommands:
             self._psi_cmd = payload
             self._source, self._t_source0 = Hold(payload), now
             self._model_state = self.model.new_state()
+            self._measured_slew.reset()
             mode = "model" if self._mode == "measured" else self._mode
             q_pose = self.model.q_command(
                 payload, self.model.q_nominal(payload), self._model_state, mode, None
@@ -271,15 +273,16 @@ class LoopCommands:
             self._post("reenabled")
 
     def _resume_after_enable(self) -> None:
-        # Absorb the difference between where the drives are and where the command is into the
-        # cable offset and hold there: no jump on re-enable. The next run ramps it out.
+        # Plan from where the drives are: the next command starts at their actual positions and
+        # the difference to the model's command of that cycle (computed then, from the tensions
+        # of then) goes into the cable offset, held there: no jump on re-enable. The next run
+        # ramps it out. (Not from the command computed, but not sent, while they were stopped.)
         fb = self.drives.feedback()
         q_act = (
             np.array([f.position_counts for f in fb]) - self.home_counts
         ) / self.cfg.counts_per_mm
         self._q_offset = self._q_offset + (q_act - self._q_cmd)
         self._q_offset_target = self._q_offset.copy()
-        # The drives are at q_act: the next command's velocity is measured from there, not from
-        # the command computed (but not sent) while they were stopped.
         self._q_cmd = q_act.copy()
+        self._absorb_step = True
         self._stopped_drives = False

@@ -32,6 +32,7 @@ from cdcr_ctl.control.loop.records import (
     _Command,
 )
 from cdcr_ctl.control.loop.rows import CycleRow, RowLayout
+from cdcr_ctl.control.loop.slew import MeasuredSlew
 from cdcr_ctl.control.ports import (
     DrivePort,
     RobotModelPort,
@@ -113,6 +114,14 @@ class ControlLoop(LoopCommands):
         self._q_offset = np.zeros(K)
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
+        #: Mode ``measured``'s compensation term, rate-bounded (see :mod:`.slew`).
+        self._measured_slew = MeasuredSlew(
+            COMMAND_STEP_FRACTION * cfg.cable_velocity_mm_s * cfg.period_s
+        )
+        self._q_nom_prev: np.ndarray | None = None
+        #: Set when this cycle's command is to start from the one the drives hold (a refused
+        #: command, a re-enable): the step from it goes into the offset (see ``_cycle``).
+        self._absorb_step = False
         self._last_row: Mapping[str, Any] = {}
         self._row_layout = RowLayout(S, K)
         self._stopped_drives = False
@@ -215,7 +224,26 @@ class ControlLoop(LoopCommands):
             # command rather than guess.
             self._react(Trip("model_unreachable", Reaction.HOLD, str(exc), t_s))
             psi, q_cmd = self._psi_cmd, self._q_cmd - self._q_offset
-        if mode_changed and self.counters.cycles > 0:
+        else:
+            if mode != "measured" or mode_changed:
+                self._measured_slew.reset()
+            if mode == "measured" and self._q_nom_prev is not None:
+                # The load-cell tensions move the term as fast as the world changes them: bound
+                # its step by what the velocity limit leaves after the trajectory's own.
+                q_cmd = self._measured_slew.bound(q_nom, self._q_nom_prev, q_cmd)
+        self._q_nom_prev = q_nom
+        if self._absorb_step:
+            # Plan from where the drives are: after a refused command (a trip) or a re-enable
+            # the command starts from the one the drives hold, and the step to this cycle's
+            # model command goes into the offset (held; a run ramps it out), so the command the
+            # supervisor refused is not asked for again at once (it would trip again at every
+            # recovery).
+            self._absorb_step = False
+            self._q_offset = self._q_cmd - q_cmd
+            self._q_offset_target = (
+                np.zeros_like(self._q_offset) if self._run is not None else self._q_offset.copy()
+            )
+        elif mode_changed and self.counters.cycles > 0:
             # Switching compensation steps the command by delta: take the step into the offset
             # and let it ramp out instead of jumping (and tripping the velocity limit).
             self._q_offset = self._q_cmd - q_cmd
@@ -271,6 +299,7 @@ class ControlLoop(LoopCommands):
         if worst is not None and worst.reaction >= Reaction.HOLD:
             q_cmd = self._q_cmd.copy()  # never send a command that violates a limit
             psi = self._psi_cmd
+            self._absorb_step = True
         if run is not None and run.state == "running" and t_run >= run.duration_s:
             self._end_after_cycle = ("completed", "trajectory completed")
         m3 = clock()
