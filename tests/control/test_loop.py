@@ -102,20 +102,25 @@ LIM = LimitsConfig(
 )
 
 
-def make_loop(tension=None):
+def make_loop(tension=None, model=None, compensation="model", home_counts=(100, 200, 300)):
+    """A loop on fake drives at 500 Hz with a 100 mm/s velocity limit: (loop, drives, tension,
+    supervisor)."""
     drives = FakeDrives()
     ten = tension or FakeTension()
     sup = Supervisor(LIM, use_tension=True)
     loop = ControlLoop(
         LoopConfig(
-            period_s=0.002, counts_per_mm=CPM, compensation="model", cable_velocity_mm_s=100.0
+            period_s=0.002,
+            counts_per_mm=CPM,
+            compensation=compensation,
+            cable_velocity_mm_s=100.0,
         ),
-        FakeModel(),
+        model or FakeModel(),
         drives,
         ten,
         NoTip(),
         sup,
-        home_counts=[100, 200, 300],
+        home_counts=list(home_counts),
     )
     return loop, drives, ten, sup
 
@@ -359,18 +364,8 @@ def test_home_ramps_in_a_compensation_that_is_not_zero_at_straight():
     """Home makes the drives' positions the straight pose. The model's command there is not
     zero: the home starts from it in the offset and ramps it in (at most half the velocity
     limit per cycle) instead of stepping 0.5 mm in one cycle (250 mm/s: a velocity trip)."""
-    drives = FakeDrives()
-    sup = Supervisor(LIM, use_tension=True)
-    loop = ControlLoop(
-        LoopConfig(
-            period_s=0.002, counts_per_mm=CPM, compensation="off", cable_velocity_mm_s=100.0
-        ),
-        StraightOffsetModel(),
-        drives,
-        FakeTension(),
-        NoTip(),
-        sup,
-        home_counts=[0, 0, 0],
+    loop, drives, _, sup = make_loop(
+        model=StraightOffsetModel(), compensation="off", home_counts=(0, 0, 0)
     )
     loop.start()
     try:
