@@ -233,12 +233,8 @@ class LoopCommands:
             # at straight) would step the first command by it (0.17 mm in one cycle on the
             # hard simulated world: a velocity trip): start from it in the offset and ramp it
             # out at once, as a mode switch does.
-            mode = "model" if self._mode == "measured" else self._mode
             try:
-                psi0 = self._psi_cmd
-                q_home = self.model.q_command(
-                    psi0, self.model.q_nominal(psi0), self._model_state, mode, None
-                )
+                q_home = self._hold_command(self._psi_cmd)
             except ModelError:  # the cycle trips on it (model_unreachable) as before
                 q_home = np.zeros_like(self._q_offset)
             self._q_offset = -np.asarray(q_home, dtype=float)
@@ -253,19 +249,24 @@ class LoopCommands:
             self._source, self._t_source0 = Hold(payload), now
             self._model_state = self.model.new_state()
             self._measured_slew.reset()
-            mode = "model" if self._mode == "measured" else self._mode
-            q_pose = self.model.q_command(
-                payload, self.model.q_nominal(payload), self._model_state, mode, None
-            )
-            fb = self.drives.feedback()
-            q_act = (
-                np.array([f.position_counts for f in fb]) - self.home_counts
-            ) / self.cfg.counts_per_mm
+            q_pose = self._hold_command(payload)
+            q_act = self._q_act_mm(self.drives.feedback())
             self._q_offset = q_act - q_pose
             self._q_offset_target = self._q_offset.copy()
             self._q_cmd = q_act.copy()
         else:  # pragma: no cover - a programming error
             raise ValueError(f"unknown loop command {kind!r}")
+
+    def _hold_command(self, psi: np.ndarray) -> np.ndarray:
+        """The model's cable command (mm) holding segment pose ``psi`` (rad) from the current
+        model state, without load-cell tensions (mode ``measured`` uses ``model`` here)."""
+        mode = "model" if self._mode == "measured" else self._mode
+        return self.model.q_command(psi, self.model.q_nominal(psi), self._model_state, mode, None)
+
+    def _q_act_mm(self, fb: Sequence[Any]) -> np.ndarray:
+        """Cable displacements (mm) from the drives' feedback (counts, relative to home)."""
+        counts = np.array([f.position_counts for f in fb]) - self.home_counts
+        return counts / self.cfg.counts_per_mm
 
     def drives_reenabled(self) -> None:
         """Called by the daemon after re-enabling drives: resume sending computed targets."""
@@ -277,10 +278,7 @@ class LoopCommands:
         # the difference to the model's command of that cycle (computed then, from the tensions
         # of then) goes into the cable offset, held there: no jump on re-enable. The next run
         # ramps it out. (Not from the command computed, but not sent, while they were stopped.)
-        fb = self.drives.feedback()
-        q_act = (
-            np.array([f.position_counts for f in fb]) - self.home_counts
-        ) / self.cfg.counts_per_mm
+        q_act = self._q_act_mm(self.drives.feedback())
         self._q_offset = self._q_offset + (q_act - self._q_cmd)
         self._q_offset_target = self._q_offset.copy()
         self._q_cmd = q_act.copy()

@@ -320,9 +320,7 @@ class ControlLoop(LoopCommands):
         m4 = clock()
 
         # Log: the row keeps this cycle's numbers; the writer thread makes the columns.
-        q_act = (
-            np.array([f.position_counts for f in fb]) - self.home_counts
-        ) / self.cfg.counts_per_mm
+        q_act = self._q_act_mm(fb)
         row = self._row(t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event)
         self._last_row = row
         for sink in (self._sink, self._manual_sink):
