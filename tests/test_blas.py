@@ -1,5 +1,5 @@
 """The BLAS thread policy (cdcr_ctl/blas.py): one thread once cdcr_ctl is imported, even when
-numpy was loaded first; an explicit OPENBLAS_NUM_THREADS is left alone."""
+numpy was loaded first, numpy's BLAS and scipy's; an explicit OPENBLAS_NUM_THREADS is left alone."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ import sys
 PROBE = (
     "import numpy\n"  # numpy (and OpenBLAS) first, as pytest or a notebook may do
     "import cdcr_ctl\n"
+    "import scipy.optimize\n"  # scipy's own OpenBLAS too
     "from threadpoolctl import threadpool_info\n"
+    "assert len([i for i in threadpool_info() if i['user_api'] == 'blas']) >= 2\n"
     "print(sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}))\n"
 )
 
