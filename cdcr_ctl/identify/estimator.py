@@ -54,7 +54,7 @@ from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, Estimate, FitOptions, Identification
 from cdcr_ctl.identify.parameters import FORCE_KINDS, TILT_CI_DEG, FitParameter, NotIdentified
-from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance, single_blas
+from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance
 from cdcr_ctl.model.params import Effects, Location, RobotParams
 
 __all__ = [
@@ -207,12 +207,11 @@ def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, in
     m, n = r.size, int(keep.sum())
     dof = max(m - n, 1)
     s2 = float(r @ r) / dof
-    with single_blas():
-        JtJ = Jk.T @ Jk
-        try:
-            cov = s2 * np.linalg.inv(JtJ)
-        except np.linalg.LinAlgError:
-            cov = s2 * np.linalg.pinv(JtJ)
+    JtJ = Jk.T @ Jk  # BLAS on one thread: cdcr_ctl/blas.py
+    try:
+        cov = s2 * np.linalg.inv(JtJ)
+    except np.linalg.LinAlgError:
+        cov = s2 * np.linalg.pinv(JtJ)
     idx = np.cumsum(keep) - 1  # column of each kept unknown in cov
     tq = float(student_t.ppf(0.975, dof))
     out = []

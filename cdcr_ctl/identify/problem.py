@@ -13,7 +13,6 @@ from collections.abc import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
-from threadpoolctl import threadpool_limits
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.identify.dwell import DwellPoint
@@ -35,13 +34,6 @@ _T_MAX = 1e3  # N
 #: same side). 1 mm is above any lost motion of a usable rig (issue #17 worlds: 0.2-0.4 mm);
 #: the width used is the larger of this and twice the config's largest backlash_mm.
 PLAY_SETTLE_MM = 1.0
-
-
-def single_blas():
-    """Context: BLAS on one thread. The solver's SVDs (trust region, ~1000 x 500) take 0.35 s
-    on one thread but 10 s with OpenBLAS's two spinning threads on a busy 2-core machine
-    (measured under load ~10); the residuals are Python, so a second BLAS thread gains nothing."""
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 class _Problem:
@@ -295,19 +287,20 @@ class _Problem:
     def solve(self, nuis0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, object]:
         lo, hi = self.bounds()
         z0 = np.clip(self.pack(nuis0), lo + 1e-12, hi - 1e-12)
-        with single_blas():
-            sol = least_squares(
-                self.residuals,
-                z0,
-                jac=lambda z: self.jacobian(z, lo, hi),
-                bounds=(lo, hi),
-                method="trf",
-                x_scale="jac",
-                max_nfev=max_nfev,
-                xtol=1e-10,
-                ftol=1e-10,
-                gtol=1e-10,
-            )
+        # BLAS runs on one thread in every cdcr_ctl process (cdcr_ctl/blas.py): the solver's
+        # SVDs (~1000 x 500) take 0.35 s so, 10 s with OpenBLAS's threads on a busy 2-core machine.
+        sol = least_squares(
+            self.residuals,
+            z0,
+            jac=lambda z: self.jacobian(z, lo, hi),
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=max_nfev,
+            xtol=1e-10,
+            ftol=1e-10,
+            gtol=1e-10,
+        )
         g, nuis = self.unpack(sol.x)
         self.g_all = g
         return nuis, sol

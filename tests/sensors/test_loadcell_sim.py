@@ -261,3 +261,34 @@ def test_sim_for_config_serves_what_the_config_reads(tmp_path):
         assert isinstance(sim, AsciiLoadCellSim) and sim.unit == "g"
     finally:
         sim.stop()
+
+
+def test_a_repeated_read_request_is_answered_with_the_value_of_now():
+    """The transmitter keeps read requests it decoded (by frame bytes): the replies to the same
+    frame still carry each moment's tension, and equal what a fresh transmitter answers; a
+    write (tare) between them still acts."""
+    from cdcr_ctl.sensors.loadcell_modbus import build_read_request, build_write_request, plan_read
+
+    rm = ModbusRegisterMap(tare_register=4)
+    force = [1.0, 2.0]
+    kept = ModbusLoadCellSim(lambda: list(force), (1, 2), rm, emulate_baud=False)
+    try:
+        request = build_read_request(2, plan_read(rm))
+        replies = []
+        for f in (1.5, 2.5, 2.5, -0.75):
+            force[1] = f
+            fresh = ModbusLoadCellSim(lambda: list(force), (1, 2), rm, emulate_baud=False)
+            try:
+                expected = fresh.handle_bytes(request, 0.0)
+            finally:
+                fresh.stop()
+            got = kept.handle_bytes(request, 0.0)
+            assert got == expected
+            replies.append(got[0][0])
+        assert replies[0] != replies[1] == replies[2] != replies[3]
+        assert len(kept._reads) == 1  # decoded once
+        kept.handle_bytes(build_write_request(2, rm.tare_register, rm.tare_value), 0.0)
+        assert kept.handle_bytes(request, 0.0) != replies[3]  # tared: reads ~0 now
+        assert kept.stats.requests == 6
+    finally:
+        kept.stop()

@@ -20,6 +20,8 @@ PKG = Path(__file__).resolve().parents[2] / "cdcr_ctl"
 
 #: Layer of each top-level subpackage (higher may import lower or equal, never higher).
 LAYERS: dict[str, int] = {
+    "__init__": 0,  # the package root: imports only blas (the BLAS thread policy)
+    "blas": 0,
     "errors": 0,
     "model": 0,
     "config": 1,

@@ -49,3 +49,24 @@ def test_two_lockstep_runs_with_one_seed_give_byte_identical_samples(tmp_path):
     assert 110 < frames_a / (cycles_a * 0.004) < 135  # 120 Hz over the session (+ priming)
     summ = tip_errors(run_a.log_dir, settle_s=0.0).summary()
     assert summ["mean_mm"] < 3.0 and summ["samples"] == len(rows)
+
+
+def test_truth_states_cross_the_worker_pipe_exactly():
+    """The truth worker sends solved states as nested float lists (sim/lockstep/truthproc.py):
+    rebuilt, every array is the same class, shape, dtype and bits; other states pass as they
+    are."""
+    import pickle
+    from dataclasses import fields
+
+    from cdcr_ctl.sim.design_truth import make_truth
+    from cdcr_ctl.sim.lockstep.truthproc import from_wire, to_wire
+
+    truth = make_truth(load_sim_config(TRUTH))
+    state = truth.step([1234, -800, -600])
+    back = from_wire(pickle.loads(pickle.dumps(to_wire(state))), truth.state)
+    assert type(back) is type(state)
+    for f in fields(state):
+        a, b = getattr(state, f.name), getattr(back, f.name)
+        assert (a.shape, a.dtype, a.tobytes()) == (b.shape, b.dtype, b.tobytes()), f.name
+    other = {"not": "a dataclass of arrays"}
+    assert to_wire(other) is other and from_wire(other, truth.state) is other

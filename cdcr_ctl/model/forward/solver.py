@@ -18,6 +18,7 @@ from cdcr_ctl.model.friction import FrictionState, direction_update
 from cdcr_ctl.model.kinematics import tip_position_fast, x_to_psi
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
+from cdcr_ctl.model.tension_chain import Transfer
 from cdcr_ctl.model.transfer import ForceTransfer, Pose
 
 STICK, SLIDE, SLACK, FREE = "stick", "slide", "slack", "free"
@@ -86,6 +87,10 @@ class ForwardModel:
         self._jac_gen = 0
         self._lu: tuple | None = None
         self._lu_key: tuple | None = None
+        # the last _raw evaluation, its z and force transfer (performance only)
+        self._raw_z: list[float] | None = None
+        self._raw_ft: ForceTransfer | None = None
+        self._raw_out: tuple | None = None
 
     # ------------------------------------------------------------------ public
     def solve(
@@ -154,7 +159,7 @@ class ForwardModel:
                 break
         if res > 1e-6:
             raise ModelError(f"forward model did not converge (residual {res:.3g})")
-        return self._result(z, modes, total_it, res, w_prev)
+        return self._result(z, modes, total_it, res, w_prev, raw)
 
     # ------------------------------------------------------------------ rigid cables
     def _solve_rigid(
@@ -192,7 +197,20 @@ class ForwardModel:
 
     # ------------------------------------------------------------------ elastic cables
     def _raw(self, z: list[float]):
-        """Pose, factors and per-cable (Tb, Ta, w, q) at z = [x, T, s]."""
+        """Pose, factors and per-cable (Tb, Ta, w, q) at z = [x, T, s].
+
+        A pure function of ``z`` (and of the force transfer ``ft``): the last evaluation is kept
+        and given again for the same z and ft (performance only). A stepper's next solve starts
+        where the last one ended, so its first evaluation is the last one of the previous solve.
+        Callers do not mutate what it returns.
+        """
+        if z == self._raw_z and self.ft is self._raw_ft:
+            return self._raw_out
+        out = self._raw_eval(z)
+        self._raw_z, self._raw_ft, self._raw_out = list(z), self.ft, out
+        return out
+
+    def _raw_eval(self, z: list[float]):
         S2, K = 2 * self.S, self.K
         xs = z[:S2]
         T = z[S2 : S2 + K]
@@ -405,13 +423,34 @@ class ForwardModel:
                 hold[k] = 1.0
         return True
 
-    def _result(self, z, modes, it, res, w_prev) -> ForwardResult:
+    def _result(self, z, modes, it, res, w_prev, raw=None) -> ForwardResult:
+        """The solved pose at ``z``. ``raw``: :meth:`_raw` at ``z`` (the last Newton
+        evaluation); when no cable is slack and every friction fraction is within [-1, 1], the
+        clamped T and s below equal the ones ``raw`` used, so its pose and cables are the chain
+        :meth:`ForceTransfer.evaluate` would compute again (the same calls on the same floats):
+        taken as they are (performance only)."""
         S2, K = 2 * self.S, self.K
         xs = z[:S2]
         T = [max(0.0, v) if modes[k] == SLACK else v for k, v in enumerate(z[S2 : S2 + K])]
         s = [max(-1.0, min(1.0, v)) for v in z[S2 + K :]]
-        P = self.ft.pose(xs)
-        tr = self.ft.evaluate(xs, s, T_distal=T, pose=P)
+        if raw is not None and SLACK not in modes and s == z[S2 + K :]:
+            P, _, _, _, cab = raw
+            qg = P.q_geom
+            w = [c[2] for c in cab]
+            q = [c[3] for c in cab]
+            tr = Transfer(
+                list(qg),
+                list(T),
+                [c[0] for c in cab],
+                [c[1] for c in cab],
+                [w[k] - qg[k] for k in range(K)],
+                [q[k] - w[k] for k in range(K)],
+                w,
+                q,
+            )
+        else:
+            P = self.ft.pose(xs)
+            tr = self.ft.evaluate(xs, s, T_distal=T, pose=P)
         for k in range(K):
             if modes[k] == FREE:
                 s[k] = direction_update(s[k], tr.w[k] - w_prev[k], 1e-12)

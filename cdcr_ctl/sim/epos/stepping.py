@@ -51,7 +51,10 @@ class _Stepping:
         done (the caller does the rest with :meth:`_substep`)."""
         if self.state is not State.OPERATION_ENABLED or self._controlword_halted():
             return 0
-        prof, motor, load_fn = self.profile, self.motor, self.load_fn
+        motor = self.motor
+        if self.load_fn is None and motor.p.hard_stops_counts is None:
+            return self._csp_substeps_inline(h, n)
+        prof, load_fn = self.profile, self.load_fn
         period = self._step_period_s
         window = self._value(epos.FOLLOWING_ERROR_WINDOW)
         unbounded = window == 0xFFFFFFFF
@@ -82,6 +85,85 @@ class _Stepping:
                 self._supervise(h)
                 if self.state is not State.OPERATION_ENABLED:
                     break
+        return done
+
+    def _csp_substeps_inline(self, h: float, n: int) -> int:
+        """:meth:`_csp_substeps` with a constant load torque and no hard stops (the lock-step
+        rig's case): :meth:`~cdcr_ctl.sim.epos.plant.Motor.substep` (powered) written out with
+        the axis state, the parameters and the reference in local variables: the same
+        operations in the same order, so the same floats; performance only. The state goes back
+        to the objects before a sub-step that needs :meth:`_supervise` and at the end."""
+        motor, prof = self.motor, self.profile
+        p = motor.p
+        k, kp, kd, ki = motor.k, motor._kp, motor._kd, motor._ki
+        J, kt, ilim = p.inertia_kgm2, p.torque_constant_Nm_A, p.current_limit_A
+        Jk = J * k  # Motor.substep's ``p.inertia_kgm2 * self.k * a_cmd`` groups left first
+        visc = p.viscous_Nm_s_rad
+        tau_gear = self.load_torque_Nm / p.gear_ratio
+        copysign = math.copysign
+        period = self._step_period_s
+        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
+        unbounded = window == 0xFFFFFFFF
+        lo, hi = self._limits()
+        lo1, hi1 = lo - 1, hi + 1
+        offset = self.offset
+        switches = p.limit_switches_counts
+        sw_lo, sw_hi = switches if switches is not None else (-math.inf, math.inf)
+        x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
+        px, pv, pa = prof.x, prof.v, prof.a
+        csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
+        max_err = self.max_following_error_counts
+        clear = False  # a sub-step within every limit since the last write-back
+        done = 0
+        while done < n:
+            # Motor.substep (powered)
+            e, ev = px - x, pv - v
+            a_cmd = pa + kp * e + kd * ev + ki * integral
+            i = Jk * a_cmd / kt
+            if abs(i) >= ilim:
+                i = copysign(ilim, i)
+            else:
+                integral += e * h
+            omega = k * v
+            torque = kt * i + tau_gear
+            torque -= visc * omega
+            v += torque / J / k * h
+            x += v * h
+            # the CSP reference moves on to t + h
+            csp_t = min(csp_t + h, period)
+            vel = (c_to - c_from) / period
+            pa = 0.0
+            px, pv = c_from + vel * csp_t, (vel if csp_t < period else 0.0)
+            done += 1
+            err = abs(px - x)
+            actual = x + offset
+            if (unbounded or err <= window) and lo1 <= actual <= hi1 and sw_lo < x < sw_hi:
+                if err > max_err:
+                    max_err = err
+                clear = True
+                continue
+            motor.x, motor.v, motor._integral, motor.i = x, v, integral, i
+            prof.x, prof.v, prof.a = px, pv, pa
+            self._csp_t = csp_t
+            self.max_following_error_counts = max_err
+            if clear:
+                self.following_error = False
+                self._ferr_s = 0.0
+                clear = False
+            self._supervise(h)
+            x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
+            px, pv, pa = prof.x, prof.v, prof.a
+            csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
+            max_err = self.max_following_error_counts
+            if self.state is not State.OPERATION_ENABLED:
+                return done
+        motor.x, motor.v, motor._integral, motor.i = x, v, integral, i
+        prof.x, prof.v, prof.a = px, pv, pa
+        self._csp_t = csp_t
+        self.max_following_error_counts = max_err
+        if clear:
+            self.following_error = False
+            self._ferr_s = 0.0
         return done
 
     def _rpm(self, index: int, sub: int = 0) -> float:

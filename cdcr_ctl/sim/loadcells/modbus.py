@@ -36,6 +36,9 @@ FRAME_GAP_S = 0.02
 POLL_S = 0.02
 
 
+#: Distinct read-request frames :class:`ModbusLoadCellSim` keeps decoded.
+MAX_CACHED_READS = 64
+
 #: Registers past the highest one the map uses that still read as 0 (beyond: illegal address).
 SPARE_REGISTERS = 16
 
@@ -88,6 +91,9 @@ class ModbusLoadCellSim(PtySim):
         self._framer = FramerRTU(DecodePDU(is_server=True))
         self._buf = bytearray()
         self._last_rx_s = -math.inf
+        #: Read requests (fc 3/4) decoded before, by their frame bytes (performance only: the
+        #: master polls each cell with the same frame).
+        self._reads: dict[bytes, tuple[int, ModbusPDU]] = {}
         super().__init__(
             tensions,
             len(self.slaves),
@@ -175,8 +181,23 @@ class ModbusLoadCellSim(PtySim):
         self._buf += data
         out: list[tuple[bytes, int]] = []
         while self._buf:
+            buf = bytes(self._buf)
+            known = self._reads.get(buf)
+            if known is not None:
+                # a read request seen before, alone in the buffer: decoded the same way again
+                # (pymodbus's framer and decoder are pure; a read request is not mutated below)
+                dev_id, request = known
+                del self._buf[:]
+                self.stats.requests += 1
+                reply = self.respond(request)
+                if reply is None:
+                    self.stats.dropped += 1
+                    continue
+                reply.dev_id = dev_id
+                out.append((self._framer.buildFrame(reply), len(buf)))
+                continue
             try:
-                used, dev_id, _tid, pdu_bytes = self._framer.decode(bytes(self._buf))
+                used, dev_id, _tid, pdu_bytes = self._framer.decode(buf)
             except Exception:  # pymodbus raises on some malformed headers: drop and resync
                 used, dev_id, pdu_bytes = len(self._buf), 0, b""
             if not used:
@@ -202,6 +223,9 @@ class ModbusLoadCellSim(PtySim):
                 continue
             if dev_id not in self.registers:
                 continue  # another device's request
+            cacheable = used == request_len and request.function_code in (3, 4)
+            if cacheable and len(self._reads) < MAX_CACHED_READS:
+                self._reads[buf] = (dev_id, request)
             self.stats.requests += 1
             reply = self.respond(request)
             if reply is None:
