@@ -57,20 +57,30 @@ def stop_now(d: Daemon, reaction: Reaction) -> dict[str, Any]:
     frame, SYNCs in between; None without a traffic log or for a halt). A loop that is not
     running cannot act: the drives are stopped directly.
     """
+    arrived = time.time()
+    flag = d.loop.stop_flag
+    cycle0 = d.loop.counters.cycles
+    seq = flag.request(reaction)
+    return await_stop(d, reaction, seq, cycle0, arrived)
+
+
+def await_stop(
+    d: Daemon, reaction: Reaction, seq: int, cycle0: int, arrived_wall_s: float
+) -> dict[str, Any]:
+    """The second half of :func:`stop_now`, for a flag raised elsewhere (the daemon's front
+    process writes the shared-memory flag itself): request ``seq`` arrived at
+    ``arrived_wall_s`` (``time.time()``) in loop cycle ``cycle0``; wait for the cycle that
+    acted, stop the drives directly if the loop is not running, and time it on the bus."""
     loop = d.loop
     flag = loop.stop_flag
     tap = getattr(d, "bus_tap", None)
     if tap is not None:
-        tap.arm(time.time())
-    seq = flag.request(reaction)
-    cycle0 = loop.counters.cycles
+        tap.arm(arrived_wall_s)
     end = time.monotonic() + STOP_ACK_TIMEOUT_S
-    acted: int | None = None
-    while loop.running and time.monotonic() < end:
-        acted = flag.acted_cycle(seq)
-        if acted is not None:
-            break
+    acted: int | None = flag.acted_cycle(seq)
+    while acted is None and loop.running and time.monotonic() < end:
         time.sleep(loop.cfg.period_s / 4)
+        acted = flag.acted_cycle(seq)
     if acted is None and reaction is Reaction.QUICK_STOP:
         d.io.drives.quick_stop()
     # The frames are sent (and logged) before the loop marks the flag acted: the tap has them.
