@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing
+import os
 import signal
 import threading
 import time
@@ -99,10 +100,23 @@ class Coalescer:
         self._lock = threading.Lock()
         self._running: _Batch | None = None
         self._next: _Batch | None = None
-        #: Round trips made (for tests and the benchmark: a flood costs few of them).
+        #: Round trips made, and calls (a flood of calls costs few round trips).
         self.fetches = 0
+        self.calls = 0
+        #: Callers inside :meth:`get` now.
+        self.waiting = 0
 
     def get(self) -> Any:
+        with self._lock:
+            self.calls += 1
+            self.waiting += 1
+        try:
+            return self._get()
+        finally:
+            with self._lock:
+                self.waiting -= 1
+
+    def _get(self) -> Any:
         prev: _Batch | None = None
         with self._lock:
             if self._next is not None:
@@ -401,12 +415,23 @@ class FrontDaemon:
                 return self._dead_status()
             raise
         self._last_status = st
-        return st
+        return {**st, "front": self._front_status()}
+
+    def _front_status(self) -> dict[str, Any]:
+        """The front's own: its pid, the rig process's, and what status requests cost."""
+        c = self.status_coalescer
+        return {
+            "pid": os.getpid(),
+            "rig_pid": self.proc.pid,
+            "status_requests": c.calls,
+            "status_round_trips": c.fetches,
+        }
 
     def _dead_status(self) -> dict[str, Any]:
         cause = {"cause": "rig_process_exited", "reaction": "QUICK_STOP", "detail": self._rig_exit}
         return {
             **self._last_status,
+            "front": self._front_status(),
             "state": f"fault: {self._rig_exit}",
             "enabled": False,
             "fault": {**cause, "t_s": 0.0},

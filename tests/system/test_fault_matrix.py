@@ -259,7 +259,7 @@ def test_fault_matrix(tmp_path):
                 n_before = rows_on_disk(log_dir)
                 t_kill = time.monotonic()
                 drives = fc.query("drives")["drives"]
-                d1.send_signal(signal.SIGKILL)
+                os.killpg(d1.pid, signal.SIGKILL)  # front and rig process
                 d1.wait(10)
             inj = {"t_s": t_kill, "syncs": {str(x["node"]): x["syncs"] for x in drives}}
             safe = safe_after(fc, inj)
