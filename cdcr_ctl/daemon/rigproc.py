@@ -5,8 +5,11 @@ Why a process: the loop shares the Python interpreter lock with every thread of 
 Socket threads (hundreds of clients, slow clients, status floods), protocol parsing and the
 intake's bookkeeping all take it; in one process the loop at 1 kHz ran up to several ms late
 behind them (README, "The control plane cannot stall the loop"). Here the process holds only the
-rig side: the loop, the CAN notifier, the sensors, the run-log writer (which owns its own writer
-child when the run log has one) and two command threads.
+rig side: the loop, the CAN notifier and traffic log, the sensors, the run-log writer (which
+owns its own writer child when the run log has one) and two command threads. The loop sets the
+process's interpreter switch interval to
+:data:`~cdcr_ctl.control.loop.GIL_SWITCH_INTERVAL_S` (50 us) when it starts: another thread of
+this process keeps the lock at most that long once the loop asks for it.
 
 :func:`rig_main` builds exactly what the one-process daemon builds (config, model, run-log
 factory, rig I/O, :class:`~cdcr_ctl.daemon.service.Daemon` with its loop and command handlers)
@@ -59,11 +62,6 @@ HEARTBEAT = StopFlag.SLOTS
 SHARED_SLOTS = StopFlag.SLOTS + 1
 #: How often the rig process's heartbeat counts (s).
 HEARTBEAT_PERIOD_S = 0.2
-#: The rig process's interpreter switch interval (s): how long another thread may keep the
-#: interpreter lock once the loop thread asks for it. CPython's default is 5 ms, five 1 kHz
-#: periods; 0.2 ms keeps the hand-over well inside one period (README, "The control plane
-#: cannot stall the loop", measured with ``benchmarks/bench_stop_battery.py``).
-SWITCH_INTERVAL_S = 2e-4
 #: Commands served on the quick thread (never behind loading, planning or homing).
 QUICK_COMMANDS = ("status", "stop", "shutdown")
 
@@ -220,7 +218,6 @@ def rig_main(
         format="%(asctime)s %(levelname)s %(name)s[rig]: %(message)s",
         stream=sys.stderr,
     )
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
         d = build_daemon(config_path, socket_path, intake_dir)
     except BaseException as exc:
@@ -244,7 +241,6 @@ __all__ = [
     "HEARTBEAT",
     "QUICK_COMMANDS",
     "SHARED_SLOTS",
-    "SWITCH_INTERVAL_S",
     "RigCommandServer",
     "build_daemon",
     "encode_outcome",
