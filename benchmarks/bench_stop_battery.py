@@ -58,6 +58,8 @@ from battery import (  # noqa: E402
 )
 from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E402
 
+from cdcr_ctl.cli.demo import _cli, running  # noqa: E402
+
 
 def _set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     doc = yaml.safe_load(rig.read_text())
@@ -86,6 +88,12 @@ def main() -> None:
         help="SCHED_FIFO priority for the daemon (control.realtime_priority: every thread), "
         "the simulated rig (chrt, all threads) and the floor; 0: SCHED_OTHER",
     )
+    ap.add_argument(
+        "--one-process",
+        action="store_true",
+        help="run `cdcr-ctl daemon --one-process` (the loop beside the socket threads, for "
+        "comparison) instead of the front and rig processes",
+    )
     a = ap.parse_args()
     rate_hz, repeats, rt = a.rate_hz, a.repeats, a.rt
     period_s = 1.0 / rate_hz
@@ -106,13 +114,17 @@ def main() -> None:
         session(tmp) as (work, rig, sim, _runs),
         start_sim(sim, tmp / "sim.log") as sim_proc,
         _with_rate(rig, rate_hz, rt),
-        start_daemon(rig, tmp / "d.log") as d,
+        _daemon(rig, tmp / "d.log", a.one_process) as d,
     ):
         if rt:
             subprocess.run(["chrt", "-a", "-f", "-p", str(rt), str(sim_proc.pid)], check=True)
         wait_for_socket(work / "control.sock", d, tmp / "d.log")
         policy = f"SCHED_FIFO {rt} (daemon, sim), {rt + 1} (loop, floor)" if rt else "SCHED_OTHER"
-        print(f"loop and SYNC at {rate_hz:g} Hz, {repeats} stop(s) per stressor, {policy}")
+        shape = "one process" if a.one_process else "front + rig process"
+        print(
+            f"loop and SYNC at {rate_hz:g} Hz, {repeats} stop(s) per stressor, {policy},"
+            f" daemon: {shape}, load {os.getloadavg()[0]:.1f}"
+        )
         print(
             f"{'stressor':20s} {'loop':>4s} {'syncs':>5s} {'bus ms':>7s} {'bus cyc':>7s}"
             f" {'send ms':>7s}  {'loop lateness us p50/p99/p99.9/max':>34s}"
@@ -189,6 +201,12 @@ def verdict(rec: dict, late_ok: bool) -> str:
     )
     ok = stop_ok and not rec["trips"] and counters_agree(rec) and late_ok
     return "HOLDS" if ok else "NOT"
+
+
+def _daemon(rig: Path, log: Path, one_process: bool):
+    if not one_process:
+        return start_daemon(rig, log)
+    return running(_cli("--config", str(rig), "daemon", "--one-process"), log)
 
 
 def within_floor(loop_q: dict, floor_q: dict, period_us: float) -> bool:
