@@ -93,12 +93,6 @@ class StopBusTap(can.Listener):
             }
         return None
 
-    def seen_since(self, wall_s: float) -> bool:
-        """Whether a SYNC or quick-stop frame stamped at or after ``wall_s`` reached the tap
-        (a traffic log is running: a quick stop's frame will reach it too)."""
-        frames = self._frames
-        return bool(frames) and frames[-1][0] >= wall_s
-
     def on_message_received(self, msg: can.Message) -> None:
         if msg.is_rx:
             return

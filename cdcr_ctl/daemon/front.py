@@ -236,6 +236,8 @@ class FrontDaemon:
         if install_signals:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 previous[sig] = signal.signal(sig, self._signal)
+            # A file-size limit must fail a spool write (EFBIG), not kill the front.
+            previous[signal.SIGXFSZ] = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         try:
             period = min(self.notifier.watchdog_period_s() or 1.0, 1.0)
             beat = self.shared[HEARTBEAT]

@@ -37,10 +37,8 @@ log = logging.getLogger(__name__)
 #: Longest wait of ``stop`` for the loop to act (s); a loop that is not running is bypassed.
 STOP_ACK_TIMEOUT_S = 1.0
 #: Longest wait for the quick stop's frame to reach the bus tap through the traffic log's
-#: writer thread (s): many times its drain period.
-BUS_TAP_WAIT_S = 0.5
-#: A traffic log is running if the tap saw a frame this long before the request (s).
-TRAFFIC_SEEN_S = 1.0
+#: writer thread (s): a hundred of its drain periods (a loaded machine may starve the thread).
+BUS_TAP_WAIT_S = 2.0
 #: Longest wait at start-up for every drive's first feedback (s).
 START_FEEDBACK_TIMEOUT_S = 10.0
 #: A cable further than this from straight (mm) is brought straight before homing.
@@ -88,26 +86,23 @@ def await_stop(
         acted = flag.acted_cycle(seq)
     if acted is None and reaction is Reaction.QUICK_STOP:
         d.io.drives.quick_stop()
-    bus = _bus_timing(tap, loop.cfg.period_s, arrived_wall_s, reaction, acted is not None)
+    logging_traffic = bool(getattr(getattr(d.io.drives, "group", None), "traffic_logging", False))
+    bus = _bus_timing(tap, loop.cfg.period_s, reaction, acted is not None and logging_traffic)
     if acted is None:
         return {"acted_cycle": None, "cycles_waited": None, "bus": bus}
     return {"acted_cycle": acted, "cycles_waited": acted - cycle0, "bus": bus}
 
 
-def _bus_timing(
-    tap: Any, period_s: float, arrived_wall_s: float, reaction: Reaction, acted: bool
-) -> dict[str, Any] | None:
+def _bus_timing(tap: Any, period_s: float, reaction: Reaction, wait: bool) -> dict[str, Any] | None:
     """The tap's timing of the stop. The traffic log reaches the tap from its writer thread
     (:class:`~cdcr_ctl.drives.group.traffic.DeferredTrafficLog`, every ``DRAIN_PERIOD_S``):
-    when a traffic log is running and the loop sent a quick stop, wait (bounded by
-    :data:`BUS_TAP_WAIT_S`) for its frame to arrive."""
+    with ``wait`` (a traffic log is running and the loop acted) and a quick stop, wait for its
+    frame to arrive, bounded by :data:`BUS_TAP_WAIT_S`."""
     if tap is None:
         return None
     bus = tap.result(period_s)
-    if bus is not None or not acted or reaction is not Reaction.QUICK_STOP:
+    if bus is not None or not wait or reaction is not Reaction.QUICK_STOP:
         return bus
-    if not tap.seen_since(arrived_wall_s - TRAFFIC_SEEN_S):
-        return None  # no traffic log: nothing will come
     end = time.monotonic() + BUS_TAP_WAIT_S
     while bus is None and time.monotonic() < end:
         time.sleep(period_s)

@@ -190,6 +190,11 @@ class _Wire:
         if traffic is not None:
             traffic.on_message_received(msg)
 
+    @property
+    def traffic_logging(self) -> bool:
+        """Whether a traffic log is running."""
+        return self._traffic is not None
+
     def _traffic_failed(self, text: str) -> None:
         """(the traffic log's writer thread) Its log stopped on a write error."""
         self.traffic_failure = text
