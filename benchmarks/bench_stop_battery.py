@@ -18,7 +18,12 @@ How measured (see ``tests/system/battery.py``):
   process of its own, run through each stressor's window; its lateness (counted as the rows count
   it, skipped deadlines included) against the lateness column of the run's rows in that window.
   Criterion (the acceptance's "no cycle later than the period plus the machine's floor"): loop
-  max <= floor max + one period, and loop p99.9 <= floor p99.9 + one period.
+  max <= floor max + one period, and loop p99.9 <= floor p99.9 + one period (column ``late``).
+- verdict per window (column ``window``): HOLDS when the stop acted within 2 cycles (loop and
+  bus), no trip, counters = rows and the lateness criterion hold; the last line counts them.
+- the daemon runs as ``cdcr-ctl daemon`` does: the front process (socket, intake) and the rig
+  process (loop, supervisor, bus; ``cdcr_ctl.daemon.front``); the 200-client window prints how
+  many ``status`` round trips reached the rig process.
 - counters and rows: the run's share of the loop's global counters (``status`` ``runs``) equals
   the deadlines missed and long cycles its rows report, one row per cycle.
 """
@@ -27,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import subprocess
 import sys
 import tempfile
@@ -51,6 +57,8 @@ from battery import (  # noqa: E402
     tiny_jog,
 )
 from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E402
+
+from cdcr_ctl.cli.demo import _cli, running  # noqa: E402
 
 
 def _set_rate(rig: Path, rate_hz: float, rt: int) -> None:
@@ -80,6 +88,12 @@ def main() -> None:
         help="SCHED_FIFO priority for the daemon (control.realtime_priority: every thread), "
         "the simulated rig (chrt, all threads) and the floor; 0: SCHED_OTHER",
     )
+    ap.add_argument(
+        "--one-process",
+        action="store_true",
+        help="run `cdcr-ctl daemon --one-process` (the loop beside the socket threads, for "
+        "comparison) instead of the front and rig processes",
+    )
     a = ap.parse_args()
     rate_hz, repeats, rt = a.rate_hz, a.repeats, a.rt
     period_s = 1.0 / rate_hz
@@ -100,17 +114,22 @@ def main() -> None:
         session(tmp) as (work, rig, sim, _runs),
         start_sim(sim, tmp / "sim.log") as sim_proc,
         _with_rate(rig, rate_hz, rt),
-        start_daemon(rig, tmp / "d.log") as d,
+        _daemon(rig, tmp / "d.log", a.one_process) as d,
     ):
         if rt:
             subprocess.run(["chrt", "-a", "-f", "-p", str(rt), str(sim_proc.pid)], check=True)
         wait_for_socket(work / "control.sock", d, tmp / "d.log")
         policy = f"SCHED_FIFO {rt} (daemon, sim), {rt + 1} (loop, floor)" if rt else "SCHED_OTHER"
-        print(f"loop and SYNC at {rate_hz:g} Hz, {repeats} stop(s) per stressor, {policy}")
+        shape = "one process" if a.one_process else "front + rig process"
+        print(
+            f"loop and SYNC at {rate_hz:g} Hz, {repeats} stop(s) per stressor, {policy},"
+            f" daemon: {shape}, load {os.getloadavg()[0]:.1f}"
+        )
         print(
             f"{'stressor':20s} {'loop':>4s} {'syncs':>5s} {'bus ms':>7s} {'bus cyc':>7s}"
             f" {'send ms':>7s}  {'loop lateness us p50/p99/p99.9/max':>34s}"
-            f"  {'floor us p50/p99/p99.9/max':>26s} {'ok':>3s} {'ctr=rows':>8s}  reply"
+            f"  {'floor us p50/p99/p99.9/max':>26s} {'late':>5s} {'ctr=rows':>8s} {'window':>6s}"
+            "  reply"
         )
         for _ in range(repeats):
             for name, fn, after_s in stressors:
@@ -118,20 +137,28 @@ def main() -> None:
                 records.append(rec)
                 bus = rec["bus"] or {}
                 loop_q, floor_q = rec.get("loop_us"), rec["floor_us"]
-                ok = loop_q is not None and within_floor(loop_q, floor_q, period_us)
+                late_ok = loop_q is not None and within_floor(loop_q, floor_q, period_us)
+                rec["verdict"] = verdict(rec, late_ok)
                 print(
                     f"{name:20s} {rec['cycles_waited']!s:>4s} {bus.get('syncs_before', '-')!s:>5s}"
                     f" {bus.get('quick_stop_after_ms', float('nan')):7.2f}"
                     f" {bus.get('cycles', float('nan')):7.2f}"
                     f" {rec.get('bus_from_send_ms', float('nan')):7.2f}"
                     f"  {_q(loop_q) if loop_q else '-':>34s}  {_q(floor_q):>26s}"
-                    f" {'yes' if ok else 'NO':>3s} {'yes' if counters_agree(rec) else 'NO':>8s}"
+                    f" {'ok' if late_ok else 'LATE':>5s}"
+                    f" {'yes' if counters_agree(rec) else 'NO':>8s} {rec['verdict']:>6s}"
                     f"  {rec['reply'][:50]!r}"
                 )
                 for trip in rec["trips"]:
                     print(f"    trip in the window: {trip}")
                 if not counters_agree(rec):
                     print(f"    rows {rec.get('rows')} counters {rec.get('run_counters')}")
+                front = rec.get("front")
+                if front and front.get("status_requests"):
+                    print(
+                        f"    front: {front['status_requests']} status requests in the window,"
+                        f" {front['status_round_trips']} round trips to the rig process"
+                    )
                 recover(work)
     delays = [r["bus"]["cycles"] for r in records if r["bus"]]
     syncs = [r["bus"]["syncs_before"] for r in records if r["bus"]]
@@ -153,6 +180,33 @@ def main() -> None:
     agree = sum(counters_agree(r) for r in records)
     n = len(records)
     print(f"windows with a drive or bus trip: {faults} of {n}; counters = rows: {agree}/{n}")
+    holds = sum(r["verdict"] == "HOLDS" for r in records)
+    print(
+        f"acceptance 1 per window (stop <= 2 cycles on the bus, no trip, counters = rows,"
+        f" lateness within the floor + one period): HOLDS in {holds} of {n};"
+        f" {'HOLDS' if holds == n else 'NOT MET'} (load {os.getloadavg()[0]:.1f})"
+    )
+
+
+def verdict(rec: dict, late_ok: bool) -> str:
+    """HOLDS when every part of acceptance 1 holds in the window: the stop acted within 2 loop
+    cycles and (timed on the bus) at most 2 SYNCs went out before its quick-stop frame, no drive
+    or bus trip, counters = rows, and the lateness criterion (:func:`within_floor`)."""
+    bus = rec["bus"]
+    stop_ok = (
+        rec["cycles_waited"] is not None
+        and rec["cycles_waited"] <= 2
+        and bus is not None
+        and bus["syncs_before"] <= 2
+    )
+    ok = stop_ok and not rec["trips"] and counters_agree(rec) and late_ok
+    return "HOLDS" if ok else "NOT"
+
+
+def _daemon(rig: Path, log: Path, one_process: bool):
+    if not one_process:
+        return start_daemon(rig, log)
+    return running(_cli("--config", str(rig), "daemon", "--one-process"), log)
 
 
 def within_floor(loop_q: dict, floor_q: dict, period_us: float) -> bool:

@@ -31,19 +31,23 @@ def _setup_logging(verbose: bool) -> None:
 
 @cli.command()
 @click.option("--verbose", "-v", is_flag=True)
+@click.option(
+    "--one-process",
+    is_flag=True,
+    help="Run the loop in this process, beside the control socket (for comparison: the socket "
+    "threads then share the loop's interpreter lock). Default: the rig side in a process of "
+    "its own.",
+)
 @click.pass_obj
-def daemon(obj: Ctx, verbose: bool) -> None:
+def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
     """Run the controller daemon in the foreground (systemd: Type=notify).
 
     The config is validated before anything is opened; drives stay disabled until `enable`.
+    This process serves the control socket; the loop, its supervisor and the drive bus run in
+    a child process of their own (cdcr_ctl.daemon.front).
     """
     from cdcr_ctl.config import load_rig_config
-    from cdcr_ctl.config.build_model import build_model
-    from cdcr_ctl.control import trajectory
-    from cdcr_ctl.control.io import open_rig_io
-    from cdcr_ctl.control.timing import try_realtime
-    from cdcr_ctl.daemon.service import Daemon
-    from cdcr_ctl.runlog.writer import RunLogFactory
+    from cdcr_ctl.daemon.front import FrontDaemon
 
     _setup_logging(verbose)
     if not obj.config:
@@ -54,13 +58,37 @@ def daemon(obj: Ctx, verbose: bool) -> None:
         cfg = cfg.model_copy(
             update={"daemon": cfg.daemon.model_copy(update={"socket_path": obj._socket})}
         )
+    if one_process:
+        reason = _one_process_daemon(cfg, path)
+        click.echo(f"daemon stopped: {reason}", err=True)
+        return
+    front = FrontDaemon(cfg, path, socket_path=obj._socket, verbose=verbose)
+    try:
+        front.start()
+    except BaseException:
+        front.shutdown("start-up failed")
+        raise
+    reason, status = front.serve()
+    click.echo(f"daemon stopped: {reason}", err=True)
+    if status:
+        raise SystemExit(status)
+
+
+def _one_process_daemon(cfg: Any, path: Path) -> str:
+    """The daemon with its loop in this process (``--one-process``)."""
+    from cdcr_ctl.config.build_model import build_model
+    from cdcr_ctl.control import trajectory
+    from cdcr_ctl.control.io import open_rig_io
+    from cdcr_ctl.control.timing import try_realtime
+    from cdcr_ctl.daemon.service import Daemon
+    from cdcr_ctl.runlog.writer import RunLogFactory
+
     model = build_model(cfg, source=str(path))
     # The run log's /tip/model: a model instance of its own (the writer thread's, not the loop's).
     sinks = RunLogFactory.from_config(
         cfg, path, tip_from_psi=build_model(cfg, source=str(path)).tip
     )
-    # Before any thread exists: every thread of the daemon inherits the policy, so the loop never
-    # waits for the interpreter lock held by a thread of lower priority.
+    # Before any thread exists: every thread of the daemon inherits the policy.
     try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
     io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
     attach = getattr(model, "attach_attitude", None)  # models that close a loop on attitudes
@@ -72,8 +100,7 @@ def daemon(obj: Ctx, verbose: bool) -> None:
     except BaseException:
         d.shutdown("start-up failed")
         raise
-    reason = d.serve()
-    click.echo(f"daemon stopped: {reason}", err=True)
+    return d.serve()
 
 
 @cli.command()

@@ -13,15 +13,21 @@ class StopFlag:
     Any thread (or, over shared memory, another process) calls :meth:`request`; the loop reads
     :attr:`requested` once per cycle, before anything else, and :meth:`acted` records the cycle
     in which the quick stop (or halt) went out. Plain integer stores: no lock a loading or
-    planning thread could hold sits on this path. The values live in ``store`` (a 4-slot integer
-    array: requested sequence, reaction, acted sequence, acted cycle), so a shared-memory array
-    lets another process use the same flag.
+    planning thread could hold sits on this path. The values live in ``store`` (an integer array
+    of :data:`SLOTS` slots: requested sequence, reaction, acted sequence, acted cycle, the loop's
+    current cycle), so a shared-memory array (``multiprocessing.RawArray("q", SLOTS)``, acted
+    cycle -1) lets another process use the same flag: the daemon's front process
+    (:mod:`cdcr_ctl.daemon.front`) raises it for the rig process's loop.
+
+    The loop writes its cycle counter with :meth:`tick` every cycle, so a requester in another
+    process knows the cycle its request arrived in (``cycles_waited``) without asking the loop.
     """
 
-    REQUESTED, REACTION, ACTED, ACTED_CYCLE = range(4)
+    REQUESTED, REACTION, ACTED, ACTED_CYCLE, CYCLE = range(5)
+    SLOTS = 5
 
     def __init__(self, store: Any = None) -> None:
-        self.store = store if store is not None else [0, 0, 0, -1]
+        self.store = store if store is not None else [0, 0, 0, -1, 0]
 
     def request(self, reaction: Reaction) -> int:
         """Ask the loop to stop with ``reaction``; returns the sequence number to wait for."""
@@ -30,6 +36,15 @@ class StopFlag:
         seq = st[self.REQUESTED] + 1
         st[self.REQUESTED] = seq
         return seq
+
+    def tick(self, cycle: int) -> None:
+        """(loop) The cycle now running."""
+        self.store[self.CYCLE] = cycle
+
+    @property
+    def cycle(self) -> int:
+        """The loop's cycle counter as of its last :meth:`tick`."""
+        return self.store[self.CYCLE]
 
     @property
     def requested(self) -> int:

@@ -16,6 +16,7 @@ COB-IDs 0x601-0x67F) the group sends to a drive that is not OPERATIONAL.
 from __future__ import annotations
 
 import threading
+from collections import deque
 from typing import Any
 
 import can
@@ -37,53 +38,69 @@ def is_quick_stop_frame(cob_id: int, data: bytes) -> bool:
     return False
 
 
+#: Transmitted SYNC and quick-stop frames remembered (enough for the seconds between a stop
+#: request and its answer at 1 kHz, where the request may be timed after the frames went out).
+HISTORY_FRAMES = 4096
+
+
 class StopBusTap(can.Listener):
     """Times stop requests against the bus (see the module). Thread-safe: frames arrive on the
-    loop thread (sent) and python-can's notifier (received); :meth:`arm` on a socket thread."""
+    loop thread (sent) and python-can's notifier (received); :meth:`arm` on a socket thread.
+
+    It remembers the last :data:`HISTORY_FRAMES` transmitted SYNC and quick-stop frames, so
+    :meth:`arm` may come after the frames it times: the daemon's front process raises the stop
+    flag and the rig process arms the tap with the request's arrival time a pipe trip later.
+    """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._armed_at: float | None = None
-        self._syncs = 0
-        self._first: tuple[float, int, int] | None = None  # (time, cob_id, syncs before it)
+        #: (time, cob_id, is a quick stop) of transmitted SYNC and quick-stop frames.
+        self._frames: deque[tuple[float, int, bool]] = deque(maxlen=HISTORY_FRAMES)
 
     def arm(self, request_wall_s: float) -> None:
-        """A stop request arrived at ``request_wall_s`` (``time.time()``): time the next
-        quick-stop frame and count SYNCs from now."""
+        """A stop request arrived at ``request_wall_s`` (``time.time()``): time the first
+        quick-stop frame at or after it and count the SYNCs in between."""
         with self._lock:
-            self._armed_at, self._syncs, self._first = request_wall_s, 0, None
+            self._armed_at = request_wall_s
 
     def result(self, period_s: float) -> dict[str, Any] | None:
-        """What the bus showed since :meth:`arm`: ``quick_stop_after_ms`` (request arrival to
-        the first quick-stop frame), the same in loop periods (``cycles``), ``syncs_before``
-        (SYNC frames sent in between: bus cycles), ``cob_id``, and both times (``time.time()``
-        s: ``request_wall_s``, ``quick_stop_wall_s``); None before a frame was seen."""
+        """What the bus showed since the request :meth:`arm` named: ``quick_stop_after_ms``
+        (request arrival to the first quick-stop frame), the same in loop periods (``cycles``),
+        ``syncs_before`` (SYNC frames sent in between: bus cycles), ``cob_id``, and both times
+        (``time.time()`` s: ``request_wall_s``, ``quick_stop_wall_s``); None before a frame was
+        seen."""
         with self._lock:
-            if self._armed_at is None or self._first is None:
-                return None
-            t, cob, syncs = self._first
-            dt = t - self._armed_at
             armed = self._armed_at
-        return {
-            "request_wall_s": armed,
-            "quick_stop_wall_s": t,
-            "quick_stop_after_ms": round(dt * 1e3, 3),
-            "cycles": round(dt / period_s, 3),
-            "syncs_before": syncs,
-            "cob_id": f"0x{cob:03X}",
-        }
+            frames = list(self._frames)
+        if armed is None:
+            return None
+        syncs = 0
+        for t, cob, quick_stop in frames:
+            if t < armed:
+                continue
+            if not quick_stop:
+                syncs += 1
+                continue
+            dt = t - armed
+            return {
+                "request_wall_s": armed,
+                "quick_stop_wall_s": t,
+                "quick_stop_after_ms": round(dt * 1e3, 3),
+                "cycles": round(dt / period_s, 3),
+                "syncs_before": syncs,
+                "cob_id": f"0x{cob:03X}",
+            }
+        return None
 
     def on_message_received(self, msg: can.Message) -> None:
-        if msg.is_rx or self._armed_at is None or self._first is not None:
+        if msg.is_rx:
             return
         cob = msg.arbitration_id
         if cob == SYNC_COB_ID:
-            with self._lock:
-                self._syncs += 1
+            self._frames.append((msg.timestamp, cob, False))  # deque.append: atomic
         elif is_quick_stop_frame(cob, msg.data):
-            with self._lock:
-                if self._first is None and self._armed_at is not None:
-                    self._first = (msg.timestamp, cob, self._syncs)
+            self._frames.append((msg.timestamp, cob, True))
 
     def stop(self) -> None:
         """Nothing to close (python-can's listener interface)."""

@@ -14,6 +14,11 @@ from cdcr_ctl.daemon.protocol import ProtocolError
 from cdcr_ctl.errors import RigError
 
 
+def stop_reaction(mode: str) -> Reaction:
+    """The loop's reaction to a ``stop`` of ``mode`` (``quick_stop`` or ``halt``)."""
+    return Reaction.QUICK_STOP if mode == "quick_stop" else Reaction.HALT
+
+
 class DriveCommands:
     """Drive and state commands (mixin of the daemon)."""
 
@@ -59,12 +64,15 @@ class DriveCommands:
     def _cmd_stop(self, args: Any) -> dict[str, Any]:
         """Set the loop's stop flag (no lock, no queue) and answer once the loop has acted:
         the reply names the cycle that sent the stop and how many cycles it took."""
-        reaction = Reaction.QUICK_STOP if args.mode == "quick_stop" else Reaction.HALT
-        acted = recovery.stop_now(self, reaction)
-        if reaction is Reaction.QUICK_STOP:
+        return self.stopped(args.mode, recovery.stop_now(self, stop_reaction(args.mode)))
+
+    def stopped(self, mode: str, acted: dict[str, Any]) -> dict[str, Any]:
+        """The reply to ``stop`` once the loop acted (``acted``: :func:`recovery.await_stop`),
+        and the daemon's state after it."""
+        if stop_reaction(mode) is Reaction.QUICK_STOP:
             self.enabled = False
             self.state = "stopped"
-        return {"stopped": args.mode, **acted}
+        return {"stopped": mode, **acted}
 
     def _cmd_compensation(self, args: Any) -> dict[str, Any]:
         self.loop.set_compensation(args.mode)

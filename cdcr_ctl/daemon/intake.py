@@ -167,12 +167,14 @@ class Intake:
     """One spawned worker process for the daemon's heavy parsing (see the module docstring).
 
     ``n_segments`` and ``bend_rad`` are the rig's, for validation. Prepared files live in a
-    private temporary directory removed by :meth:`close`.
+    private temporary directory removed by :meth:`close`; with ``directory`` (another process's
+    intake, whose prepared files this one maps) that directory is used and left in place.
     """
 
-    def __init__(self, n_segments: int, bend_rad: float) -> None:
+    def __init__(self, n_segments: int, bend_rad: float, directory: str | None = None) -> None:
         self.n_segments, self.bend_rad = n_segments, bend_rad
-        self.dir = Path(tempfile.mkdtemp(prefix="cdcr-intake-"))
+        self._owns_dir = directory is None
+        self.dir = Path(directory) if directory else Path(tempfile.mkdtemp(prefix="cdcr-intake-"))
         self._pool: ProcessPoolExecutor | None = None
         self._n = 0
 
@@ -238,6 +240,8 @@ class Intake:
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
+        if not self._owns_dir:
+            return
         for p in self.dir.glob("*"):
             with contextlib.suppress(OSError):
                 p.unlink()

@@ -36,6 +36,9 @@ log = logging.getLogger(__name__)
 
 #: Longest wait of ``stop`` for the loop to act (s); a loop that is not running is bypassed.
 STOP_ACK_TIMEOUT_S = 1.0
+#: Longest wait for the quick stop's frame to reach the bus tap through the traffic log's
+#: writer thread (s): a hundred of its drain periods (a loaded machine may starve the thread).
+BUS_TAP_WAIT_S = 2.0
 #: Longest wait at start-up for every drive's first feedback (s).
 START_FEEDBACK_TIMEOUT_S = 10.0
 #: A cable further than this from straight (mm) is brought straight before homing.
@@ -57,27 +60,54 @@ def stop_now(d: Daemon, reaction: Reaction) -> dict[str, Any]:
     frame, SYNCs in between; None without a traffic log or for a halt). A loop that is not
     running cannot act: the drives are stopped directly.
     """
+    arrived = time.time()
+    flag = d.loop.stop_flag
+    cycle0 = d.loop.counters.cycles
+    seq = flag.request(reaction)
+    return await_stop(d, reaction, seq, cycle0, arrived)
+
+
+def await_stop(
+    d: Daemon, reaction: Reaction, seq: int, cycle0: int, arrived_wall_s: float
+) -> dict[str, Any]:
+    """The second half of :func:`stop_now`, for a flag raised elsewhere (the daemon's front
+    process writes the shared-memory flag itself): request ``seq`` arrived at
+    ``arrived_wall_s`` (``time.time()``) in loop cycle ``cycle0``; wait for the cycle that
+    acted, stop the drives directly if the loop is not running, and time it on the bus."""
     loop = d.loop
     flag = loop.stop_flag
     tap = getattr(d, "bus_tap", None)
     if tap is not None:
-        tap.arm(time.time())
-    seq = flag.request(reaction)
-    cycle0 = loop.counters.cycles
+        tap.arm(arrived_wall_s)
     end = time.monotonic() + STOP_ACK_TIMEOUT_S
-    acted: int | None = None
-    while loop.running and time.monotonic() < end:
-        acted = flag.acted_cycle(seq)
-        if acted is not None:
-            break
+    acted: int | None = flag.acted_cycle(seq)
+    while acted is None and loop.running and time.monotonic() < end:
         time.sleep(loop.cfg.period_s / 4)
+        acted = flag.acted_cycle(seq)
     if acted is None and reaction is Reaction.QUICK_STOP:
         d.io.drives.quick_stop()
-    # The frames are sent (and logged) before the loop marks the flag acted: the tap has them.
-    bus = tap.result(loop.cfg.period_s) if tap is not None else None
+    logging_traffic = bool(getattr(getattr(d.io.drives, "group", None), "traffic_logging", False))
+    bus = _bus_timing(tap, loop.cfg.period_s, reaction, acted is not None and logging_traffic)
     if acted is None:
         return {"acted_cycle": None, "cycles_waited": None, "bus": bus}
     return {"acted_cycle": acted, "cycles_waited": acted - cycle0, "bus": bus}
+
+
+def _bus_timing(tap: Any, period_s: float, reaction: Reaction, wait: bool) -> dict[str, Any] | None:
+    """The tap's timing of the stop. The traffic log reaches the tap from its writer thread
+    (:class:`~cdcr_ctl.drives.group.traffic.DeferredTrafficLog`, every ``DRAIN_PERIOD_S``):
+    with ``wait`` (a traffic log is running and the loop acted) and a quick stop, wait for its
+    frame to arrive, bounded by :data:`BUS_TAP_WAIT_S`."""
+    if tap is None:
+        return None
+    bus = tap.result(period_s)
+    if bus is not None or not wait or reaction is not Reaction.QUICK_STOP:
+        return bus
+    end = time.monotonic() + BUS_TAP_WAIT_S
+    while bus is None and time.monotonic() < end:
+        time.sleep(period_s)
+        bus = tap.result(period_s)
+    return bus
 
 
 def hold_tracker_check(supervisor: Supervisor) -> Callable[[], None]:

@@ -59,10 +59,13 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         notifier: SystemdNotifier | None = None,
         joystick_opener: Callable[..., Any] | None = None,
         clock: LoopClock | None = None,
+        intake: Intake | None = None,
     ) -> None:
         """``joystick_opener(JoystickConfig)`` opens the rig's joystick for a ``joystick``
         session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`). ``clock``: the
-        loop's clock (default the wall clock; the lock-step simulator passes its own)."""
+        loop's clock (default the wall clock; the lock-step simulator passes its own).
+        ``intake``: where trajectory files are prepared (default a worker of this daemon's; the
+        rig process passes its front process's, whose prepared files it maps)."""
         self.cfg = cfg
         self.config_path = config_path
         self.io = io
@@ -109,12 +112,15 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         #: The live view (``live.enabled``), started with the loop.
         self.live: LiveView | None = None
         #: Big requests and trajectory files are parsed in this worker process, not here.
-        self.intake = Intake(model.n_segments, cfg.limits.bend_rad)
+        self.intake = intake or Intake(model.n_segments, cfg.limits.bend_rad)
         #: Times ``stop`` on the CAN traffic a run logs (first quick-stop frame after a request).
         self.bus_tap = StopBusTap()
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> None:
+    def start(self, serve_socket: bool = True) -> None:
+        """Start the loop, the live view and the start-pose adoption; with ``serve_socket``
+        also the intake worker and the control socket (the rig process of
+        :mod:`cdcr_ctl.daemon.front` leaves both to its front process)."""
         # The arm may be bent (a restart): no tracker check until the loop holds the pose the
         # drives report (recovery.adopt_start_pose, in the background).
         restore_tracker = recovery.hold_tracker_check(self.supervisor)
@@ -133,14 +139,15 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
             name="start-pose",
             daemon=True,
         ).start()
-        self.intake.start()
-        self.server = ControlServer(
-            self.cfg.daemon.socket_path,
-            self.handle,
-            mode=self.cfg.daemon.socket_mode,
-            spooler=self.intake.parse_spooled,
-            spool_dir=self.intake.dir,
-        ).start()
+        if serve_socket:
+            self.intake.start()
+            self.server = ControlServer(
+                self.cfg.daemon.socket_path,
+                self.handle,
+                mode=self.cfg.daemon.socket_mode,
+                spooler=self.intake.parse_spooled,
+                spool_dir=self.intake.dir,
+            ).start()
         self.state = "ready"
         self.notifier.ready(f"ready: {self.cfg.name}, drives disabled")
         log.info("daemon ready on %s", self.cfg.daemon.socket_path)

@@ -299,6 +299,7 @@ def run_one(
         "floor_us": quantiles_us(floor.lateness_us),
         "floor_cycles": len(floor.lateness_us),
         "run_counters": run_info,
+        "front": _front_delta(before.get("front"), after.get("front")),
     }
     bus = rec["bus"]
     if bus is not None:
@@ -321,6 +322,16 @@ def run_one(
             "last_cycle": int(cyc[-1]) if len(cyc) else None,
         }
     return rec
+
+
+def _front_delta(before: dict | None, after: dict | None) -> dict | None:
+    """The window's ``status`` requests at the daemon's front process and the round trips they
+    cost the rig process (status is coalesced); None for a one-process daemon."""
+    if not before or not after:
+        return None
+    return {
+        k: after[k] - before[k] for k in ("status_requests", "status_round_trips") if k in after
+    }
 
 
 def counters_agree(rec: dict) -> bool:

@@ -20,6 +20,7 @@ timeout, drives' heartbeat consumer time), not from measurements; the measured v
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -66,6 +67,16 @@ def _rig_bounds(rig: Path) -> dict[str, float]:
         "consumer_s": min(d.heartbeat_consumer_ms for d in cfg.drives) / 1e3,
         "fsync_every_s": cfg.logging.fsync_every_s,
     }
+
+
+def _descendants(pid: int) -> list[int]:
+    """Process ids of ``pid``'s children, theirs, and so on (``/proc/<pid>/task/*/children``)."""
+    out: list[int] = []
+    for f in Path(f"/proc/{pid}/task").glob("*/children"):
+        with contextlib.suppress(OSError):
+            for child in (int(x) for x in f.read_text().split()):
+                out += [child, *_descendants(child)]
+    return out
 
 
 def _syncs(seconds: float, period_s: float) -> int:
@@ -208,13 +219,17 @@ def test_fault_matrix(tmp_path):
                 make_ready(work)
                 res = start_moving_run(work, "diskfull")
                 samples = Path(res["log_dir"]) / "samples.csv"
+                # The daemon is a process tree: the front, its rig process (which writes the
+                # run log) and their children; a full disk fails every process's writes.
+                tree = [d1.pid, *_descendants(d1.pid)]
                 soft, hard = resource.prlimit(d1.pid, resource.RLIMIT_FSIZE)
                 drives = fc.query("drives")["drives"]
                 inj = {
                     "t_s": time.monotonic(),
                     "syncs": {str(x["node"]): x["syncs"] for x in drives},
                 }
-                resource.prlimit(d1.pid, resource.RLIMIT_FSIZE, (samples.stat().st_size, hard))
+                for pid in tree:
+                    resource.prlimit(pid, resource.RLIMIT_FSIZE, (samples.stat().st_size, hard))
                 try:
                     st = wait_for(lambda: (s := status(work))["fault"] and s, 10, "trip")
                     assert st["fault"]["cause"] == "log_write_failed", st["fault"]
@@ -224,7 +239,9 @@ def test_fault_matrix(tmp_path):
                     assert held.all_safe and held.worst_syncs <= disk_bound, (disk_bound, held)
                     wait_for(lambda: status(work)["run"] is None, 10, "run end")
                 finally:
-                    resource.prlimit(d1.pid, resource.RLIMIT_FSIZE, (soft, hard))
+                    for pid in tree:
+                        with contextlib.suppress(ProcessLookupError):
+                            resource.prlimit(pid, resource.RLIMIT_FSIZE, (soft, hard))
                 run = wait_for(lambda: (r := load_run(res["log_dir"])).ended and r, 10, "closed")
                 assert run.ended["write_error"] and "samples.csv" in run.ended["write_error"]
                 assert run.ended["rows"]["written"] == len(run) > 50 and not run.warnings
@@ -259,7 +276,7 @@ def test_fault_matrix(tmp_path):
                 n_before = rows_on_disk(log_dir)
                 t_kill = time.monotonic()
                 drives = fc.query("drives")["drives"]
-                d1.send_signal(signal.SIGKILL)
+                os.killpg(d1.pid, signal.SIGKILL)  # front and rig process
                 d1.wait(10)
             inj = {"t_s": t_kill, "syncs": {str(x["node"]): x["syncs"] for x in drives}}
             safe = safe_after(fc, inj)

@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import time
 
@@ -40,7 +41,7 @@ def test_restart_with_the_arm_bent_needs_no_manual_step(tmp_path):
             st = wait_status(work, lambda s: s["run"] is None and s["runs"], 30)
             bent = [x["position_counts"] for x in st["drives"]]
             assert max(abs(b) for b in bent) > 1000
-            d.send_signal(signal.SIGKILL)
+            os.killpg(d.pid, signal.SIGKILL)  # front and rig process
             d.wait(10)
         with start_daemon(rig, tmp_path / "d2.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d2.log")

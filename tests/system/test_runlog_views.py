@@ -196,7 +196,7 @@ def test_sigkill_of_the_daemon_keeps_the_mcap_up_to_its_last_flush(rig_session):
     work, d = rig_session["work"], rig_session["daemon"]
     res = start_run(work, 20.0, "killed")
     time.sleep(3.0)
-    d.send_signal(signal.SIGKILL)
+    os.killpg(d.pid, signal.SIGKILL)  # front and rig process
     d.wait(10)
     run_dir = Path(res["log_dir"])
     csv_run = load_run(run_dir)  # the CSV: flushed every drain (50 ms), the reference here

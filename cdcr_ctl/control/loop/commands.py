@@ -179,6 +179,7 @@ class LoopCommands:
         }
 
     def _take_pending(self, now: float) -> None:
+        self.stop_flag.tick(self.counters.cycles)
         seq = self.stop_flag.requested
         if seq != self._flag_seen:
             self._flag_seen = seq

@@ -41,6 +41,7 @@ from cdcr_ctl.drives.group.cycle import _Cycle
 from cdcr_ctl.drives.group.sequences import _Sequences
 from cdcr_ctl.drives.group.startup import _Startup
 from cdcr_ctl.drives.group.supervision import _Supervision
+from cdcr_ctl.drives.group.traffic import DeferredTrafficLog
 from cdcr_ctl.drives.group.wire import _Network, _RxTap, _Wire
 from cdcr_ctl.drives.heartbeat import HeartbeatConsumer
 from cdcr_ctl.drives.plan import check_writes, object_table, planned_writes
@@ -108,7 +109,7 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         self._frames: collections.deque[tuple[float, str, int, bytes]] = collections.deque(
             maxlen=FRAME_RING
         )
-        self._traffic: can.Listener | None = None
+        self._traffic: DeferredTrafficLog | None = None
         self._traffic_lock = threading.Lock()
         #: Why the traffic log stopped on its own (a write error), or None.
         self.traffic_failure: str | None = None

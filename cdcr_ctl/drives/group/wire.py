@@ -7,7 +7,6 @@ A mixin of :class:`~cdcr_ctl.drives.group.facade.DriveGroup` (the state lives on
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -22,6 +21,7 @@ from cdcr_ctl.drives import epos
 from cdcr_ctl.drives.cia402 import State, state_of
 from cdcr_ctl.drives.epos import parse_tpdo_feedback
 from cdcr_ctl.drives.group.common import FAULT_TPDOS, Feedback, _Drive, format_frames
+from cdcr_ctl.drives.group.traffic import DeferredTrafficLog
 from cdcr_ctl.errors import CommError, DriveFault
 
 #: One logger for the whole group (the name it had before the group was split up).
@@ -182,22 +182,25 @@ class _Wire:
             log.exception("handling CAN frame 0x%03X failed", cob)
 
     def _log_frame(self, msg: can.Message) -> None:
-        """One frame to the traffic log. A write error (disk full) stops the traffic log and is
-        kept in :attr:`traffic_failure`; it is not a bus fault and never reaches the caller."""
+        """One frame to the traffic log: queued for its writer thread
+        (:class:`~.traffic.DeferredTrafficLog`: no formatting, no lock on the send and receive
+        paths). A write error (disk full) stops the traffic log and is kept in
+        :attr:`traffic_failure`; it is not a bus fault and never reaches the caller."""
         traffic = self._traffic
-        if traffic is None:
-            return
-        try:
-            with self._traffic_lock:
-                traffic.on_message_received(msg)
-        except (OSError, ValueError) as exc:
-            with self._traffic_lock:
-                if self._traffic is traffic:
-                    self._traffic = None
-                    self.traffic_failure = f"CAN traffic log: {exc}"
-                    with contextlib.suppress(Exception):
-                        traffic.stop()
-            log.error("CAN traffic log stopped: %s", exc)
+        if traffic is not None:
+            traffic.on_message_received(msg)
+
+    @property
+    def traffic_logging(self) -> bool:
+        """Whether a traffic log is running."""
+        return self._traffic is not None
+
+    def _traffic_failed(self, text: str) -> None:
+        """(the traffic log's writer thread) Its log stopped on a write error."""
+        self.traffic_failure = text
+        traffic = self._traffic
+        if traffic is not None and traffic.failed:
+            self._traffic = None
 
     def _on_rx_error(self, exc: Exception) -> None:
         """The bus listener failed to receive (adapter unplugged, interface down): latch a bus
@@ -275,7 +278,8 @@ class _Wire:
             if path is not None:
                 Path(path).parent.mkdir(parents=True, exist_ok=True)
                 logger = can.Logger(str(path))
-                self._traffic = logger if tap is None else _Tee(logger, tap)
+                listener = logger if tap is None else _Tee(logger, tap)
+                self._traffic = DeferredTrafficLog(listener, self._traffic_failed)
                 self.traffic_failure = None
 
     def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:

@@ -1,0 +1,249 @@
+"""The rig process: the control loop, its supervisor and the drive bus in a process of their own
+(issue #21), fed by the daemon's front process (:mod:`cdcr_ctl.daemon.front`) over a pipe.
+
+Why a process: the loop shares the Python interpreter lock with every thread of its process.
+Socket threads (hundreds of clients, slow clients, status floods), protocol parsing and the
+intake's bookkeeping all take it; in one process the loop at 1 kHz ran up to several ms late
+behind them (README, "The control plane cannot stall the loop"). Here the process holds only the
+rig side: the loop, the CAN notifier and traffic log, the sensors, the run-log writer (which
+owns its own writer child when the run log has one) and two command threads. The loop sets the
+process's interpreter switch interval to
+:data:`~cdcr_ctl.control.loop.GIL_SWITCH_INTERVAL_S` (50 us) when it starts: another thread of
+this process keeps the lock at most that long once the loop asks for it.
+
+:func:`rig_main` builds exactly what the one-process daemon builds (config, model, run-log
+factory, rig I/O, :class:`~cdcr_ctl.daemon.service.Daemon` with its loop and command handlers)
+but no control socket; it raises its priority before any of its threads start. Requests arrive
+already parsed and validated, as ``(tag, Request, extra)`` on a
+:class:`multiprocessing.connection.Connection`; replies go back as ``(tag, outcome)`` where
+``outcome`` is :func:`encode_outcome`'s tuple (the project's errors do not survive pickling).
+A big trajectory never crosses the pipe: the front's intake prepares it as a file in its own
+directory, which this process maps (``numpy.load(mmap_mode="r")``).
+
+Two command threads: ``status``, ``stop`` and ``shutdown`` on one (never behind a long command),
+every other command on the other, in arrival order (the daemon's command lock serialises them
+as before). ``stop`` has already been acted on when it arrives here: the front wrote the
+shared-memory :class:`~cdcr_ctl.control.stopflag.StopFlag`; this process only times it on the
+bus and updates its state (:func:`cdcr_ctl.daemon.recovery.await_stop`).
+"""
+
+from __future__ import annotations
+
+import builtins
+import contextlib
+import logging
+import queue
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from cdcr_ctl.config import load_rig_config
+from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.control import trajectory
+from cdcr_ctl.control.io import open_rig_io
+from cdcr_ctl.control.stopflag import StopFlag
+from cdcr_ctl.control.timing import try_realtime
+from cdcr_ctl.daemon import recovery
+from cdcr_ctl.daemon.commands_drive import stop_reaction
+from cdcr_ctl.daemon.intake import Intake
+from cdcr_ctl.daemon.notify import SystemdNotifier
+from cdcr_ctl.daemon.protocol import ProtocolError
+from cdcr_ctl.daemon.service import Daemon
+from cdcr_ctl.errors import ConfigError, RigError
+from cdcr_ctl.runlog.writer import RunLogFactory
+
+log = logging.getLogger(__name__)
+
+#: Slots of the shared integer array between the processes: the StopFlag's, then the rig's
+#: heartbeat (counts up while the loop runs: the front pets systemd's watchdog on it).
+HEARTBEAT = StopFlag.SLOTS
+SHARED_SLOTS = StopFlag.SLOTS + 1
+#: How often the rig process's heartbeat counts (s).
+HEARTBEAT_PERIOD_S = 0.2
+#: Commands served on the quick thread (never behind loading, planning or homing).
+QUICK_COMMANDS = ("status", "stop", "shutdown")
+
+
+def encode_outcome(fn: Any, *args: Any) -> tuple[Any, ...]:
+    """Run ``fn(*args)``; ``("ok", result)`` or the error as a plain tuple :func:`outcome`
+    raises again on the other side."""
+    try:
+        return ("ok", fn(*args))
+    except ConfigError as exc:
+        return ("config", exc.file, exc.key, exc.detail)
+    except ProtocolError as exc:
+        return ("protocol", str(exc), exc.field)
+    except RigError as exc:
+        return ("rig", str(exc))
+    except Exception as exc:  # a handler bug: its type and text, as the one-process daemon
+        log.exception("rig process: handler failed")
+        return ("internal", type(exc).__name__, str(exc))
+
+
+def outcome(out: tuple[Any, ...]) -> Any:
+    """The result of an :func:`encode_outcome` tuple, or its error raised."""
+    kind = out[0]
+    if kind == "ok":
+        return out[1]
+    if kind == "config":
+        raise ConfigError(out[1], out[2], out[3])
+    if kind == "protocol":
+        exc = ProtocolError("", out[2])
+        exc.args = (out[1],)
+        raise exc
+    if kind == "internal":
+        cls = getattr(builtins, out[1], None)
+        if not (isinstance(cls, type) and issubclass(cls, Exception)):
+            cls = RuntimeError
+        raise cls(out[2])
+    raise RigError(out[1])
+
+
+class RigCommandServer:
+    """Serves the front's requests to ``daemon`` over ``conn`` (see the module docstring)."""
+
+    def __init__(self, daemon: Any, conn: Any, shared: Any) -> None:
+        self.d, self.conn, self.shared = daemon, conn, shared
+        self._send_lock = threading.Lock()
+        self._quick: queue.Queue[Any] = queue.Queue()
+        self._slow: queue.Queue[Any] = queue.Queue()
+        self._closed = threading.Event()
+        self._threads = [
+            threading.Thread(target=self._read, name="rig-pipe", daemon=True),
+            threading.Thread(target=self._work, args=(self._quick,), name="rig-quick", daemon=True),
+            threading.Thread(target=self._work, args=(self._slow,), name="rig-cmd", daemon=True),
+            threading.Thread(target=self._beat, name="rig-heartbeat", daemon=True),
+        ]
+
+    def start(self) -> RigCommandServer:
+        for th in self._threads:
+            th.start()
+        return self
+
+    def send(self, message: Any) -> None:
+        # OSError/ValueError: the front is gone (its end of the pipe closed).
+        with self._send_lock, contextlib.suppress(OSError, ValueError):
+            self.conn.send(message)
+
+    def _read(self) -> None:
+        while not self._closed.is_set():
+            try:
+                tag, req, extra = self.conn.recv()
+            except (EOFError, OSError):
+                if not self._closed.is_set():
+                    log.error("rig process: the front process is gone; shutting down")
+                    self.d.request_stop("front process exited")
+                return
+            (self._quick if req.cmd in QUICK_COMMANDS else self._slow).put((tag, req, extra))
+
+    def _work(self, q: queue.Queue[Any]) -> None:
+        while True:
+            item = q.get()
+            if item is None:
+                return
+            tag, req, extra = item
+            self.send((tag, encode_outcome(self._handle, req, extra)))
+
+    def _handle(self, req: Any, extra: dict[str, Any]) -> Any:
+        if req.cmd == "stop" and "seq" in extra:
+            d = self.d
+            reaction = stop_reaction(req.args.mode)
+            acted = recovery.await_stop(
+                d, reaction, extra["seq"], extra["cycle"], extra["arrived_wall_s"]
+            )
+            return d.stopped(req.args.mode, acted)
+        return self.d.handle(req)
+
+    def _beat(self) -> None:
+        while not self._closed.wait(HEARTBEAT_PERIOD_S):
+            if self.d.loop.running:
+                self.shared[HEARTBEAT] += 1
+
+    def close(self, reason: str) -> None:
+        """Tell the front why this process ends, and stop serving."""
+        self._closed.set()
+        self.send((0, ("exited", reason)))
+        self._quick.put(None)
+        self._slow.put(None)
+
+
+def build_daemon(config_path: str, socket_path: str | None, intake_dir: str) -> Daemon:
+    """What the one-process ``cdcr-ctl daemon`` builds, with the front's intake directory and
+    no systemd notifications (the front is systemd's main process)."""
+    path = Path(config_path)
+    cfg = load_rig_config(path)
+    if socket_path:
+        cfg = cfg.model_copy(
+            update={"daemon": cfg.daemon.model_copy(update={"socket_path": socket_path})}
+        )
+    model = build_model(cfg, source=str(path))
+    # The run log's /tip/model: a model instance of its own (the writer's, not the loop's).
+    sinks = RunLogFactory.from_config(
+        cfg, path, tip_from_psi=build_model(cfg, source=str(path)).tip
+    )
+    # Before any thread of this process exists: every thread inherits the policy.
+    try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
+    io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
+    attach = getattr(model, "attach_attitude", None)
+    if attach is not None and io.attitude is not None:
+        attach(io.attitude)
+    intake = Intake(model.n_segments, cfg.limits.bend_rad, directory=intake_dir)
+    return Daemon(
+        cfg,
+        path,
+        io,
+        model,
+        sinks,
+        trajectory,
+        notifier=SystemdNotifier(address=""),
+        intake=intake,
+    )
+
+
+def rig_main(
+    conn: Any,
+    shared: Any,
+    config_path: str,
+    socket_path: str | None,
+    intake_dir: str,
+    verbose: bool,
+) -> None:
+    """(the rig process's main) Build the daemon, start its loop, tell the front ``ready`` and
+    serve until SIGTERM/SIGINT, ``shutdown`` or the front's end; exits 0 after an ordered
+    shutdown (halt, logs closed, drives disabled, bus closed), 2 when start-up failed."""
+    logging.basicConfig(
+        level=logging.DEBUG if verbose else logging.INFO,
+        format="%(asctime)s %(levelname)s %(name)s[rig]: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        d = build_daemon(config_path, socket_path, intake_dir)
+    except BaseException as exc:
+        conn.send((0, ("failed", f"{type(exc).__name__}: {exc}")))
+        raise SystemExit(2) from exc
+    d.loop.stop_flag.store = shared  # the front raises it directly
+    try:
+        d.start(serve_socket=False)
+    except BaseException as exc:
+        d.shutdown("start-up failed")
+        conn.send((0, ("failed", f"{type(exc).__name__}: {exc}")))
+        raise SystemExit(2) from exc
+    server = RigCommandServer(d, conn, shared).start()
+    conn.send((0, ("ready", {"rig": d.cfg.name, "at": time.time()})))
+    reason = d.serve()
+    server.close(reason)
+    log.info("rig process ends: %s", reason)
+
+
+__all__ = [
+    "HEARTBEAT",
+    "QUICK_COMMANDS",
+    "SHARED_SLOTS",
+    "RigCommandServer",
+    "build_daemon",
+    "encode_outcome",
+    "outcome",
+    "rig_main",
+]

@@ -1,0 +1,53 @@
+"""The CAN traffic log's own writer thread (issue #21): the send and receive paths only queue;
+every frame reaches the file in order, and a write error stops the log without reaching them."""
+
+from __future__ import annotations
+
+import can
+
+from cdcr_ctl.drives.group.traffic import DeferredTrafficLog
+
+
+class _Collect(can.Listener):
+    def __init__(self, fail_at: int | None = None) -> None:
+        self.frames: list[tuple[int, bytes]] = []
+        self.stopped = 0
+        self.fail_at = fail_at
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if self.fail_at is not None and len(self.frames) == self.fail_at:
+            raise OSError(28, "No space left on device")
+        self.frames.append((msg.arbitration_id, bytes(msg.data)))
+
+    def stop(self) -> None:
+        self.stopped += 1
+
+
+def _msg(cob: int, data: bytes) -> can.Message:
+    return can.Message(arbitration_id=cob, data=data, is_extended_id=False)
+
+
+def test_every_queued_frame_reaches_the_listener_in_order_and_stop_flushes_them():
+    sink = _Collect()
+    log = DeferredTrafficLog(sink, on_failure=lambda text: None)
+    sent = [(0x080, b""), (0x201, b"\x0f\x00"), (0x181, b"\x37\x06\x00\x00"), (0x701, b"\x05")]
+    for _ in range(250):
+        for cob, data in sent:
+            log.on_message_received(_msg(cob, data))
+    log.stop()
+    assert sink.frames == sent * 250
+    assert sink.stopped == 1 and not log.failed
+
+
+def test_a_write_error_stops_the_log_and_is_reported_once():
+    sink = _Collect(fail_at=3)
+    failures: list[str] = []
+    log = DeferredTrafficLog(sink, on_failure=failures.append)
+    for i in range(10):
+        log.on_message_received(_msg(0x080 + i, b""))
+    log.drain()
+    assert log.failed and len(sink.frames) == 3
+    assert failures == ["CAN traffic log: [Errno 28] No space left on device"]
+    log.on_message_received(_msg(0x080, b""))  # after the failure: dropped, no error raised
+    log.stop()
+    assert len(sink.frames) == 3 and sink.stopped == 1 and len(failures) == 1

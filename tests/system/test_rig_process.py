@@ -1,0 +1,93 @@
+"""System (issue #21): the daemon's rig side runs in a process of its own. If it dies the front
+says so in ``status`` and exits non-zero (systemd restarts the unit); if the front dies the rig
+process shuts down in order (run log closed, drives disabled) instead of running on unsupervised.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import pytest
+from syshelp import client, session, start_daemon, start_sim, wait_for_socket, wait_status
+
+from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.daemon.front import EXIT_RIG_DIED, RIG_EXIT_REPORT_S, RIG_STOP_TIMEOUT_S
+from cdcr_ctl.runlog import load_run
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+
+
+def _start_run(work) -> dict:
+    traj = tj.go_and_return(theta_max_rad=0.6, rate_rad_s=0.06)
+    with client(work) as c:
+        c.call("enable")
+        return c.call("trajectory", name="rigproc", samples=traj.rows(), compensation="model")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie (exited, not reaped by its dead parent yet) is gone for our purpose.
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_gone(pid: int, timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while _alive(pid):
+        assert time.monotonic() < end, f"process {pid} still running after {timeout_s} s"
+        time.sleep(0.1)
+
+
+def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(tmp_path):
+    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
+        # The rig process dies (SIGKILL): the front reports it, then exits with its own status.
+        with start_daemon(rig, tmp_path / "d1.log") as d:
+            wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
+            with client(work) as c:
+                front = c.call("status")["front"]
+            assert front["pid"] == d.pid and front["rig_pid"] != d.pid
+            _start_run(work)
+            os.kill(front["rig_pid"], signal.SIGKILL)
+            st = wait_status(work, lambda s: s["state"].startswith("fault: rig process"))
+            assert st["state"].startswith("fault: rig process exited -9"), st["state"]
+            assert st["fault"]["cause"] == "rig_process_exited" and st["enabled"] is False
+            with client(work) as c, pytest.raises(Exception, match="rig process exited -9"):
+                c.call("enable")
+            assert d.wait(RIG_EXIT_REPORT_S + RIG_STOP_TIMEOUT_S + 30) == EXIT_RIG_DIED
+
+        # The front dies (SIGKILL of the front alone): the rig process ends the run, closes its
+        # log, disables the drives and exits.
+        with start_daemon(rig, tmp_path / "d2.log") as d:
+            wait_for_socket(work / "control.sock", d, tmp_path / "d2.log")
+            wait_status(work, lambda s: all(x["state"] != "UNKNOWN" for x in s["drives"]))
+            with client(work) as c:
+                c.call("reset_fault", confirm=True)
+                rig_pid = c.call("status")["front"]["rig_pid"]
+            res = _start_run(work)
+            time.sleep(1.0)
+            d.send_signal(signal.SIGKILL)
+            d.wait(10)
+            _wait_gone(rig_pid, RIG_STOP_TIMEOUT_S + 30)
+        run = load_run(res["log_dir"])
+        assert run.ended is not None and run.ended["outcome"] == "stopped", run.ended
+        assert not run.warnings and len(run) > 50
+        log = (tmp_path / "d2.log").read_text()
+        assert "front process is gone" in log
+
+        # Nothing left over: the next daemon starts, finds the drives disabled, and runs.
+        with start_daemon(rig, tmp_path / "d3.log") as d:
+            wait_for_socket(work / "control.sock", d, tmp_path / "d3.log")
+            st = wait_status(work, lambda s: all(x["state"] != "UNKNOWN" for x in s["drives"]))
+            assert all(x["state"] != "OPERATION ENABLED" for x in st["drives"])
+            with client(work) as c:
+                c.call("reset_fault", confirm=True)
+                c.call("enable")
+                assert c.call("status")["enabled"]
