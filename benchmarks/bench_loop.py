@@ -57,8 +57,10 @@ from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.control.timing import Ticker, try_realtime
 from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import open_drive_group
+from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
-from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata
+from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata, new_run_dir
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
@@ -209,9 +211,11 @@ class RunLogBench:
         self.kind = args.runlog
         second = McapSinkFactory(model.tip, args.rate) if self.kind == "mcap" else None
         meta = RunMetadata(name=f"bench-{self.kind}", rate_hz=args.rate)
-        self.writer = RunLogWriter.create(
-            Path(work) / "runs", meta, model.n_segments, model.n_cables, second_sink=second
-        )
+        self.writer_kind = getattr(args, "writer", "thread")
+        cls = ProcessRunLogWriter if self.writer_kind == "process" else RunLogWriter
+        cols = sample_columns(model.n_segments, model.n_cables, LOOP_EXTRA_COLUMNS)
+        run_dir = new_run_dir(Path(work) / "runs", meta.name)
+        self.writer = cls(run_dir, cols, meta, second_sink=second)
         self.loop, self.group = loop, group
         self.samples = np.zeros(int(args.seconds * args.rate * 1.5) + 1000)
         self.n = 0
@@ -240,7 +244,8 @@ class RunLogBench:
         sizes = {p.name: p.stat().st_size for p in run_dir.iterdir() if p.is_file()}
         per_row = {k: v / max(st.written, 1) for k, v in sizes.items()}
         return [
-            f"run log ({self.kind}): log stage mean {log_us.mean():.1f} us, p50 "
+            f"run log ({self.kind}, writer {self.writer_kind}): log stage mean "
+            f"{log_us.mean():.1f} us, p50 "
             f"{np.percentile(log_us, 50):.1f}, p99 {np.percentile(log_us, 99):.1f}, p99.9 "
             f"{np.percentile(log_us, 99.9):.1f}, max {log_us.max():.1f} us over {len(log_us)} "
             "cycles",
@@ -285,6 +290,13 @@ def main() -> None:
         default="none",
         help="log every cycle as the daemon does: csv = samples.csv, mcap = samples.csv + "
         "run.mcap (with the CAN frames); prints the log stage's percentiles and bytes per hour",
+    )
+    ap.add_argument(
+        "--writer",
+        choices=("process", "thread"),
+        default="process",
+        help="with --runlog: encode and write in a writer process fed through shared memory "
+        "(logging.writer: process, the default) or in a thread of this process (the old writer)",
     )
     ap.add_argument(
         "--backlash-mm",

@@ -103,6 +103,10 @@ class LoggingConfig(Section):
     #: Also write the run as ``run.mcap`` (Foxglove, PlotJuggler): one channel per stream, zstd
     #: chunks closed and flushed every ``fsync_every_s``. ``samples.csv`` is written either way.
     mcap: bool = True
+    #: Where the rows are encoded and written: ``process`` (a writer process of its own; the
+    #: loop only copies each row's numbers into shared memory, so the encoding never holds the
+    #: loop's interpreter lock) or ``thread`` (a thread of the daemon, as before).
+    writer: Literal["process", "thread"] = "process"
 
 
 class LiveViewConfig(Section):

@@ -13,7 +13,8 @@ import yaml
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
-from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata
+from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
 from cdcr_ctl.runlog.writer.thread import DEFAULT_QUEUE_ROWS, RunLogWriter
 
 if TYPE_CHECKING:
@@ -21,7 +22,11 @@ if TYPE_CHECKING:
 
 
 class RunLogFactory:
-    """Makes one :class:`RunLogWriter` per run with the rig's metadata and config copy.
+    """Makes one run-log writer per run with the rig's metadata and config copy.
+
+    ``writer``: ``"process"`` (default, ``logging.writer``): a
+    :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`, the encoding in a writer
+    process of its own; ``"thread"``: a :class:`RunLogWriter` thread in this process.
 
     Called as ``factory(name, compensation, trajectory="")`` (the daemon's ``run_sink_factory``).
     ``config_text`` is the rig config file as loaded; ``effective_config`` (optional) the
@@ -46,7 +51,11 @@ class RunLogFactory:
         on_failure: Callable[[str], None] | None = None,
         mcap: bool = False,
         tip_from_psi: Callable[[Any], Any] | None = None,
+        writer: str = "process",
     ) -> None:
+        if writer not in ("process", "thread"):
+            raise ValueError(f"writer {writer!r}: use 'process' or 'thread'")
+        self.writer = writer
         self.base_dir = Path(base_dir)
         #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
         #: tip of a commanded pose for its ``/tip/model`` channel.
@@ -100,10 +109,13 @@ class RunLogFactory:
             effective_config=effective,
             fsync_every_s=cfg.logging.fsync_every_s,
             mcap=cfg.logging.mcap,
+            writer=cfg.logging.writer,
             **kwargs,
         )
 
-    def __call__(self, name: str, compensation: str, trajectory: str = "") -> RunLogWriter:
+    def __call__(
+        self, name: str, compensation: str, trajectory: str = ""
+    ) -> RunLogWriter | ProcessRunLogWriter:
         meta = RunMetadata(
             name=name,
             rig=self.rig,
@@ -113,12 +125,11 @@ class RunLogFactory:
             trajectory=trajectory or name,
         )
         extra = {EFFECTIVE_CONFIG_YAML: self.effective_config} if self.effective_config else None
-        return RunLogWriter.create(
-            self.base_dir,
+        cls = ProcessRunLogWriter if self.writer == "process" else RunLogWriter
+        return cls(
+            new_run_dir(self.base_dir, meta.name),
+            sample_columns(self.n_segments, self.n_cables, self.extra_columns),
             meta,
-            self.n_segments,
-            self.n_cables,
-            self.extra_columns,
             config_text=self.config_text,
             config_source=self.config_source,
             extra_files=extra,

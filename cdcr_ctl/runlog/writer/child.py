@@ -1,0 +1,180 @@
+"""The run-log writer process: ``python -m cdcr_ctl.runlog.writer.child``.
+
+Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`. Reads its settings
+(a length-prefixed pickle) from stdin, maps the shared ring from the inherited descriptor, leaves
+any real-time scheduling it inherited and lowers its priority, makes an ordinary
+:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` in the run directory and answers ``ready``
+(or ``error: ...``) on stdout. Then, every drain interval: moves the ring's rows and CAN frames to
+that writer, publishes its counters and any write error in the shared header, and ends when
+
+- the loop's process asks it to close: drains the ring, closes the run with the given outcome;
+- the loop's process is gone (its parent changed: SIGKILL, a crash): drains what the ring holds
+  and closes the run with outcome ``aborted``, so the files end whole.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import os
+import pickle
+import signal
+import struct
+import sys
+import time
+from typing import Any
+
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.columns import TEXT_COLUMNS
+from cdcr_ctl.runlog.writer.ring import (
+    DONE,
+    FAILED,
+    READY,
+    ROW_DROPPED,
+    ROW_HEAD,
+    ROW_TAIL,
+    W_BYTES,
+    W_DROPPED,
+    W_FSYNCS,
+    W_LOST,
+    W_WRITTEN,
+    SharedRing,
+)
+from cdcr_ctl.runlog.writer.thread import RunLogWriter
+
+log = logging.getLogger("cdcr_ctl.runlog.writer")
+
+#: Columns written back as integers (when the number is whole).
+INT_COLUMNS = frozenset({"cycle"})
+#: Reason recorded when the loop's process died with the run open.
+PARENT_GONE = "the daemon process ended with the run open (the writer process drained the ring)"
+
+
+def _low_priority(nice: int) -> None:
+    """Leave SCHED_FIFO/RR (inherited from a real-time daemon) and lower the priority. A
+    Ctrl-C in the terminal or a service manager's SIGTERM to the whole group goes to the
+    daemon, which closes the run: this process follows its close request (or its death)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    with contextlib.suppress(OSError, AttributeError):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    with contextlib.suppress(OSError):
+        os.nice(nice)
+
+
+class RingDrain:
+    """Moves rows from the ring to ``writer`` in column order (numbers back to Python values)."""
+
+    def __init__(self, ring: SharedRing, writer: RunLogWriter, columns: list[str]) -> None:
+        self.ring, self.writer = ring, writer
+        num_cols = [c for c in columns if c not in TEXT_COLUMNS]
+        text = [c for c in columns if c in TEXT_COLUMNS]
+        self.text_pos = columns.index(text[0]) if text else -1
+        self.int_pos = [j for j, c in enumerate(num_cols) if c in INT_COLUMNS]
+        self.cap = ring.layout.rows
+        self.n = len(num_cols)
+
+    def rows(self) -> int:
+        """Hand every published row to the writer; the number moved."""
+        hdr = self.ring.hdr
+        tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
+        nums, write = self.ring.nums, self.writer.write
+        for seq in range(tail, head):
+            slot = seq % self.cap
+            values: list[Any] = nums[slot].tolist()
+            n_text = int(values.pop())
+            for j in self.int_pos:
+                v = values[j]
+                if v == v and not math.isinf(v) and v == int(v):
+                    values[j] = int(v)
+            for j, v in enumerate(values):
+                if v != v:
+                    values[j] = None
+            if self.text_pos >= 0:
+                values.insert(self.text_pos, self.ring.get_event(slot, n_text) if n_text else "")
+            write(values)
+        hdr[ROW_TAIL] = head
+        return head - tail
+
+    def frames(self) -> None:
+        tap = self.writer.can_tap
+        frames = self.ring.take_frames()
+        if tap is not None:
+            tap.queue.extend(frames)
+
+    def publish(self) -> None:
+        s, hdr = self.writer.stats, self.ring.hdr
+        hdr[W_WRITTEN], hdr[W_LOST], hdr[W_FSYNCS], hdr[W_BYTES] = (
+            s.written,
+            s.lost,
+            s.fsyncs,
+            s.bytes,
+        )
+        hdr[W_DROPPED] = s.dropped - self.upstream
+        if self.writer.failure is not None and not hdr[FAILED]:
+            self.ring.set_failure(self.writer.failure)
+
+    upstream = 0
+
+    def all(self) -> None:
+        self.frames()
+        while self.rows():
+            pass
+        self.frames()
+
+
+def main() -> int:
+    raw = sys.stdin.buffer
+    (n,) = struct.unpack("<Q", raw.read(8))
+    spec = pickle.loads(raw.read(n))
+    out = sys.stdout
+    ring = SharedRing(spec["layout"], spec["fd"])
+    _low_priority(spec["nice"])
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    parent = os.getppid()
+    failures: list[str] = []
+    try:
+        writer = RunLogWriter(
+            spec["run_dir"],
+            spec["columns"],
+            spec["metadata"],
+            config_text=spec["config_text"],
+            config_source=spec["config_source"],
+            extra_files=spec["extra_files"],
+            fsync_every_s=spec["fsync_every_s"],
+            max_queued_rows=2 * spec["layout"].rows,
+            drain_interval_s=spec["drain_interval_s"],
+            second_sink=spec["second_sink"],
+            on_failure=failures.append,
+        )
+    except (RigError, OSError, ValueError) as exc:
+        out.write(f"error: {exc}\n")
+        out.flush()
+        return 1
+    ring.hdr[READY] = 1
+    out.write("ready\n")
+    out.flush()
+    drain = RingDrain(ring, writer, list(spec["columns"]))
+    period = spec["drain_interval_s"]
+    reason, outcome = PARENT_GONE, "aborted"
+    while True:
+        request = ring.close_request()
+        gone = os.getppid() != parent
+        drain.all()
+        drain.publish()
+        if request is not None or gone:
+            if request is not None:
+                reason, outcome = request["reason"], request["outcome"]
+            break
+        time.sleep(period)
+    drain.upstream = int(ring.hdr[ROW_DROPPED])
+    writer._dropped += drain.upstream  # rows the loop's side refused count in run.yaml too
+    writer.close(reason, outcome=outcome)
+    drain.publish()
+    ring.hdr[DONE] = 1
+    return 0 if writer.failure is None else 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,438 @@
+"""The run-log writer in a process of its own: the loop's process only copies numbers.
+
+:class:`ProcessRunLogWriter` has the interface of
+:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``write``, ``failure``, ``stats``,
+``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
+into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
+process (``python -m cdcr_ctl.runlog.writer.child``, niced, never real-time) drains the ring and
+runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the flushes and fsyncs every
+``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end all happen as before, but
+under the writer process's interpreter lock, which the loop never waits for.
+
+- A write error in the writer process is published in the shared header; :attr:`failure` reads
+  it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
+- A full ring refuses the row (``write`` returns False, counted as dropped, as the thread writer's
+  full queue does).
+- The writer process exiting without closing the run (a crash) is also a failure.
+- If the loop's process dies (SIGKILL), the writer process sees its parent change, drains what is
+  in the ring, and closes the run with outcome ``aborted``: ``samples.csv`` and ``run.mcap`` end
+  complete, ``run.mcap`` with its summary and footer.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import math
+import os
+import pickle
+import select
+import struct
+import subprocess
+import sys
+import threading
+import time
+import weakref
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
+from cdcr_ctl.runlog.writer.files import LogStats, RunMetadata, can_log_path, utc_now_iso
+from cdcr_ctl.runlog.writer.ring import (
+    CAN_DROPPED,
+    CLOSE,
+    DONE,
+    ROW_DROPPED,
+    ROW_HEAD,
+    ROW_TAIL,
+    W_BYTES,
+    W_DROPPED,
+    W_FSYNCS,
+    W_LOST,
+    W_WRITTEN,
+    RingLayout,
+    SharedRing,
+)
+from cdcr_ctl.runlog.writer.thread import CLOSE_TIMEOUT_S, DEFAULT_QUEUE_ROWS, DRAIN_INTERVAL_S
+
+log = logging.getLogger("cdcr_ctl.runlog.writer")
+
+#: How long the constructor waits for the writer process to open its files (s): an interpreter
+#: start and the imports, well under a second on an idle machine, seconds on a loaded one.
+START_TIMEOUT_S = 60.0
+#: CAN frames the ring holds: 5 s at 10 000 frames/s (a 1 kHz loop with 3 drives sends and
+#: receives about 8 a cycle).
+DEFAULT_CAN_FRAMES = 50_000
+#: Rows between two checks that the writer process still runs (a ``waitpid`` each).
+ALIVE_EVERY_ROWS = 256
+#: Columns written back as integers by the writer process.
+INT_COLUMNS = frozenset({"cycle"})
+#: Nice increment of the writer process.
+WRITER_NICE = 5
+
+_OPEN: weakref.WeakSet[ProcessRunLogWriter] = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open() -> None:
+    """An interpreter exit closes any run log left open (outcome ``aborted``)."""
+    for writer in list(_OPEN):
+        writer.close("process exit with the log still open", outcome="aborted")
+
+
+class RingCanTap(can.Listener):
+    """A python-can listener putting frames into the ring's CAN records for ``/can``. Any thread
+    may call it (a lock orders the producers); a full ring counts the frame as dropped."""
+
+    def __init__(self, ring: SharedRing) -> None:
+        self._ring = ring
+        self._lock = threading.Lock()
+        self.dropped = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        flags = (
+            msg.is_extended_id | msg.is_rx << 1 | msg.is_error_frame << 2 | msg.is_remote_frame << 3
+        )
+        with self._lock:
+            ring = self._ring
+            if ring is None or not ring.put_frame(
+                msg.timestamp, msg.arbitration_id, flags, msg.dlc, bytes(msg.data)
+            ):
+                self.dropped += 1
+                if ring is not None:
+                    ring.hdr[CAN_DROPPED] = self.dropped
+
+    def detach(self) -> None:
+        with self._lock:
+            self._ring = None
+
+    def stop(self) -> None:  # python-can API; nothing to release
+        pass
+
+
+class ProcessRunLogWriter:
+    """Writes one run directory through a writer process. Use as a context manager or call
+    :meth:`close`.
+
+    Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``second_sink`` must
+    pickle: the writer process makes the sink). ``run_dir`` must be empty or not exist. Raises
+    :class:`RigError` naming the path if the writer process cannot start or open the files.
+    """
+
+    def __init__(
+        self,
+        run_dir: str | Path,
+        columns: Sequence[str],
+        metadata: RunMetadata,
+        *,
+        config_text: str | None = None,
+        config_source: str = "",
+        extra_files: Mapping[str, str] | None = None,
+        fsync_every_s: float = 0.5,
+        max_queued_rows: int = DEFAULT_QUEUE_ROWS,
+        on_failure: Callable[[str], None] | None = None,
+        drain_interval_s: float = DRAIN_INTERVAL_S,
+        second_sink: Any = None,
+        can_frames: int = DEFAULT_CAN_FRAMES,
+    ) -> None:
+        if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
+            raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+        self.run_dir = Path(run_dir)
+        self.columns = list(columns)
+        if len(set(self.columns)) != len(self.columns) or not self.columns:
+            raise ValueError("columns must be a non-empty list of distinct names")
+        self.metadata = metadata
+        self.samples_path = self.run_dir / "samples.csv"
+        self.fsync_every_s = float(fsync_every_s)
+        self.max_queued_rows = int(max_queued_rows)
+        self._on_failure = on_failure
+        #: Numeric columns (ring order = column order without the text columns) and the text one.
+        self._num_cols = [c for c in self.columns if c not in TEXT_COLUMNS]
+        self._num_index = {c: j for j, c in enumerate(self._num_cols)}
+        text = [c for c in self.columns if c in TEXT_COLUMNS]
+        self._text_col = text[0] if text else None
+        self._text_pos = self.columns.index(text[0]) if text else -1
+        self._parts_keys: Any = None
+        self._parts_index: Any = None
+        self._warned = False
+        self._queued = 0
+        self._dropped = 0
+        self._head = 0
+        self._closing = False
+        self._failure: str | None = None
+        self._notified = False
+        self._exit_checked = False
+
+        layout = RingLayout(len(self._num_cols), self.max_queued_rows, can_frames)
+        try:
+            self._ring = SharedRing.create(layout)
+        except OSError as exc:
+            raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
+        self._cap = layout.rows
+        spec = {
+            "run_dir": str(self.run_dir),
+            "columns": self.columns,
+            "metadata": metadata,
+            "config_text": config_text,
+            "config_source": config_source,
+            "extra_files": dict(extra_files or {}),
+            "fsync_every_s": self.fsync_every_s,
+            "drain_interval_s": float(drain_interval_s),
+            "second_sink": second_sink,
+            "layout": layout,
+            "fd": self._ring.fd,
+            "nice": WRITER_NICE,
+        }
+        try:
+            blob = pickle.dumps(spec)
+        except Exception as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: the run log's settings do not pickle: {exc}") from exc
+        self._proc = self._start(blob)
+        self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
+        _OPEN.add(self)
+
+    def _start(self, blob: bytes) -> subprocess.Popen:
+        cmd = [sys.executable, "-m", "cdcr_ctl.runlog.writer.child"]
+        try:
+            proc = subprocess.Popen(
+                cmd,
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                pass_fds=(self._ring.fd,),
+                close_fds=True,
+            )
+        except OSError as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
+        try:
+            proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
+            proc.stdin.close()
+            line = self._read_line(proc.stdout, START_TIMEOUT_S)
+        except OSError as exc:
+            line = f"error: {exc}"
+        if line != "ready":
+            proc.kill()
+            proc.wait()
+            self._ring.close()
+            why = line.removeprefix("error: ") if line else "the writer process did not start"
+            raise RigError(f"{self.run_dir}: cannot start the run log: {why}")
+        proc.stdout.close()
+        return proc
+
+    @staticmethod
+    def _read_line(stream: Any, timeout_s: float) -> str:
+        fd, data, end = stream.fileno(), b"", time.monotonic() + timeout_s
+        while not data.endswith(b"\n"):
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                return ""
+            chunk = os.read(fd, 4096)
+            if not chunk:
+                break
+            data += chunk
+        return data.decode("utf-8", "replace").strip()
+
+    # ------------------------------------------------------------------ real-time side
+    def write(self, row: Any) -> bool:
+        """Copy one row's numbers into the ring; never blocks, never raises. False: dropped.
+
+        ``row``: a mapping column -> value, a sequence in column order, or an object with
+        ``row_parts()`` -> (names of the values, float64 values, ``t_s``, ``cycle``,
+        ``lateness_us``, ``event``) such as the loop's ``CycleRow`` (the names tuple is the
+        same object from row to row; its column positions are looked up once). Numbers go as
+        float64 (``cycle`` comes back as an integer), None and NaN
+        as empty; the ``event`` column as text (cut at the ring's
+        :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
+        """
+        ring = self._ring
+        head = self._head
+        if (
+            ring is None
+            or self._closing
+            or self._failure is not None
+            or head - int(ring.hdr[ROW_TAIL]) >= self._cap
+        ):
+            self._dropped += 1
+            if ring is not None and not self._closing:
+                ring.hdr[ROW_DROPPED] = self._dropped
+            return False
+        slot = head % self._cap
+        nums = ring.nums[slot]
+        try:
+            parts = getattr(row, "row_parts", None)
+            if parts is not None:
+                keys, values, t_s, cycle, lateness_us, text = parts()
+                if keys is not self._parts_keys:
+                    self._index_parts(keys)
+                nums[self._parts_index] = values
+                nums[self._j_time] = t_s
+                nums[self._j_cycle] = cycle
+                nums[self._j_lateness] = lateness_us
+                if self._parts_missing is not None:
+                    nums[self._parts_missing] = math.nan
+            else:
+                text = self._fill_plain(row, nums)
+            if text:
+                ring.put_event(slot, str(text))
+            else:
+                nums[-1] = 0.0
+        except Exception as exc:  # a row this writer cannot take: dropped, said once
+            if not self._warned:
+                self._warned = True
+                log.warning("%s: a row could not be logged: %s", self.samples_path, exc)
+            self._dropped += 1
+            ring.hdr[ROW_DROPPED] = self._dropped
+            return False
+        self._head = head + 1
+        ring.hdr[ROW_HEAD] = head + 1
+        self._queued += 1
+        if self._queued % ALIVE_EVERY_ROWS == 0:
+            self._check_alive()
+        return True
+
+    def _index_parts(self, keys: Sequence[str]) -> None:
+        idx = self._num_index
+        head = (TIME, "cycle", "lateness_us")
+        unknown = [k for k in (*keys, *head) if k not in idx]
+        if unknown:
+            raise ValueError(f"row names not among the columns: {unknown}")
+        self._parts_index = np.array([idx[k] for k in keys], dtype=np.intp)
+        self._j_time, self._j_cycle, self._j_lateness = (idx[k] for k in head)
+        have = {*keys, *head}
+        missing = [j for j, c in enumerate(self._num_cols) if c not in have]
+        self._parts_missing = np.array(missing, dtype=np.intp) if missing else None
+        self._parts_keys = keys
+
+    def _fill_plain(self, row: Any, nums: Any) -> str:
+        if isinstance(row, Mapping):
+            if not self._warned and not set(row).issubset(self.columns):
+                self._warned = True
+                unknown = sorted(set(row) - set(self.columns))
+                log.warning("%s: unknown keys ignored: %s", self.samples_path, unknown)
+            values = [row.get(c) for c in self._num_cols]
+            text = row.get(self._text_col) if self._text_col else None
+        else:
+            seq = list(row)
+            seq = (seq + [None] * len(self.columns))[: len(self.columns)]
+            text = seq.pop(self._text_pos) if self._text_pos >= 0 else None
+            values = seq
+        nums[:-1] = [math.nan if v is None else float(v) for v in values]
+        return "" if text is None else str(text)
+
+    def _check_alive(self) -> None:
+        if self._exit_checked or self._proc.poll() is None:
+            return
+        self._exit_checked = True
+        if not self._ring.hdr[DONE] and self._failure is None:
+            self._failure = (
+                f"{self.samples_path}: the run-log writer process ended "
+                f"(exit status {self._proc.returncode}) before the run was closed"
+            )
+            log.error("run log stopped: %s", self._failure)
+            self._notify()
+
+    def _notify(self) -> None:
+        if self._notified or self._on_failure is None:
+            return
+        self._notified = True
+        try:
+            self._on_failure(self._failure)
+        except Exception:
+            log.exception("run log on_failure callback raised")
+
+    @property
+    def failure(self) -> str | None:
+        """Text of the write error that stopped this log (file and cause), or None."""
+        if self._failure is None:
+            text = self._ring.failure() if self._ring is not None else None
+            if text is not None:
+                self._failure = text
+                self._notify()
+        return self._failure
+
+    @property
+    def error(self) -> BaseException | None:
+        """The writer process's error as an OSError-like text holder (the exception itself
+        stays in that process)."""
+        return None if self.failure is None else OSError(self.failure)
+
+    @property
+    def closed(self) -> bool:
+        """True once the writer process has finished (everything written, run.yaml updated)."""
+        return self._proc.poll() is not None
+
+    @property
+    def stats(self) -> LogStats:
+        h = self._ring.hdr if self._ring is not None else self._final
+        return LogStats(
+            self._queued,
+            int(h[W_WRITTEN]),
+            self._dropped + int(h[W_DROPPED]),
+            int(h[W_LOST]) + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
+            int(h[W_FSYNCS]),
+            int(h[W_BYTES]),
+        )
+
+    def can_log_path(self, fmt: str = "asc") -> Path:
+        """Path reserved for the raw CAN traffic of this run."""
+        return can_log_path(self.run_dir, fmt)
+
+    def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
+        """End the run log: the writer process drains the ring, fsyncs and records
+        ``outcome``/``reason`` in run.yaml. ``wait=False`` returns at once (use that from the
+        loop); :meth:`wait_closed` waits. A second call changes nothing. Never raises."""
+        if not self._closing:
+            self._closing = True
+            if self.can_tap is not None:
+                self.can_tap.detach()
+            self._ring.request_close(str(reason), outcome or "closed", utc_now_iso())
+        if wait:
+            self.wait_closed(CLOSE_TIMEOUT_S)
+
+    def wait_closed(self, timeout_s: float | None = None) -> bool:
+        """Wait until the writer process has finished after :meth:`close`; False on timeout."""
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return False
+        self._release()
+        return True
+
+    def _release(self) -> None:
+        ring = self._ring
+        if ring is None:
+            return
+        self._check_alive_final()
+        self._final = [int(v) for v in ring.hdr]
+        self._ring = None
+        _OPEN.discard(self)
+        ring.close()
+
+    def _check_alive_final(self) -> None:
+        if self._ring.hdr[CLOSE] and not self._ring.hdr[DONE] and self._failure is None:
+            self._failure = (
+                f"{self.samples_path}: the run-log writer process ended "
+                f"(exit status {self._proc.returncode}) before it closed the run"
+            )
+            log.error("run log: %s", self._failure)
+        self.failure  # noqa: B018 - picks up a failure the writer published last
+
+    def __enter__(self) -> ProcessRunLogWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc is None:
+            self.close("closed")
+        else:
+            self.close(f"{type(exc).__name__}: {exc}", outcome="error")
+
+
+# A closed writer answers ``failure`` without its ring.
+ProcessRunLogWriter._final = [0] * 64  # type: ignore[attr-defined]
+_ = CLOSE  # re-exported name kept in use for readers of the header layout
