@@ -30,10 +30,12 @@ from cdcr_ctl.runlog.columns import TEXT_COLUMNS
 from cdcr_ctl.runlog.writer.ring import (
     DONE,
     FAILED,
+    ORDER_NAMES,
     READY,
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
+    SLOT_HEAD,
     W_BYTES,
     W_DROPPED,
     W_FSYNCS,
@@ -52,13 +54,15 @@ PARENT_GONE = "the daemon process ended with the run open (the writer process dr
 
 
 def _low_priority(nice: int) -> None:
-    """Leave SCHED_FIFO/RR (inherited from a real-time daemon) and lower the priority. A
-    Ctrl-C in the terminal or a service manager's SIGTERM to the whole group goes to the
-    daemon, which closes the run: this process follows its close request (or its death)."""
+    """Leave SCHED_FIFO/RR (inherited from a real-time daemon) for SCHED_BATCH (a batch task
+    never preempts a running task when it wakes, so the loop is not cut mid-cycle by the
+    writer waking for its drain) and lower the priority by ``nice``. A Ctrl-C in the terminal
+    or a service manager's SIGTERM to the whole group goes to the daemon, which closes the run:
+    this process follows its close request (or its death) instead."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     with contextlib.suppress(OSError):
         os.nice(nice)
 
@@ -74,23 +78,36 @@ class RingDrain:
         self.int_pos = [j for j, c in enumerate(num_cols) if c in INT_COLUMNS]
         self.cap = ring.layout.rows
         self.n = len(num_cols)
+        self.num_cols = num_cols
+        self._by_names: list[int] | None = None
+
+    def _names_index(self) -> list[int]:
+        """Column position (among the numeric columns) of each value of an ORDER_NAMES slot."""
+        if self._by_names is None:
+            pos = {c: j for j, c in enumerate(self.num_cols)}
+            self._by_names = [pos[name] for name in self.ring.names()]
+        return self._by_names
 
     def rows(self) -> int:
         """Hand every published row to the writer; the number moved."""
         hdr = self.ring.hdr
         tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
-        nums, write = self.ring.nums, self.writer.write
+        nums, write, n = self.ring.nums, self.writer.write, self.n
         for seq in range(tail, head):
             slot = seq % self.cap
-            values: list[Any] = nums[slot].tolist()
-            n_text = int(values.pop())
+            raw: list[Any] = nums[slot].tolist()
+            order, n_text = raw[0], int(raw[1])
+            if order == ORDER_NAMES:
+                values: list[Any] = [math.nan] * n
+                for j, v in zip(self._names_index(), raw[SLOT_HEAD:], strict=False):
+                    values[j] = v
+            else:
+                values = raw[SLOT_HEAD:]
             for j in self.int_pos:
                 v = values[j]
                 if v == v and not math.isinf(v) and v == int(v):
                     values[j] = int(v)
-            for j, v in enumerate(values):
-                if v != v:
-                    values[j] = None
+            values = [None if v != v else v for v in values]
             if self.text_pos >= 0:
                 values.insert(self.text_pos, self.ring.get_event(slot, n_text) if n_text else "")
             write(values)

@@ -4,8 +4,8 @@
 :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``write``, ``failure``, ``stats``,
 ``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
 into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
-process (``python -m cdcr_ctl.runlog.writer.child``, niced, never real-time) drains the ring and
-runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the flushes and fsyncs every
+process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, nice 10, never real-time)
+drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the flushes and fsyncs every
 ``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end all happen as before, but
 under the writer process's interpreter lock, which the loop never waits for.
 
@@ -38,7 +38,6 @@ from pathlib import Path
 from typing import Any
 
 import can
-import numpy as np
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
@@ -47,9 +46,13 @@ from cdcr_ctl.runlog.writer.ring import (
     CAN_DROPPED,
     CLOSE,
     DONE,
+    ORDER_COLUMNS,
+    ORDER_NAMES,
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
+    ROWS_OFFSET,
+    SLOT_HEAD,
     W_BYTES,
     W_DROPPED,
     W_FSYNCS,
@@ -73,7 +76,7 @@ ALIVE_EVERY_ROWS = 256
 #: Columns written back as integers by the writer process.
 INT_COLUMNS = frozenset({"cycle"})
 #: Nice increment of the writer process.
-WRITER_NICE = 5
+WRITER_NICE = 10
 
 _OPEN: weakref.WeakSet[ProcessRunLogWriter] = weakref.WeakSet()
 
@@ -158,7 +161,8 @@ class ProcessRunLogWriter:
         self._text_col = text[0] if text else None
         self._text_pos = self.columns.index(text[0]) if text else -1
         self._parts_keys: Any = None
-        self._parts_index: Any = None
+        self._parts_from = self._parts_to = 0
+        self._tail = 0
         self._warned = False
         self._queued = 0
         self._dropped = 0
@@ -174,6 +178,9 @@ class ProcessRunLogWriter:
         except OSError as exc:
             raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
         self._cap = layout.rows
+        self._stride = layout.row_floats * 8
+        self._slot0 = ROWS_OFFSET
+        self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
         spec = {
             "run_dir": str(self.run_dir),
             "columns": self.columns,
@@ -252,36 +259,30 @@ class ProcessRunLogWriter:
         """
         ring = self._ring
         head = self._head
-        if (
-            ring is None
-            or self._closing
-            or self._failure is not None
-            or head - int(ring.hdr[ROW_TAIL]) >= self._cap
-        ):
+        if ring is None or self._closing or self._failure is not None:
             self._dropped += 1
-            if ring is not None and not self._closing:
-                ring.hdr[ROW_DROPPED] = self._dropped
             return False
+        if head - self._tail >= self._cap:
+            self._tail = int(ring.hdr[ROW_TAIL])
+            if head - self._tail >= self._cap:
+                self._dropped += 1
+                ring.hdr[ROW_DROPPED] = self._dropped
+                return False
         slot = head % self._cap
-        nums = ring.nums[slot]
         try:
             parts = getattr(row, "row_parts", None)
             if parts is not None:
                 keys, values, t_s, cycle, lateness_us, text = parts()
                 if keys is not self._parts_keys:
-                    self._index_parts(keys)
-                nums[self._parts_index] = values
-                nums[self._j_time] = t_s
-                nums[self._j_cycle] = cycle
-                nums[self._j_lateness] = lateness_us
-                if self._parts_missing is not None:
-                    nums[self._parts_missing] = math.nan
+                    self._set_names(keys)
+                # One copy of the loop's array, one packed store of the rest.
+                self._pack_head(ring.buf, self._slot0 + slot * self._stride, ORDER_NAMES, 0.0,
+                                t_s, cycle, lateness_us)  # fmt: skip
+                ring.nums[slot, self._parts_from : self._parts_to] = values
             else:
-                text = self._fill_plain(row, nums)
+                text = self._fill_plain(row, ring.nums[slot])
             if text:
                 ring.put_event(slot, str(text))
-            else:
-                nums[-1] = 0.0
         except Exception as exc:  # a row this writer cannot take: dropped, said once
             if not self._warned:
                 self._warned = True
@@ -289,24 +290,27 @@ class ProcessRunLogWriter:
             self._dropped += 1
             ring.hdr[ROW_DROPPED] = self._dropped
             return False
-        self._head = head + 1
-        ring.hdr[ROW_HEAD] = head + 1
+        self._head = head = head + 1
+        ring.hdr[ROW_HEAD] = head
         self._queued += 1
         if self._queued % ALIVE_EVERY_ROWS == 0:
             self._check_alive()
         return True
 
-    def _index_parts(self, keys: Sequence[str]) -> None:
-        idx = self._num_index
-        head = (TIME, "cycle", "lateness_us")
-        unknown = [k for k in (*keys, *head) if k not in idx]
-        if unknown:
-            raise ValueError(f"row names not among the columns: {unknown}")
-        self._parts_index = np.array([idx[k] for k in keys], dtype=np.intp)
-        self._j_time, self._j_cycle, self._j_lateness = (idx[k] for k in head)
-        have = {*keys, *head}
-        missing = [j for j, c in enumerate(self._num_cols) if c not in have]
-        self._parts_missing = np.array(missing, dtype=np.intp) if missing else None
+    def _set_names(self, keys: Sequence[str]) -> None:
+        """The first loop row: its value names into the ring (the writer process maps them to
+        columns). One order per writer: a row with other names is refused."""
+        if self._parts_keys is not None:
+            if tuple(keys) == tuple(self._parts_keys):
+                self._parts_keys = keys
+                return
+            raise ValueError("a row with another layout than the run's first")
+        names = [TIME, "cycle", "lateness_us", *keys]
+        unknown = [k for k in names if k not in self._num_index]
+        if unknown or len(set(names)) != len(names) or len(names) > len(self._num_cols):
+            raise ValueError(f"row names not among the columns (or repeated): {unknown}")
+        self._ring.set_names(names)
+        self._parts_from, self._parts_to = SLOT_HEAD + 3, SLOT_HEAD + len(names)
         self._parts_keys = keys
 
     def _fill_plain(self, row: Any, nums: Any) -> str:
@@ -322,7 +326,8 @@ class ProcessRunLogWriter:
             seq = (seq + [None] * len(self.columns))[: len(self.columns)]
             text = seq.pop(self._text_pos) if self._text_pos >= 0 else None
             values = seq
-        nums[:-1] = [math.nan if v is None else float(v) for v in values]
+        nums[SLOT_HEAD:] = [math.nan if v is None else float(v) for v in values]
+        nums[:SLOT_HEAD] = (ORDER_COLUMNS, 0.0)
         return "" if text is None else str(text)
 
     def _check_alive(self) -> None:

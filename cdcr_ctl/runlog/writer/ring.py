@@ -4,9 +4,13 @@ One anonymous shared mapping (``memfd_create``, handed to the writer process as 
 descriptor: no name in ``/dev/shm``, nothing left behind when both processes end) holds
 
 - a header of :data:`HEADER_SLOTS` int64 counters and flags (:data:`ROW_HEAD` ...),
-- two text areas of :data:`TEXT_BYTES` (the close request, the write error),
-- the row ring: ``rows`` slots of ``n_numbers + 1`` float64 (every numeric column in column order,
-  then the byte length of the row's text) and ``rows`` text fields of :data:`EVENT_BYTES`,
+- two text areas of :data:`TEXT_BYTES` (the close request, the write error) and one of
+  :data:`NAMES_BYTES` (the names of the values of a row in the loop's own order, see below),
+- the row ring: ``rows`` slots of ``n_numbers + 2`` float64 and ``rows`` text fields of
+  :data:`EVENT_BYTES`. A slot is ``[order, text length, values...]``: order 0 means the values
+  are the numeric columns in column order; order 1 means they are in the order named in the
+  names area (``t_s``, ``cycle``, ``lateness_us``, then the loop's flat array), so the loop
+  copies its array in one piece and the writer process puts the numbers in column order,
 - the CAN ring: ``frames`` records of :data:`CAN_RECORD` (timestamp s, arbitration id, flags,
   dlc, data length, 64 data bytes).
 
@@ -62,7 +66,17 @@ CAN_RECORD = struct.Struct("<dIBBB64sx")
 _HEADER_BYTES = HEADER_SLOTS * 8
 _CLOSE_TEXT = _HEADER_BYTES
 _FAIL_TEXT = _CLOSE_TEXT + TEXT_BYTES
-_ROWS = _FAIL_TEXT + TEXT_BYTES
+#: Bytes of the names area (JSON list of names; a 3-segment, 12-cable rig needs ~1.3 kB).
+NAMES_BYTES = 16384
+_NAMES_TEXT = _FAIL_TEXT + TEXT_BYTES
+_ROWS = _NAMES_TEXT + NAMES_BYTES
+#: Byte offset of the first row slot.
+ROWS_OFFSET = _ROWS
+#: Float64 fields of a slot before its values: order, text length.
+SLOT_HEAD = 2
+#: Order of a slot's values: the numeric columns in column order / the names area's order.
+ORDER_COLUMNS = 0.0
+ORDER_NAMES = 1.0
 
 
 @dataclass(frozen=True)
@@ -76,7 +90,7 @@ class RingLayout:
 
     @property
     def row_floats(self) -> int:
-        return self.n_numbers + 1
+        return self.n_numbers + SLOT_HEAD
 
     @property
     def events_offset(self) -> int:
@@ -115,10 +129,18 @@ class SharedRing:
         fd = os.memfd_create("cdcr-runlog", 0)  # close-on-exec; passed on explicitly
         try:
             os.ftruncate(fd, layout.size)
-            return cls(layout, fd)
+            ring = cls(layout, fd)
         except BaseException:
             os.close(fd)
             raise
+        # Touch every page of the header, the rows and the CAN records now: a page first
+        # written by the loop would cost it a page fault (the shared memory is allocated on
+        # first touch), one every few rows during the ring's first round. The text fields are
+        # touched only by rows with an event.
+        ring.hdr[:] = 0
+        ring.nums[:] = 0.0
+        ring.can[:] = bytes(len(ring.can))
+        return ring
 
     def close(self) -> None:
         """Close this side's descriptor. The mapping itself goes when the last view of it is
@@ -127,16 +149,28 @@ class SharedRing:
             os.close(self.fd)
 
     # ------------------------------------------------------------------ text areas
-    def _put_text(self, offset: int, text: str) -> None:
-        data = text.encode("utf-8")[: TEXT_BYTES - 4]
+    def _put_text(self, offset: int, text: str, size: int = TEXT_BYTES) -> None:
+        data = text.encode("utf-8")[: size - 4]
         self.buf[offset + 4 : offset + 4 + len(data)] = data
         struct.pack_into("<I", self.buf, offset, len(data))
 
-    def _get_text(self, offset: int) -> str:
+    def _get_text(self, offset: int, size: int = TEXT_BYTES) -> str:
         (n,) = struct.unpack_from("<I", self.buf, offset)
-        return bytes(self.buf[offset + 4 : offset + 4 + min(n, TEXT_BYTES - 4)]).decode(
+        return bytes(self.buf[offset + 4 : offset + 4 + min(n, size - 4)]).decode(
             "utf-8", "replace"
         )
+
+    def set_names(self, names: list[str]) -> None:
+        """Producer, before the first slot in :data:`ORDER_NAMES`: the names of its values.
+        Raises ValueError if they do not fit the area."""
+        text = json.dumps(names)
+        if len(text.encode()) > NAMES_BYTES - 4:
+            raise ValueError(f"{len(names)} value names do not fit {NAMES_BYTES} bytes")
+        self._put_text(_NAMES_TEXT, text, NAMES_BYTES)
+
+    def names(self) -> list[str]:
+        """Writer: the names of the values of slots in :data:`ORDER_NAMES`."""
+        return json.loads(self._get_text(_NAMES_TEXT, NAMES_BYTES))
 
     def request_close(self, reason: str, outcome: str, end_utc: str) -> None:
         """Producer: ask the writer to close the run with this end (then no more rows)."""
@@ -170,7 +204,7 @@ class SharedRing:
             data = data[: EVENT_BYTES - len(mark)].decode("utf-8", "ignore").encode() + mark
         off = slot * EVENT_BYTES
         self.events[off : off + len(data)] = data
-        self.nums[slot, -1] = len(data)
+        self.nums[slot, 1] = len(data)
 
     def get_event(self, slot: int, n: int) -> str:
         off = slot * EVENT_BYTES
