@@ -5,9 +5,10 @@
 ``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
 into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
 process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, nice 10, never real-time)
-drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the flushes and fsyncs every
-``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end all happen as before, but
-under the writer process's interpreter lock, which the loop never waits for.
+drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the
+flushes and fsyncs every ``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end
+all happen as before, but under the writer process's interpreter lock, which the loop never
+waits for.
 
 - A write error in the writer process is published in the shared header; :attr:`failure` reads
   it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
