@@ -116,7 +116,7 @@ def test_a_long_event_is_cut_and_marked(tmp_path):
     assert w.write({"t_s": 0.0, "event": "é" * EVENT_BYTES})
     w.close("done")
     run = load_run(tmp_path / "r")
-    event = run.extra["event"][0]
+    event = run.column("event")[0]
     assert event.endswith(CUT_MARK) and len(event.encode()) <= EVENT_BYTES
     assert set(event.removesuffix(CUT_MARK)) == {"é"}
 
