@@ -3,9 +3,10 @@
 Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`. Reads its settings
 (a length-prefixed pickle) from stdin, maps the shared ring from the inherited descriptor, leaves
 any real-time scheduling it inherited and lowers its priority, makes an ordinary
-:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` in the run directory and answers ``ready``
-(or ``error: ...``) on stdout. Then, every drain interval: moves the ring's rows and CAN frames to
-that writer, publishes its counters and any write error in the shared header, and ends when
+:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` in the run directory and sets ``READY``
+(or publishes the error as the log's failure). Then, every drain interval: moves the ring's rows
+and CAN frames to that writer, publishes its counters and any write error in the shared header,
+and ends when
 
 - the loop's process asks it to close: drains the ring, closes the run with the given outcome;
 - the loop's process is gone (its parent changed: SIGKILL, a crash): drains what the ring holds
@@ -145,11 +146,10 @@ def main() -> int:
     raw = sys.stdin.buffer
     (n,) = struct.unpack("<Q", raw.read(8))
     spec = pickle.loads(raw.read(n))
-    out = sys.stdout
     ring = SharedRing(spec["layout"], spec["fd"])
     _low_priority(spec["nice"])
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
-    parent = os.getppid()
+    parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone
     failures: list[str] = []
     try:
         writer = RunLogWriter(
@@ -164,14 +164,16 @@ def main() -> int:
             drain_interval_s=spec["drain_interval_s"],
             second_sink=spec["second_sink"],
             on_failure=failures.append,
+            require_empty=False,
         )
     except (RigError, OSError, ValueError) as exc:
-        out.write(f"error: {exc}\n")
-        out.flush()
+        text = str(exc)
+        if str(spec["run_dir"]) not in text:
+            text = f"{spec['run_dir']}: cannot start the run log: {text}"
+        ring.set_failure(text)
+        log.error("run log not started: %s", text)
         return 1
     ring.hdr[READY] = 1
-    out.write("ready\n")
-    out.flush()
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
     reason, outcome = PARENT_GONE, "aborted"

@@ -25,14 +25,11 @@ from __future__ import annotations
 import atexit
 import logging
 import math
-import os
 import pickle
-import select
 import struct
 import subprocess
 import sys
 import threading
-import time
 import weakref
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -66,9 +63,6 @@ from cdcr_ctl.runlog.writer.thread import CLOSE_TIMEOUT_S, DEFAULT_QUEUE_ROWS, D
 
 log = logging.getLogger("cdcr_ctl.runlog.writer")
 
-#: How long the constructor waits for the writer process to open its files (s): an interpreter
-#: start and the imports, well under a second on an idle machine, seconds on a loaded one.
-START_TIMEOUT_S = 60.0
 #: CAN frames the ring holds: 5 s at 10 000 frames/s (a 1 kHz loop with 3 drives sends and
 #: receives about 8 a cycle).
 DEFAULT_CAN_FRAMES = 50_000
@@ -195,25 +189,35 @@ class ProcessRunLogWriter:
             "layout": layout,
             "fd": self._ring.fd,
             "nice": WRITER_NICE,
+            "parent_pid": os.getpid(),
         }
         try:
             blob = pickle.dumps(spec)
         except Exception as exc:
             self._ring.close()
             raise RigError(f"{self.run_dir}: the run log's settings do not pickle: {exc}") from exc
+        try:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            if any(self.run_dir.iterdir()):
+                raise RigError(f"{self.run_dir}: run directory is not empty")
+        except OSError as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: cannot start the run log: {exc}") from exc
+        except RigError:
+            self._ring.close()
+            raise
         self._proc = self._start(blob)
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)
 
     def _start(self, blob: bytes) -> subprocess.Popen:
+        """Start the writer process and hand it its settings; it opens the files on its own
+        (rows wait in the ring meanwhile: an interpreter start is ~0.5 s idle, seconds on a
+        loaded machine, and a run must not wait for it). An error there is a :attr:`failure`."""
         cmd = [sys.executable, "-m", "cdcr_ctl.runlog.writer.child"]
         try:
             proc = subprocess.Popen(
-                cmd,
-                stdin=subprocess.PIPE,
-                stdout=subprocess.PIPE,
-                pass_fds=(self._ring.fd,),
-                close_fds=True,
+                cmd, stdin=subprocess.PIPE, pass_fds=(self._ring.fd,), close_fds=True
             )
         except OSError as exc:
             self._ring.close()
@@ -221,30 +225,12 @@ class ProcessRunLogWriter:
         try:
             proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
             proc.stdin.close()
-            line = self._read_line(proc.stdout, START_TIMEOUT_S)
         except OSError as exc:
-            line = f"error: {exc}"
-        if line != "ready":
             proc.kill()
             proc.wait()
             self._ring.close()
-            why = line.removeprefix("error: ") if line else "the writer process did not start"
-            raise RigError(f"{self.run_dir}: cannot start the run log: {why}")
-        proc.stdout.close()
+            raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
         return proc
-
-    @staticmethod
-    def _read_line(stream: Any, timeout_s: float) -> str:
-        fd, data, end = stream.fileno(), b"", time.monotonic() + timeout_s
-        while not data.endswith(b"\n"):
-            left = end - time.monotonic()
-            if left <= 0 or not select.select([fd], [], [], left)[0]:
-                return ""
-            chunk = os.read(fd, 4096)
-            if not chunk:
-                break
-            data += chunk
-        return data.decode("utf-8", "replace").strip()
 
     # ------------------------------------------------------------------ real-time side
     def write(self, row: Any) -> bool:

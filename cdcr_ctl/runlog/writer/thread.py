@@ -74,6 +74,8 @@ class RunLogWriter(RunFileFormats):
 
     ``run_dir`` must not exist yet or be empty (see :meth:`create` for a fresh one).
     ``columns`` is the CSV header (see :func:`~cdcr_ctl.runlog.columns.sample_columns`).
+    ``require_empty`` False skips that check (the writer process: its parent checked, and the
+    CAN log may already be open beside it).
     ``config_text`` is copied to ``config.yaml``; ``extra_files`` maps further file names in the
     run directory to their text. ``opener`` opens ``samples.csv`` for binary writing (tests inject
     failing files). ``on_failure(text)`` is called once, from the writer thread, on a write error.
@@ -97,6 +99,7 @@ class RunLogWriter(RunFileFormats):
         opener: FileOpener = _default_opener,
         drain_interval_s: float = DRAIN_INTERVAL_S,
         second_sink: SecondSinkFactory | None = None,
+        require_empty: bool = True,
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
@@ -136,7 +139,7 @@ class RunLogWriter(RunFileFormats):
         self._second: Any = None
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            if any(self.run_dir.iterdir()):
+            if require_empty and any(self.run_dir.iterdir()):
                 raise RigError(f"{self.run_dir}: run directory is not empty")
             if config_text is not None:
                 _write_atomic(self.run_dir / CONFIG_YAML, config_text)
