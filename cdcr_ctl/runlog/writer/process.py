@@ -25,6 +25,7 @@ from __future__ import annotations
 import atexit
 import logging
 import math
+import os
 import pickle
 import struct
 import subprocess
