@@ -4,6 +4,7 @@ rig's metadata, config copies and (``run.mcap``) second sink; the daemon's ``run
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,7 +16,7 @@ from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
 from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
-from cdcr_ctl.runlog.writer.thread import DEFAULT_QUEUE_ROWS, RunLogWriter
+from cdcr_ctl.runlog.writer.thread import CLOSE_TIMEOUT_S, DEFAULT_QUEUE_ROWS, RunLogWriter
 
 if TYPE_CHECKING:
     from cdcr_ctl.config.schema import RigConfig
@@ -69,6 +70,9 @@ class RunLogFactory:
         self.max_queued_rows = max_queued_rows
         self.on_failure = on_failure
         sample_columns(n_segments, n_cables, self.extra_columns)  # fail early on bad names
+        #: Writers made and not yet seen finished (held: the loop drops a run's writer as soon
+        #: as it asked it to close, and the daemon's shutdown waits for the files).
+        self._made: list[Any] = []
 
     @classmethod
     def from_config(
@@ -126,7 +130,7 @@ class RunLogFactory:
         )
         extra = {EFFECTIVE_CONFIG_YAML: self.effective_config} if self.effective_config else None
         cls = ProcessRunLogWriter if self.writer == "process" else RunLogWriter
-        return cls(
+        writer = cls(
             new_run_dir(self.base_dir, meta.name),
             sample_columns(self.n_segments, self.n_cables, self.extra_columns),
             meta,
@@ -138,3 +142,16 @@ class RunLogFactory:
             on_failure=self.on_failure,
             second_sink=self.second_sink,
         )
+        self._made = [w for w in self._made if not (w.closed and w.wait_closed(0))]
+        self._made.append(writer)
+        return writer
+
+    def close_all(self, reason: str, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Close every writer this factory made that is still open (outcome ``aborted``) and
+        wait, up to ``timeout_s`` in all, until each has written its files and run.yaml (the
+        daemon's shutdown: the loop closes a run's log without waiting). False on timeout."""
+        writers = list(self._made)
+        for w in writers:
+            w.close(reason, outcome="aborted", wait=False)  # no change to one already closing
+        end = time.monotonic() + timeout_s
+        return all(w.wait_closed(max(0.0, end - time.monotonic())) for w in writers)

@@ -31,7 +31,6 @@ import struct
 import subprocess
 import sys
 import threading
-import weakref
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -74,7 +73,8 @@ INT_COLUMNS = frozenset({"cycle"})
 #: Nice increment of the writer process.
 WRITER_NICE = 10
 
-_OPEN: weakref.WeakSet[ProcessRunLogWriter] = weakref.WeakSet()
+#: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
+_OPEN: set[ProcessRunLogWriter] = set()
 
 
 @atexit.register
