@@ -1,8 +1,12 @@
-"""The run-log writer process: ``python -m cdcr_ctl.runlog.writer.child``.
+"""The run-log writer process: :func:`main`.
 
-Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`. Reads its settings
-(a length-prefixed pickle) from stdin, maps the shared ring from the inherited descriptor, leaves
-any real-time scheduling it inherited and lowers its priority, makes an ordinary
+Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`, which first moves it
+from any real-time scheduling it inherited to SCHED_BATCH (a batch task never preempts a running
+one when it wakes, so the loop is not cut mid-cycle by the writer's drains), lowers its priority
+and has it ignore SIGINT and SIGTERM (a Ctrl-C or a service manager's SIGTERM to the whole group
+goes to the daemon, which closes the run: this process follows the close request, or the
+daemon's death). Reads its settings (a length-prefixed pickle) from stdin, maps the shared ring
+from the inherited descriptor, makes an ordinary
 :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` in the run directory and sets ``READY``
 (or publishes the error as the log's failure). Then, every drain interval: moves the ring's rows
 and CAN frames to that writer, publishes its counters and any write error in the shared header,
@@ -15,12 +19,10 @@ and ends when
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
 import pickle
-import signal
 import struct
 import sys
 import time
@@ -52,20 +54,6 @@ log = logging.getLogger("cdcr_ctl.runlog.writer")
 INT_COLUMNS = frozenset({"cycle"})
 #: Reason recorded when the loop's process died with the run open.
 PARENT_GONE = "the daemon process ended with the run open (the writer process drained the ring)"
-
-
-def _low_priority(nice: int) -> None:
-    """Leave SCHED_FIFO/RR (inherited from a real-time daemon) for SCHED_BATCH (a batch task
-    never preempts a running task when it wakes, so the loop is not cut mid-cycle by the
-    writer waking for its drain) and lower the priority by ``nice``. A Ctrl-C in the terminal
-    or a service manager's SIGTERM to the whole group goes to the daemon, which closes the run:
-    this process follows its close request (or its death) instead."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    with contextlib.suppress(OSError, AttributeError):
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-    with contextlib.suppress(OSError):
-        os.nice(nice)
 
 
 class RingDrain:
@@ -147,7 +135,6 @@ def main() -> int:
     (n,) = struct.unpack("<Q", raw.read(8))
     spec = pickle.loads(raw.read(n))
     ring = SharedRing(spec["layout"], spec["fd"])
-    _low_priority(spec["nice"])
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone
     failures: list[str] = []
@@ -193,7 +180,3 @@ def main() -> int:
     drain.publish()
     ring.hdr[DONE] = 1
     return 0 if writer.failure is None else 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())

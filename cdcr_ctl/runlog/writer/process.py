@@ -73,6 +73,19 @@ INT_COLUMNS = frozenset({"cycle"})
 #: Nice increment of the writer process.
 WRITER_NICE = 10
 
+#: The writer process's first statements: off real time and down in priority before its imports
+#: (a second of CPU on a loaded machine), then :func:`cdcr_ctl.runlog.writer.child.main`.
+_BOOT = (
+    "import os, signal, sys\n"
+    "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+    "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+    "try:\n    os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))\n"
+    "except (OSError, AttributeError):\n    pass\n"
+    "try:\n    os.nice({nice})\n"
+    "except OSError:\n    pass\n"
+    "from cdcr_ctl.runlog.writer.child import main\n"
+    "sys.exit(main())\n"
+)
 #: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
 _OPEN: set[ProcessRunLogWriter] = set()
 
@@ -189,7 +202,6 @@ class ProcessRunLogWriter:
             "second_sink": second_sink,
             "layout": layout,
             "fd": self._ring.fd,
-            "nice": WRITER_NICE,
             "parent_pid": os.getpid(),
         }
         try:
@@ -215,7 +227,7 @@ class ProcessRunLogWriter:
         """Start the writer process and hand it its settings; it opens the files on its own
         (rows wait in the ring meanwhile: an interpreter start is ~0.5 s idle, seconds on a
         loaded machine, and a run must not wait for it). An error there is a :attr:`failure`."""
-        cmd = [sys.executable, "-m", "cdcr_ctl.runlog.writer.child"]
+        cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
         try:
             proc = subprocess.Popen(
                 cmd, stdin=subprocess.PIPE, pass_fds=(self._ring.fd,), close_fds=True
