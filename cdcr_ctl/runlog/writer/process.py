@@ -117,7 +117,7 @@ class RingCanTap(can.Listener):
             ):
                 self.dropped += 1
                 if ring is not None:
-                    ring.hdr[CAN_DROPPED] = self.dropped
+                    ring.hq[CAN_DROPPED] = self.dropped
 
     def detach(self) -> None:
         with self._lock:
@@ -263,10 +263,10 @@ class ProcessRunLogWriter:
             self._dropped += 1
             return False
         if head - self._tail >= self._cap:
-            self._tail = int(ring.hdr[ROW_TAIL])
+            self._tail = ring.hq[ROW_TAIL]
             if head - self._tail >= self._cap:
                 self._dropped += 1
-                ring.hdr[ROW_DROPPED] = self._dropped
+                ring.hq[ROW_DROPPED] = self._dropped
                 return False
         slot = head % self._cap
         try:
@@ -288,10 +288,10 @@ class ProcessRunLogWriter:
                 self._warned = True
                 log.warning("%s: a row could not be logged: %s", self.samples_path, exc)
             self._dropped += 1
-            ring.hdr[ROW_DROPPED] = self._dropped
+            ring.hq[ROW_DROPPED] = self._dropped
             return False
         self._head = head = head + 1
-        ring.hdr[ROW_HEAD] = head
+        ring.hq[ROW_HEAD] = head
         self._queued += 1
         if self._queued % ALIVE_EVERY_ROWS == 0:
             self._check_alive()

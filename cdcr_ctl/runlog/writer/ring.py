@@ -117,6 +117,9 @@ class SharedRing:
         buf = memoryview(self.mm)
         self.buf = buf
         self.hdr = np.frombuffer(buf, np.int64, HEADER_SLOTS, 0)
+        #: The header as a memoryview of int64: a plain item load or store, cheaper than a
+        #: numpy scalar on the producer's paths.
+        self.hq = buf[:_HEADER_BYTES].cast("q")
         self.nums = np.frombuffer(buf, np.float64, layout.rows * layout.row_floats, _ROWS).reshape(
             layout.rows, layout.row_floats
         )
@@ -191,7 +194,7 @@ class SharedRing:
 
     def failure(self) -> str | None:
         """Producer: the writer's write error, or None (one int64 load when there is none)."""
-        if not self.hdr[FAILED]:
+        if not self.hq[FAILED]:
             return None
         return self._get_text(_FAIL_TEXT)
 
@@ -213,14 +216,14 @@ class SharedRing:
     # ------------------------------------------------------------------ CAN frames
     def put_frame(self, ts: float, cob: int, flags: int, dlc: int, data: bytes) -> bool:
         """Producer (one at a time): one CAN frame; False when the ring is full."""
-        hdr, cap = self.hdr, self.layout.frames
-        head = int(hdr[CAN_HEAD])
-        if cap == 0 or head - int(hdr[CAN_TAIL]) >= cap:
+        hq, cap = self.hq, self.layout.frames
+        head = hq[CAN_HEAD]
+        if cap == 0 or head - hq[CAN_TAIL] >= cap:
             return False
         CAN_RECORD.pack_into(
             self.can, (head % cap) * CAN_RECORD.size, ts, cob, flags, dlc, len(data), data[:64]
         )
-        hdr[CAN_HEAD] = head + 1
+        hq[CAN_HEAD] = head + 1
         return True
 
     def take_frames(self) -> list[tuple]:
