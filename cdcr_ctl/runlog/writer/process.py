@@ -44,6 +44,7 @@ from cdcr_ctl.runlog.writer.ring import (
     CAN_DROPPED,
     CLOSE,
     DONE,
+    FAILED,
     ORDER_COLUMNS,
     ORDER_NAMES,
     ROW_DROPPED,
@@ -187,6 +188,7 @@ class ProcessRunLogWriter:
         except OSError as exc:
             raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
         self._cap = layout.rows
+        self._hq = self._ring.hq
         self._stride = layout.row_floats * 8
         self._slot0 = ROWS_OFFSET
         self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
@@ -354,7 +356,7 @@ class ProcessRunLogWriter:
     @property
     def failure(self) -> str | None:
         """Text of the write error that stopped this log (file and cause), or None."""
-        if self._failure is None:
+        if self._failure is None and self._hq[FAILED]:  # one int64 load on the loop's path
             text = self._ring.failure() if self._ring is not None else None
             if text is not None:
                 self._failure = text
