@@ -31,6 +31,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,7 @@ from cdcr_ctl.runlog.writer.ring import (
     FAILED,
     ORDER_COLUMNS,
     ORDER_NAMES,
+    READY,
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
@@ -87,6 +89,9 @@ _BOOT = (
     "from cdcr_ctl.runlog.writer.child import main\n"
     "sys.exit(main())\n"
 )
+#: How long the constructor waits for the writer process to make the run's files (s): an
+#: interpreter start and its imports, ~0.5 s on an idle machine, seconds on a loaded one.
+START_TIMEOUT_S = 60.0
 #: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
 _OPEN: set[ProcessRunLogWriter] = set()
 
@@ -222,13 +227,31 @@ class ProcessRunLogWriter:
             self._ring.close()
             raise
         self._proc = self._start(blob)
+        self._wait_ready()
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)
 
+    def _wait_ready(self) -> None:
+        """Wait until the writer process has made the run's files (``samples.csv`` with its
+        header, ``run.yaml``, the configs), as the writer thread has when it is made; RigError
+        with its reason if it could not, or did not within :data:`START_TIMEOUT_S`."""
+        hq, end = self._ring.hq, time.monotonic() + START_TIMEOUT_S
+        while not hq[READY] and not hq[FAILED] and self._proc.poll() is None:
+            if time.monotonic() > end:
+                break
+            time.sleep(0.005)
+        if hq[READY]:
+            return
+        why = self._ring.failure() or (
+            "the writer process ended" if self._proc.poll() is not None else "no answer"
+        )
+        self._proc.kill()
+        self._proc.wait()
+        self._ring.close()
+        raise RigError(why if str(self.run_dir) in why else f"{self.run_dir}: {why}")
+
     def _start(self, blob: bytes) -> subprocess.Popen:
-        """Start the writer process and hand it its settings; it opens the files on its own
-        (rows wait in the ring meanwhile: an interpreter start is ~0.5 s idle, seconds on a
-        loaded machine, and a run must not wait for it). An error there is a :attr:`failure`."""
+        """Start the writer process and hand it its settings."""
         cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
         try:
             proc = subprocess.Popen(
