@@ -103,6 +103,14 @@ def _close_open() -> None:
         writer.close("process exit with the log still open", outcome="aborted")
 
 
+def start_writer_process() -> subprocess.Popen:
+    """A writer process that imports what it needs and then waits for its settings on stdin
+    (it maps the ring through ``/proc/<parent>/fd/<fd>``, so it can be started before the
+    ring exists). One that never gets settings exits when its stdin closes."""
+    cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
+    return subprocess.Popen(cmd, stdin=subprocess.PIPE, close_fds=True)
+
+
 class RingCanTap(can.Listener):
     """A python-can listener putting frames into the ring's CAN records for ``/can``. Any thread
     may call it (a lock orders the producers); a full ring counts the frame as dropped."""
@@ -138,7 +146,9 @@ class ProcessRunLogWriter:
     :meth:`close`.
 
     Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``second_sink`` must
-    pickle: the writer process makes the sink). ``run_dir`` must be empty or not exist. Raises
+    pickle: the writer process makes the sink). ``process``: a spare writer process from
+    :func:`start_writer_process` (its interpreter start and imports already done; the factory
+    keeps one ready), else one is started here. ``run_dir`` must be empty or not exist. Raises
     :class:`RigError` naming the path if the writer process cannot start or open the files.
     """
 
@@ -157,6 +167,7 @@ class ProcessRunLogWriter:
         drain_interval_s: float = DRAIN_INTERVAL_S,
         second_sink: Any = None,
         can_frames: int = DEFAULT_CAN_FRAMES,
+        process: subprocess.Popen | None = None,
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
@@ -226,7 +237,7 @@ class ProcessRunLogWriter:
         except RigError:
             self._ring.close()
             raise
-        self._proc = self._start(blob)
+        self._proc = self._start(blob, process)
         self._wait_ready()
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)
@@ -250,13 +261,12 @@ class ProcessRunLogWriter:
         self._ring.close()
         raise RigError(why if str(self.run_dir) in why else f"{self.run_dir}: {why}")
 
-    def _start(self, blob: bytes) -> subprocess.Popen:
-        """Start the writer process and hand it its settings."""
-        cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
+    def _start(self, blob: bytes, proc: subprocess.Popen | None) -> subprocess.Popen:
+        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, its imports
+        done) or to a writer process started now."""
         try:
-            proc = subprocess.Popen(
-                cmd, stdin=subprocess.PIPE, pass_fds=(self._ring.fd,), close_fds=True
-            )
+            if proc is None or proc.poll() is not None:
+                proc = start_writer_process()
         except OSError as exc:
             self._ring.close()
             raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
