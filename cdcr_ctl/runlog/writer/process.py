@@ -27,6 +27,7 @@ import logging
 import math
 import os
 import pickle
+import select
 import struct
 import subprocess
 import sys
@@ -87,6 +88,7 @@ _BOOT = (
     "try:\n    os.nice({nice})\n"
     "except OSError:\n    pass\n"
     "from cdcr_ctl.runlog.writer.child import main\n"
+    "sys.stdout.write('i'); sys.stdout.flush()\n"  # imports done: a warm spare
     "sys.exit(main())\n"
 )
 #: How long the constructor waits for the writer process to make the run's files (s): an
@@ -103,12 +105,17 @@ def _close_open() -> None:
         writer.close("process exit with the log still open", outcome="aborted")
 
 
+def _imported(proc: subprocess.Popen) -> bool:
+    """Whether ``proc`` has signalled that its imports are done (one byte on its stdout)."""
+    return bool(select.select([proc.stdout], [], [], 0)[0])
+
+
 def start_writer_process() -> subprocess.Popen:
     """A writer process that imports what it needs and then waits for its settings on stdin
     (it maps the ring through ``/proc/<parent>/fd/<fd>``, so it can be started before the
     ring exists). One that never gets settings exits when its stdin closes."""
     cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
-    return subprocess.Popen(cmd, stdin=subprocess.PIPE, close_fds=True)
+    return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
 
 
 class RingCanTap(can.Listener):
@@ -237,8 +244,14 @@ class ProcessRunLogWriter:
         except RigError:
             self._ring.close()
             raise
+        warm = process is not None and process.poll() is None and _imported(process)
         self._proc = self._start(blob, process)
-        self._wait_ready()
+        if warm:
+            # A warm spare makes the files in milliseconds: wait, as the writer thread has its
+            # files when it is made, and a start error is a RigError here. A process still
+            # starting is not waited for (a run must not wait for an interpreter): rows wait in
+            # the ring, and an error there is a failure that trips the loop.
+            self._wait_ready()
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)
 
