@@ -180,7 +180,9 @@ def test_sigkill_of_the_loop_process_the_writer_drains_and_closes_the_run(tmp_pa
     )
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     run_yaml = run_dir / "run.yaml"
-    assert _wait(lambda: (yaml.safe_load(run_yaml.read_text()) or {}).get("ended") is not None)
+    assert _wait(
+        lambda: run_yaml.is_file() and (yaml.safe_load(run_yaml.read_text()) or {}).get("ended")
+    )
     ended = yaml.safe_load(run_yaml.read_text())["ended"]
     assert ended["outcome"] == "aborted" and "daemon process ended" in ended["reason"]
     assert ended["rows"]["written"] == 3000 and ended["rows"]["lost"] == 0

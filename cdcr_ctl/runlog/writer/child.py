@@ -137,7 +137,10 @@ def main() -> int:
         return 0  # a spare whose factory went away: nothing to write
     (n,) = struct.unpack("<Q", head)
     spec = pickle.loads(raw.read(n))
-    fd = os.open(f"/proc/{spec['parent_pid']}/fd/{spec['fd']}", os.O_RDWR)
+    if spec.get("fd_inherited"):
+        fd = spec["fd"]
+    else:  # a spare, started before the ring existed
+        fd = os.open(f"/proc/{spec['parent_pid']}/fd/{spec['fd']}", os.O_RDWR)
     ring = SharedRing(spec["layout"], fd)
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone

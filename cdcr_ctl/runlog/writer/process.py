@@ -110,12 +110,16 @@ def _imported(proc: subprocess.Popen) -> bool:
     return bool(select.select([proc.stdout], [], [], 0)[0])
 
 
-def start_writer_process() -> subprocess.Popen:
-    """A writer process that imports what it needs and then waits for its settings on stdin
-    (it maps the ring through ``/proc/<parent>/fd/<fd>``, so it can be started before the
-    ring exists). One that never gets settings exits when its stdin closes."""
+def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
+    """A writer process that imports what it needs and then waits for its settings on stdin.
+    Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
+    exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
+    until it has its settings). One that never gets settings exits when its stdin closes."""
     cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
-    return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+    fds = () if ring_fd is None else (ring_fd,)
+    return subprocess.Popen(
+        cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=fds, close_fds=True
+    )
 
 
 class RingCanTap(can.Listener):
@@ -279,7 +283,8 @@ class ProcessRunLogWriter:
         done) or to a writer process started now."""
         try:
             if proc is None or proc.poll() is not None:
-                proc = start_writer_process()
+                proc = start_writer_process(self._ring.fd)
+                blob = pickle.dumps({**pickle.loads(blob), "fd_inherited": True})
         except OSError as exc:
             self._ring.close()
             raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
