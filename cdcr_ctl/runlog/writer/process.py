@@ -88,7 +88,8 @@ _BOOT = (
     "try:\n    os.nice({nice})\n"
     "except OSError:\n    pass\n"
     "from cdcr_ctl.runlog.writer.child import main\n"
-    "sys.stdout.write('i'); sys.stdout.flush()\n"  # imports done: a warm spare
+    "try:\n    os.write(1, b'i')\n"  # imports done: a warm spare
+    "except OSError:\n    pass\n"  # the parent is gone already: write the run all the same
     "sys.exit(main())\n"
 )
 #: How long the constructor waits for the writer process to make the run's files (s): an
