@@ -27,12 +27,10 @@ import logging
 import math
 import os
 import pickle
-import select
 import struct
 import subprocess
 import sys
 import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -49,7 +47,6 @@ from cdcr_ctl.runlog.writer.ring import (
     FAILED,
     ORDER_COLUMNS,
     ORDER_NAMES,
-    READY,
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
@@ -88,13 +85,8 @@ _BOOT = (
     "try:\n    os.nice({nice})\n"
     "except OSError:\n    pass\n"
     "from cdcr_ctl.runlog.writer.child import main\n"
-    "try:\n    os.write(1, b'i')\n"  # imports done: a warm spare
-    "except OSError:\n    pass\n"  # the parent is gone already: write the run all the same
     "sys.exit(main())\n"
 )
-#: How long the constructor waits for the writer process to make the run's files (s): an
-#: interpreter start and its imports, ~0.5 s on an idle machine, seconds on a loaded one.
-START_TIMEOUT_S = 60.0
 #: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
 _OPEN: set[ProcessRunLogWriter] = set()
 
@@ -106,11 +98,6 @@ def _close_open() -> None:
         writer.close("process exit with the log still open", outcome="aborted")
 
 
-def _imported(proc: subprocess.Popen) -> bool:
-    """Whether ``proc`` has signalled that its imports are done (one byte on its stdout)."""
-    return bool(select.select([proc.stdout], [], [], 0)[0])
-
-
 def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
     """A writer process that imports what it needs and then waits for its settings on stdin.
     Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
@@ -119,7 +106,7 @@ def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
     cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
     fds = () if ring_fd is None else (ring_fd,)
     return subprocess.Popen(
-        cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, pass_fds=fds, close_fds=True
+        cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, pass_fds=fds, close_fds=True
     )
 
 
@@ -159,9 +146,11 @@ class ProcessRunLogWriter:
 
     Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``second_sink`` must
     pickle: the writer process makes the sink). ``process``: a spare writer process from
-    :func:`start_writer_process` (its interpreter start and imports already done; the factory
-    keeps one ready), else one is started here. ``run_dir`` must be empty or not exist. Raises
-    :class:`RigError` naming the path if the writer process cannot start or open the files.
+    :func:`start_writer_process` (started ahead, its interpreter start and imports under way
+    or done; the factory keeps one ready), else one is started here. ``run_dir`` must be empty
+    or not exist. Raises :class:`RigError` naming the path if the run directory cannot be made
+    or is not empty, or the writer process cannot start; the constructor does not wait for the
+    writer process to make the files (an error there is a :attr:`failure`, which trips the loop).
     """
 
     def __init__(
@@ -249,38 +238,19 @@ class ProcessRunLogWriter:
         except RigError:
             self._ring.close()
             raise
-        warm = process is not None and process.poll() is None and _imported(process)
+        # Never wait here for the writer process to make the files: it runs at a low priority
+        # (SCHED_BATCH, nice +10), so on a loaded machine it gets little CPU and making the
+        # files can take a second or more, even from a spare with its imports done; a run's
+        # start (the command thread, a joystick already streaming) must not wait for that.
+        # Rows wait in the ring; an error making the files is published as the log's failure
+        # and trips the loop (as a write error does). The checks the daemon can make itself
+        # (directory made and empty) were made above and raise here.
         self._proc = self._start(blob, process)
-        if warm:
-            # A warm spare makes the files in milliseconds: wait, as the writer thread has its
-            # files when it is made, and a start error is a RigError here. A process still
-            # starting is not waited for (a run must not wait for an interpreter): rows wait in
-            # the ring, and an error there is a failure that trips the loop.
-            self._wait_ready()
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)
 
-    def _wait_ready(self) -> None:
-        """Wait until the writer process has made the run's files (``samples.csv`` with its
-        header, ``run.yaml``, the configs), as the writer thread has when it is made; RigError
-        with its reason if it could not, or did not within :data:`START_TIMEOUT_S`."""
-        hq, end = self._ring.hq, time.monotonic() + START_TIMEOUT_S
-        while not hq[READY] and not hq[FAILED] and self._proc.poll() is None:
-            if time.monotonic() > end:
-                break
-            time.sleep(0.005)
-        if hq[READY]:
-            return
-        why = self._ring.failure() or (
-            "the writer process ended" if self._proc.poll() is not None else "no answer"
-        )
-        self._proc.kill()
-        self._proc.wait()
-        self._ring.close()
-        raise RigError(why if str(self.run_dir) in why else f"{self.run_dir}: {why}")
-
     def _start(self, blob: bytes, proc: subprocess.Popen | None) -> subprocess.Popen:
-        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, its imports
+        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, started ahead:
         done) or to a writer process started now."""
         try:
             if proc is None or proc.poll() is not None:
