@@ -250,8 +250,8 @@ class ProcessRunLogWriter:
         _OPEN.add(self)
 
     def _start(self, blob: bytes, proc: subprocess.Popen | None) -> subprocess.Popen:
-        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, started ahead:
-        done) or to a writer process started now."""
+        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, started
+        ahead) or to a writer process started now."""
         try:
             if proc is None or proc.poll() is not None:
                 proc = start_writer_process(self._ring.fd)
