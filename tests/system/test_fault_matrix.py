@@ -20,6 +20,7 @@ timeout, drives' heartbeat consumer time), not from measurements; the measured v
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -66,6 +67,15 @@ def _rig_bounds(rig: Path) -> dict[str, float]:
         "consumer_s": min(d.heartbeat_consumer_ms for d in cfg.drives) / 1e3,
         "fsync_every_s": cfg.logging.fsync_every_s,
     }
+
+
+def _children(pid: int) -> list[int]:
+    """Process ids of ``pid``'s children (Linux ``/proc/<pid>/task/*/children``)."""
+    out: list[int] = []
+    for f in Path(f"/proc/{pid}/task").glob("*/children"):
+        with contextlib.suppress(OSError):
+            out += [int(x) for x in f.read_text().split()]
+    return out
 
 
 def _syncs(seconds: float, period_s: float) -> int:
@@ -203,18 +213,22 @@ def test_fault_matrix(tmp_path):
                     time.sleep(0.6)  # the garbage / dropout ends
                     record(label, "HALT (hold)", f"{halt_bound} SYNC", held, st)
 
-                # Disk full: a file-size limit on the daemon process (writes fail with EFBIG,
-                # the same path as ENOSPC), set at the present size of the samples file.
+                # Disk full: a file-size limit on the daemon process and its children (the
+                # run-log writer process, ``logging.writer: process``; a full disk fails every
+                # process's writes) (writes fail with EFBIG, the same path as ENOSPC), set at
+                # the present size of the samples file.
                 make_ready(work)
                 res = start_moving_run(work, "diskfull")
                 samples = Path(res["log_dir"]) / "samples.csv"
+                writers = _children(d1.pid)
                 soft, hard = resource.prlimit(d1.pid, resource.RLIMIT_FSIZE)
                 drives = fc.query("drives")["drives"]
                 inj = {
                     "t_s": time.monotonic(),
                     "syncs": {str(x["node"]): x["syncs"] for x in drives},
                 }
-                resource.prlimit(d1.pid, resource.RLIMIT_FSIZE, (samples.stat().st_size, hard))
+                for pid in (d1.pid, *writers):
+                    resource.prlimit(pid, resource.RLIMIT_FSIZE, (samples.stat().st_size, hard))
                 try:
                     st = wait_for(lambda: (s := status(work))["fault"] and s, 10, "trip")
                     assert st["fault"]["cause"] == "log_write_failed", st["fault"]
@@ -224,7 +238,9 @@ def test_fault_matrix(tmp_path):
                     assert held.all_safe and held.worst_syncs <= disk_bound, (disk_bound, held)
                     wait_for(lambda: status(work)["run"] is None, 10, "run end")
                 finally:
-                    resource.prlimit(d1.pid, resource.RLIMIT_FSIZE, (soft, hard))
+                    for pid in (d1.pid, *writers):
+                        with contextlib.suppress(ProcessLookupError):
+                            resource.prlimit(pid, resource.RLIMIT_FSIZE, (soft, hard))
                 run = wait_for(lambda: (r := load_run(res["log_dir"])).ended and r, 10, "closed")
                 assert run.ended["write_error"] and "samples.csv" in run.ended["write_error"]
                 assert run.ended["rows"]["written"] == len(run) > 50 and not run.warnings

@@ -231,7 +231,10 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
 
     def recover_from_bus_off(self) -> None:
         """Back on the bus after :meth:`enter_bus_off`: heartbeats resume, EMCY 0x81FD goes out
-        (the drive stays in FAULT until a fault reset)."""
+        (the drive stays in FAULT until a fault reset). Its CAN controller restarted: the
+        master's heartbeat is consumed again from the next one received (CiA 301: monitoring
+        starts with the first heartbeat), not timed from the last one before the bus off."""
+        self._master_hb_s = None
         self.silent = False
         self.start_heartbeat()
         self._emcy(BUS_OFF)
