@@ -199,7 +199,9 @@ def _keypoint_discrepancy(obj: Ctx, run_dirs, rig_config, max_points, analyse_ke
     h = res.refit.heldout
     result = {
         "verdict": res.verdict,
-        "effect": None,
+        "effect": None
+        if res.effect is None
+        else {"name": res.effect.name, "value": res.effect.value, "ci95": list(res.effect.ci95)},
         "reversals": res.reversals,
         "tracker_lag_s": None,
         "refit": [

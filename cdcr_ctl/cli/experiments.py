@@ -282,10 +282,12 @@ def experiments_cmd(
                 results = _parallel(jobs, in_session, tasks)
                 sweep_dirs = [d for r in results if isinstance(r, list) for d in r]
         # 2. fit offline (nothing else running)
+        t_first = time.monotonic() - t_start
         t_fit = time.monotonic()
         if overlay is None:
             overlay = fit_and_write(ctl_nominal, sweep_dirs, session / "identification")
         t_fit = time.monotonic() - t_fit
+        t_third = time.monotonic()
         ctl_ident = _controller_config(
             work, "ctl-identified.yaml", rig_path, reversal_band_mm, overlay
         )
@@ -314,9 +316,11 @@ def experiments_cmd(
     }
     rows.sort(key=lambda r: (r["params"] != "nominal", order.get((r["experiment"], r["mode"]), 0)))
     wall = time.monotonic() - t_start
+    t_third = time.monotonic() - t_third
     click.echo(
         f"experiments: {wall:.0f} s wall ({'real time' if realtime else 'lock-step'}, "
-        f"jobs {jobs}; fit {t_fit:.0f} s)",
+        f"jobs {jobs}; sweep and nominal sessions {t_first:.0f} s, fit {t_fit:.0f} s, "
+        f"identified sessions {t_third:.0f} s)",
         err=True,
     )
     table = format_table(rows)

@@ -103,16 +103,16 @@ __all__ = [
 @click.option(
     "--max-points",
     type=click.IntRange(10, 100_000),
-    default=60,
+    default=150,
     show_default=True,
-    help="Most keypoint rows fitted (evenly spread over the fitted part).",
+    help="Most keypoint rows fitted per run (its first; replayed from the run's start).",
 )
 @click.option(
     "--max-nfev",
     type=click.IntRange(1, 1000),
-    default=20,
+    default=30,
     show_default=True,
-    help="Least-squares evaluations of the keypoint fit.",
+    help="Least-squares iterations of the keypoint fit (each one forward replay per parameter).",
 )
 @click.pass_obj
 def identify_cmd(
@@ -127,7 +127,8 @@ def identify_cmd(
     max_nfev: int,
     accept_misfit: bool,
 ) -> None:
-    """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, pulleys.
+    """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, lost motion,
+    mount tilt (gravity direction), pulleys.
 
     Needs --config (the controller's rig config: nominal values, geometry, load-cell places).
     Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does

@@ -15,6 +15,7 @@ import ctypes.util
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -149,6 +150,43 @@ class Ticker:
             if missed > 0:
                 self.stats.skipped += missed
                 self._n += missed
+
+
+def timer_floor(period_s: float, until: Callable[[], bool], max_cycles: int) -> np.ndarray:
+    """The machine's floor (issue #21): a bare loop on a :class:`Ticker` of ``period_s`` (the
+    control loop's clock, sleep and spin method) doing no work, until ``until()`` is true or
+    ``max_cycles`` ran. Returns each cycle's lateness (s) counted as the control loop's rows
+    count it: from its deadline, plus one period per deadline skipped before it. Run it in a
+    process of its own (scheduled as the daemon is) while the loop runs: whatever lateness it
+    shows, the machine (its load, its timer, the scheduler) causes, not the control plane."""
+    ticker = Ticker(period_s)
+    out = np.empty(max_cycles)
+    skipped_before = 0
+    n = 0
+    while n < max_cycles and not until():
+        _deadline, lateness = ticker.wait()
+        out[n] = lateness + skipped_before * period_s
+        n += 1
+        skipped = ticker.stats.skipped
+        ticker.done()
+        skipped_before = ticker.stats.skipped - skipped
+    return out[:n]
+
+
+def raise_loop_priority() -> str | None:
+    """(In the loop thread.) Under SCHED_FIFO/SCHED_RR, one priority step above the process's
+    other threads (which inherited :func:`try_realtime`'s): a socket or sensor thread of the
+    same policy then never keeps the loop's core from it. Returns a log line, None under
+    SCHED_OTHER (nothing to raise)."""
+    if not realtime_thread():
+        return None
+    try:
+        policy = os.sched_getscheduler(0)
+        prio = min(os.sched_getparam(0).sched_priority + 1, os.sched_get_priority_max(policy))
+        os.sched_setscheduler(0, policy, os.sched_param(prio))
+    except OSError as exc:
+        return f"loop thread priority not raised ({exc.strerror})"
+    return f"loop thread at real-time priority {prio}"
 
 
 def try_realtime(priority: int, lock_memory: bool) -> list[str]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from cdcr_ctl.daemon.bustap import TeeListener
 from cdcr_ctl.errors import RigError
 
 
@@ -41,4 +42,6 @@ class LogCommands:
         path = getattr(sink, "can_log_path", None)
         if start is not None and path is not None and self.cfg.can.log_traffic:
             tap = getattr(sink, "can_tap", None)  # the run's MCAP /can channel
-            start(path("asc"), tap) if tap is not None else start(path("asc"))
+            # ``stop`` is timed on the frames this log records (:mod:`.bustap`).
+            bus_tap = self.bus_tap
+            start(path("asc"), bus_tap if tap is None else TeeListener(tap, bus_tap))

@@ -36,7 +36,8 @@ class RunCommands:
             raise RigError(f"supervisor tripped ({self.supervisor.trip.cause}): reset-fault first")
 
     def _cmd_jog(self, args: Any) -> dict[str, Any]:
-        self._require_ready()
+        # The request's own limits first: a bad request is refused naming its limit whatever
+        # state the rig is in.
         S, K = self.model.n_segments, self.model.n_cables
         if args.segment is not None:
             if args.segment > S:
@@ -47,6 +48,7 @@ class RunCommands:
                     field="args.theta_rad",
                 )
             check_jog_speed(args.speed, self.cfg.limits.bend_rad)
+            self._require_ready()
             start = self.loop.psi_cmd
             goal = start.copy()
             goal[args.segment - 1] = (args.theta_rad, args.phi_rad)
@@ -59,6 +61,7 @@ class RunCommands:
         lo, hi = self.cfg.limits.cable_displacement_mm
         if not lo - hi <= args.delta_mm <= hi - lo:
             raise ProtocolError("larger than the displacement range", field="args.delta_mm")
+        self._require_ready()
         self.loop.jog_cable(args.cable - 1, args.delta_mm)
         return {"cable": args.cable, "delta_mm": args.delta_mm}
 

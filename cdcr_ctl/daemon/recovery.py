@@ -51,23 +51,33 @@ STALE_FACTOR = 1.0
 def stop_now(d: Daemon, reaction: Reaction) -> dict[str, Any]:
     """Raise the loop's stop flag and wait (bounded) for the cycle that acted on it.
 
-    Returns ``acted_cycle`` (the loop cycle that sent the stop) and ``cycles_waited`` (how many
-    cycles after the request). A loop that is not running cannot act: the drives are stopped
-    directly.
+    Returns ``acted_cycle`` (the loop cycle that sent the stop), ``cycles_waited`` (how many
+    cycles after the request) and ``bus``: the stop timed on the CAN traffic log
+    (:class:`~cdcr_ctl.daemon.bustap.StopBusTap`: request arrival to the first quick-stop
+    frame, SYNCs in between; None without a traffic log or for a halt). A loop that is not
+    running cannot act: the drives are stopped directly.
     """
     loop = d.loop
     flag = loop.stop_flag
+    tap = getattr(d, "bus_tap", None)
+    if tap is not None:
+        tap.arm(time.time())
     seq = flag.request(reaction)
     cycle0 = loop.counters.cycles
     end = time.monotonic() + STOP_ACK_TIMEOUT_S
+    acted: int | None = None
     while loop.running and time.monotonic() < end:
         acted = flag.acted_cycle(seq)
         if acted is not None:
-            return {"acted_cycle": acted, "cycles_waited": acted - cycle0}
+            break
         time.sleep(loop.cfg.period_s / 4)
-    if reaction is Reaction.QUICK_STOP:
+    if acted is None and reaction is Reaction.QUICK_STOP:
         d.io.drives.quick_stop()
-    return {"acted_cycle": None, "cycles_waited": None}
+    # The frames are sent (and logged) before the loop marks the flag acted: the tap has them.
+    bus = tap.result(loop.cfg.period_s) if tap is not None else None
+    if acted is None:
+        return {"acted_cycle": None, "cycles_waited": None, "bus": bus}
+    return {"acted_cycle": acted, "cycles_waited": acted - cycle0, "bus": bus}
 
 
 def hold_tracker_check(supervisor: Supervisor) -> Callable[[], None]:

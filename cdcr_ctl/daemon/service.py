@@ -24,6 +24,7 @@ from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig
 from cdcr_ctl.control.ports import RigIO, RobotModelPort
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.daemon import recovery
+from cdcr_ctl.daemon.bustap import StopBusTap
 from cdcr_ctl.daemon.commands_drive import DriveCommands
 from cdcr_ctl.daemon.commands_log import LogCommands
 from cdcr_ctl.daemon.commands_run import RUN_PICKUP_TIMEOUT_S, RunCommands
@@ -109,6 +110,8 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         self.live: LiveView | None = None
         #: Big requests and trajectory files are parsed in this worker process, not here.
         self.intake = Intake(model.n_segments, cfg.limits.bend_rad)
+        #: Times ``stop`` on the CAN traffic a run logs (first quick-stop frame after a request).
+        self.bus_tap = StopBusTap()
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:

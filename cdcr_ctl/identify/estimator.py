@@ -11,7 +11,7 @@ dwell, which holds whatever the command was (errors-in-variables least squares):
 unknowns per dwell j: the bending vectors x_j (2S, rad), the anchor tensions T_j (K, N) and, where
 the friction state is not certain (:mod:`.dwell`), the mobilised fractions s_jk in [-1, 1];
 global unknowns: the :class:`~.parameters.FitParameter` s (μ, EI, EA, T0, lost motion b,
-pulley α/n).
+mount tilt, pulley α/n).
 
 residuals per dwell, each divided by its standard deviation:
 
@@ -32,7 +32,7 @@ the routing radius.
 Stages (each a bounded trust-region least squares; the next starts where the last ended):
 0. nuisance only, nominal parameters, without compatibility: poses and tensions that fit tip,
    load cells and moment balance;
-1. + μ, EI (and pulley α, n when cells sit at the actuator): the force side;
+1. + μ, EI, mount tilt (and pulley α, n when cells sit at the actuator): the force side;
 2. + compatibility, EA, T0 (and pulley α with cells at the base): the length side, force side fixed;
 3. everything jointly. The 95 % confidence intervals come from its Jacobian:
    cov = s² (JᵀJ)⁻¹ over all free unknowns (nuisance included, those on a bound excluded),
@@ -53,8 +53,8 @@ from scipy.stats import t as student_t
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, Estimate, FitOptions, Identification
-from cdcr_ctl.identify.parameters import FORCE_KINDS, FitParameter, NotIdentified
-from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance
+from cdcr_ctl.identify.parameters import FORCE_KINDS, TILT_CI_DEG, FitParameter, NotIdentified
+from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance, single_blas
 from cdcr_ctl.model.params import Effects, Location, RobotParams
 
 __all__ = [
@@ -147,7 +147,11 @@ def identify(
             )
         stages.append("refit without " + ", ".join(e.name for e in weak))
     for e in estimates:
-        if not e.rel_halfwidth <= opt.max_rel_ci:
+        if e.parameter.kind == "gravity_tilt":
+            half = 0.5 * (e.ci95[1] - e.ci95[0])
+            if not half <= TILT_CI_DEG:
+                warnings.append(f"{e.name}: poorly identified (95 % CI ±{half:.2g} deg)")
+        elif not e.rel_halfwidth <= opt.max_rel_ci:
             warnings.append(f"{e.name}: poorly identified (95 % CI ±{100 * e.rel_halfwidth:.0f} %)")
         if e.at_bound:
             warnings.append(f"{e.name}: fitted value {e.value:.4g} is on its bound")
@@ -203,11 +207,12 @@ def _estimates(prob: _Problem, z: np.ndarray) -> tuple[list[Estimate], float, in
     m, n = r.size, int(keep.sum())
     dof = max(m - n, 1)
     s2 = float(r @ r) / dof
-    JtJ = Jk.T @ Jk
-    try:
-        cov = s2 * np.linalg.inv(JtJ)
-    except np.linalg.LinAlgError:
-        cov = s2 * np.linalg.pinv(JtJ)
+    with single_blas():
+        JtJ = Jk.T @ Jk
+        try:
+            cov = s2 * np.linalg.inv(JtJ)
+        except np.linalg.LinAlgError:
+            cov = s2 * np.linalg.pinv(JtJ)
     idx = np.cumsum(keep) - 1  # column of each kept unknown in cov
     tq = float(student_t.ppf(0.975, dof))
     out = []

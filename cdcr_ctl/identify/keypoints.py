@@ -1,12 +1,12 @@
 """Identification from tip-only and keypoint logs (issue 18): observability, fit, held-out check.
 
 The lab logs this serves hold actuator positions and a tracked tip (sometimes load cells), with
-rows seconds apart and no commanded pose (:mod:`.logkind`). The fit is the errors-in-variables
-problem of :mod:`.estimator` (every row's pose and anchor tensions are nuisance unknowns; tip,
-moment balance and cable compatibility residuals, with compatibility written slack-aware:
-:attr:`FitOptions.slack_compat`), over the candidate parameters of :func:`candidates`:
+rows seconds apart and no commanded pose (:mod:`.logkind`). The model is the forward replay of
+the logged actuator path (:mod:`.replay_fit`: an output-error fit; the friction memory, stick
+after reversals and slack cables come out of the replay, as on the rig), over the candidate
+parameters of :func:`candidates`:
 
-* EI per segment (moment balance against the cable tensions the compatibility implies);
+* EI per segment;
 * EA, pretension, disk friction mu and routing radius, each one scale shared by every cable
   (the nominal spread between cables kept): tip-only data cannot split them per cable;
 * a hole-angle offset per segment (rad, added to every hole of the segment).
@@ -14,17 +14,16 @@ moment balance and cable compatibility residuals, with compatibility written sla
 Steps (:func:`identify_keypoint_runs`):
 
 1. points per run; split by time: the last ``holdout`` fraction of each run is never fitted;
-   the fitted part is thinned to ``max_points`` rows evenly spread (friction directions are
-   taken from the full path first);
-2. observability at the nominal parameters (:mod:`.observability`): the sensitivity matrix with
-   the poses and tensions projected out, its singular values, a 95 % half-width per candidate;
-   the ones not identifiable stay at the config, with the reason;
-3. the fit of the identifiable ones (:func:`~.estimator.identify`), reduced chi^2 and 95 %
-   intervals from its Jacobian;
-4. held-out check: the forward model (:func:`cdcr_ctl.model.forward.replay`, friction memory
-   kept over every row of the run) with the nominal and the fitted parameters; tip RMSE over
-   the held-out rows (and, for reference, the fitted rows). Rows with no static solution are
-   named and left out of the RMSE.
+   of the rest the first ``max_points`` rows of each run are fitted (a prefix, so every replay
+   starts where the run started);
+2. observability at the config's values (:mod:`.observability`): the replay's weighted
+   sensitivity to every candidate, its singular values, a 95 % half-width per candidate; the
+   ones not identifiable stay at the config, with the reason;
+3. the fit of the identifiable ones (:func:`.replay_fit.fit`), reduced chi^2 and 95 % intervals
+   from its Jacobian (widened by sqrt(chi^2) when the residual exceeds the noise);
+4. held-out check: the forward replay of every row of the run with the config's and the fitted
+   parameters; tip RMSE over the held-out rows (and, for reference, the other rows). Rows with
+   no static solution are named and left out of the RMSE.
 """
 
 from __future__ import annotations
@@ -41,18 +40,13 @@ import numpy as np
 from cdcr_ctl.config.build_model import build_model, loadcell_locations
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, RigError
+from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.dwell import DwellPoint, extract_dwells
-from cdcr_ctl.identify.estimator import (
-    RESIDUAL_KINDS,
-    FitOptions,
-    Identification,
-    _estimates,
-    _Problem,
-    initial_nuisance,
-)
-from cdcr_ctl.identify.logkind import detect_kind, keypoint_points, split_by_time, thin
-from cdcr_ctl.identify.observability import Observability, schur_sensitivity, select, tolerance
+from cdcr_ctl.identify.fit_types import Identification
+from cdcr_ctl.identify.logkind import detect_kind, keypoint_points, split_by_time
+from cdcr_ctl.identify.observability import Observability, select, tolerance
 from cdcr_ctl.identify.parameters import FitParameter, NotIdentified
+from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, RunRows
 from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.model.identification import ParamRef
 from cdcr_ctl.model.params import Effects, RobotParams
@@ -60,10 +54,12 @@ from cdcr_ctl.runlog import load_run
 
 #: Fraction of each run's time span held out (the end of the run).
 HOLDOUT_FRACTION = 0.3
-#: Most rows fitted (evenly spread over the fitted part of the runs).
-MAX_FIT_POINTS = 60
+#: Most rows fitted per run: the first ones by time (every replay starts at the run's start).
+MAX_FIT_POINTS = 150
 #: Tracker noise assumed for a single keypoint row (mm, per axis).
 TIP_NOISE_MM = 0.05
+#: Load-cell noise assumed for a single keypoint row (N).
+TENSION_NOISE_N = 0.02
 #: Tolerances of observability: relative for positive parameters, absolute for hole offsets.
 MAX_REL = 0.25
 MAX_OFFSET_RAD = math.radians(1.0)
@@ -79,7 +75,10 @@ class KeypointOptions:
     max_rel: float = MAX_REL
     max_offset_rad: float = MAX_OFFSET_RAD
     kind: str | None = None  # None: detect per run
-    max_nfev: int = 20  # least-squares evaluations per stage (each costs one Jacobian)
+    max_nfev: int = 30  # least-squares iterations (each costs one replay per fitted parameter)
+    tension_noise_N: float = TENSION_NOISE_N
+    jobs: int | None = None  # worker processes for the Jacobian's replays (None: CPU count)
+    backlash: bool = False  # also the candidate cables.backlash_mm (:func:`candidates`)
 
 
 @dataclass
@@ -107,10 +106,30 @@ class KeypointIdentification:
     holdout: float = HOLDOUT_FRACTION
 
 
-def candidates(params: RobotParams) -> list[FitParameter]:
-    """The candidate parameters of a tip/keypoint log (module docstring), nominal = config."""
+def candidates(params: RobotParams, backlash: bool = False) -> list[FitParameter]:
+    """The candidate parameters of a tip/keypoint log (module docstring), nominal = config;
+    ``backlash``: also one lost motion (play, mm) added to every cable's config value (Yang et
+    al. 2022 eq. 13-17, the play operator between drive and cable; the effect ``discrepancy``
+    looks for on keypoint logs)."""
     out: list[FitParameter] = []
     cab = params.cables
+    if backlash:
+        refs = tuple(ParamRef("cable", k, "backlash_mm") for k in range(len(cab)))
+        offs = tuple(c.backlash_mm for c in cab)
+        out.append(
+            FitParameter(
+                "cables.backlash_mm",
+                "backlash",
+                -1,
+                refs,
+                (1.0,) * len(cab),
+                0.0,
+                0.0,
+                3.0,
+                log=False,
+                offsets=offs,
+            )
+        )
     for i, seg in enumerate(params.segments):
         nom = seg.EI_Nmm2
         ref = ParamRef("segment", i, "EI_Nmm2")
@@ -194,7 +213,7 @@ def heldout_rmse(
     e_fit: list[float] = []
     failed: list[str] = []
     for rdat in runs:
-        rep = replay(ForwardStepper(params, effects), rdat.q_path)
+        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, effects)), rdat.q_path)
         failed += [f"{rdat.name} row {i}: {why}" for i, why in rep.failed]
         for p, row in zip(rdat.points, rdat.rows, strict=True):
             d = rep.tip_mm[row] - p.tip_mm
@@ -219,39 +238,44 @@ def identify_keypoint_runs(
     t0 = time.monotonic()
     model = build_model(cfg)
     params, effects = model.params, model.effects
-    locs = loadcell_locations(cfg)
+    locs = tuple(loadcell_locations(cfg))
     runs, kinds, warnings = _load(run_dirs, opt.kind, params.n_segments)
     points = [p for r in runs for p in r.points]
     if not points:
         raise RigError("identification: the runs hold no row with a tip")
     fit_all, held_pts = split_by_time(points, opt.holdout)
-    fit_pts = thin(fit_all, opt.max_points)
-    if len(fit_pts) < 10:
-        raise RigError(f"identification: only {len(fit_pts)} rows to fit from")
-    fopt = FitOptions(tip_floor_mm=opt.tip_noise_mm, slack_compat=True, max_nfev=opt.max_nfev)
-    fps = candidates(params)
-    # observability at the nominal parameters, poses and tensions fitted
-    prob = _Problem(params, effects, fit_pts, locs, fps, fopt)
-    nuis = initial_nuisance(params, effects, fit_pts, locs, prob.unc)
-    prob.set_stage([], RESIDUAL_KINDS)
-    nuis, _ = prob.solve(nuis, fopt.max_nfev)
-    prob.set_stage(list(range(len(fps))), RESIDUAL_KINDS)
-    lo, hi = prob.bounds()
-    z = prob.pack(nuis)
-    J = prob.jacobian(z, lo, hi)
-    J_eff = schur_sensitivity(J, len(fps), prob.row_off, prob.offsets)
+    fit_keys = {(p.run, p.index) for p in fit_all}
+    rr = [_run_rows(r, fit_keys, opt.max_points) for r in runs]
+    rr = [r for r in rr if r is not None]
+    n_fit = sum(len(r.rows) for r in rr)
+    if n_fit < 10:
+        raise RigError(f"identification: only {n_fit} rows to fit from")
+    prob = ReplayProblem(params, effects, tuple(rr), locs, opt.tip_noise_mm, opt.tension_noise_N)
+    fps = candidates(params, opt.backlash)
     scales = [tolerance(fp, opt.max_rel, opt.max_offset_rad) for fp in fps]
-    keep, dropped, obs = select(J_eff, fps, scales)
-    fixed = [NotIdentified(fps[i].name, fps[i].nominal, why) for i, why in dropped]
-    if not keep:
-        raise RigError(
-            "identification: nothing identifiable in these runs: "
-            + "; ".join(f"{f.name}: {f.reason}" for f in fixed)
-        )
-    ident = _fit(prob, nuis, [fps[i] for i in keep], fixed, fopt)
     held_keys = {(p.run, p.index) for p in held_pts}
-    h_nom, f_nom, _ = heldout_rmse(params, effects, runs, held_keys)
-    h_fit, f_fit, failed = heldout_rmse(ident.fitted, effects, runs, held_keys)
+    with Evaluator(prob, opt.jobs) as ev:
+        # observability: the replay's sensitivity to every candidate at the config's values
+        x0 = np.array([fp.to_var(fp.nominal) for fp in fps])
+        hi = np.array([fp.var_bounds()[1] for fp in fps])
+        r0 = ev.map_params([params])[0]
+        J = ev.jacobian(fps, x0, r0, hi)
+        keep, dropped, obs = select(J, fps, scales)
+        fixed = [NotIdentified(fps[i].name, fps[i].nominal, why) for i, why in dropped]
+        if not keep:
+            raise RigError(
+                "identification: nothing identifiable in these runs: "
+                + "; ".join(f"{f.name}: {f.reason}" for f in fixed)
+            )
+        kfps = [fps[i] for i in keep]
+        sol = replay_fit.fit(ev, kfps, [scales[i] for i in keep], opt.max_nfev, (r0, J[:, keep]))
+        fitted = prob.params_of(kfps, sol.x)
+        (h_nom, f_nom, _), (h_fit, f_fit, failed) = _heldout_both(
+            ev, (params, fitted), effects, runs, held_keys
+        )
+    ident = _identification(
+        prob, params, fitted, sol, fixed, [p for p in points if (p.run, p.index) in fit_keys]
+    )
     heldout = HeldOut(h_nom, h_fit, f_nom, f_fit, len(held_pts), failed)
     if failed:
         warnings.append(f"{len(failed)} rows with no static solution (left out of the RMSE)")
@@ -267,63 +291,83 @@ def identify_keypoint_runs(
         obs,
         heldout,
         len(points),
-        len(fit_pts),
+        n_fit,
         time.monotonic() - t0,
         warnings,
         opt.holdout,
     )
 
 
-def _fit(
-    prob0: _Problem,
-    nuis: np.ndarray,
-    fps: list[FitParameter],
-    fixed: list[NotIdentified],
-    fopt: FitOptions,
-) -> Identification:
-    """Joint fit of ``fps`` from the nuisance of the observability step (one stage: the
-    poses and tensions are already fitted at the nominal parameters)."""
-    prob = _Problem(prob0.base, prob0.effects, prob0.points, prob0.locations, fps, fopt)
-    prob.set_stage(list(range(len(fps))), RESIDUAL_KINDS)
-    before = prob.kind_residuals(prob.pack(nuis))
-    nuis, sol = prob.solve(nuis, fopt.max_nfev)
-    estimates, chi2, m, n = _estimates(prob, sol.x)
-    after = prob.kind_residuals(sol.x)
-    S = prob.S
-    poses = np.array(
-        [nuis[prob.offsets[j] : prob.offsets[j] + 2 * S] for j in range(len(prob.points))]
+def _run_rows(r: _RunData, fit_keys: set, max_rows: int) -> RunRows | None:
+    """The first ``max_rows`` fitted rows of a run (by time) and its path up to the last."""
+    idx = [j for j, p in enumerate(r.points) if (p.run, p.index) in fit_keys][:max_rows]
+    if not idx:
+        return None
+    rows = np.array([r.rows[j] for j in idx], dtype=int)
+    return RunRows(
+        r.name,
+        r.q_path[: int(rows.max()) + 1],
+        rows,
+        np.array([r.points[j].tip_mm for j in idx]),
+        np.array([r.points[j].tension_N for j in idx]),
     )
-    s_fit = np.array(
-        [
-            prob.split_block(j, nuis[prob.offsets[j] : prob.offsets[j + 1]])[2]
-            for j in range(len(prob.points))
-        ]
-    )
-    warnings = [
-        f"{e.name}: fitted value {e.value:.4g} is on its bound" for e in estimates if e.at_bound
-    ]
 
-    def rms(res: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
+
+def _heldout_task(args: tuple) -> tuple[float, float, list[str]]:
+    return heldout_rmse(*args)
+
+
+def _heldout_both(ev: Evaluator, plist, effects, runs, held_keys) -> list:
+    """:func:`heldout_rmse` for each parameter set, in the evaluator's workers."""
+    tasks = [(p, effects, runs, held_keys) for p in plist]
+    ev.n_replays += len(tasks)
+    if ev.pool is None:
+        return [_heldout_task(t) for t in tasks]
+    return list(ev.pool.map(_heldout_task, tasks))
+
+
+def _identification(
+    prob: ReplayProblem,
+    nominal: RobotParams,
+    fitted: RobotParams,
+    sol: replay_fit.ReplayFit,
+    fixed: list[NotIdentified],
+    points: list[DwellPoint],
+) -> Identification:
+    warnings = [
+        f"{e.name}: fitted value {e.value:.4g} is on its bound" for e in sol.estimates if e.at_bound
+    ]
+    if sol.s2 > 1.0:
+        warnings.append(
+            f"reduced chi^2 {sol.chi2_reduced:.3g} > 1: the residual exceeds the assumed noise; "
+            f"the 95 % intervals are widened by sqrt(chi^2) = {math.sqrt(sol.s2):.3g}"
+        )
+
+    def per_kind(res: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        t = res[sol.is_tip].reshape(-1, 3) * prob.tip_noise_mm
+        c = res[~sol.is_tip] * prob.tension_noise_N
         return {
-            k: float(np.sqrt(np.mean(v**2))) if v.size else math.nan for k, (_, v) in res.items()
+            "tip": (np.arange(len(t)), np.linalg.norm(t, axis=1)),
+            "cell": (np.arange(c.size), c),
         }
 
+    S = nominal.n_segments
     return Identification(
-        nominal=prob0.base,
-        fitted=prob.params_of(prob.g_all),
-        estimates=estimates,
+        nominal=nominal,
+        fitted=fitted,
+        estimates=sol.estimates,
         fixed=fixed,
-        points=prob.points,
-        rms_before=rms(before),
-        rms_after=rms(after),
-        residuals_before=before,
-        residuals_after=after,
-        poses=poses,
-        s=s_fit,
-        chi2_reduced=chi2,
-        n_residuals=m,
-        n_unknowns=n,
-        stages=[f"joint fit: cost {sol.cost:.4g}, {sol.nfev} evaluations, {sol.message}"],
+        points=points,
+        rms_before=replay_fit.rms_by_kind(sol.res_before, sol.is_tip, prob),
+        rms_after=replay_fit.rms_by_kind(sol.res_after, sol.is_tip, prob),
+        residuals_before=per_kind(sol.res_before),
+        residuals_after=per_kind(sol.res_after),
+        poses=np.zeros((0, 2 * S)),
+        s=np.zeros((0, nominal.n_cables)),
+        chi2_reduced=sol.chi2_reduced,
+        n_residuals=sol.n_residuals,
+        n_unknowns=len(sol.estimates),
+        stages=[f"output-error fit over the forward replay: {sol.nfev} evaluations, {sol.message}"],
         warnings=warnings,
     )
 

@@ -114,11 +114,3 @@ def split_by_time(
         fit += [p for p in pts if p.t_end_s < cut]
         held += [p for p in pts if p.t_end_s >= cut]
     return fit, held
-
-
-def thin(points: list[DwellPoint], max_points: int) -> list[DwellPoint]:
-    """At most ``max_points`` points, evenly spread in order (friction states already set)."""
-    if len(points) <= max_points:
-        return points
-    idx = np.unique(np.linspace(0, len(points) - 1, max_points).round().astype(int))
-    return [points[i] for i in idx]

@@ -1,22 +1,20 @@
 """Which parameters a log identifies: singular values of the sensitivity matrix, and intervals.
 
-The joint problem of :mod:`.estimator` has global parameters g (EI, EA, T0, hole offsets, ...)
-and per-point nuisance unknowns n (poses, anchor tensions, uncertain friction fractions). With
-the weighted Jacobian J = [J_g | J_n] at a point where the nuisance is fitted, the sensitivity
-of the data to g *after the poses and tensions have absorbed what they can* is the Schur
-complement (the nuisance is block diagonal, one block per point j):
-
-    J_eff,j = J_g,j - J_n,j (J_n,j^+ J_g,j)
+J is the weighted sensitivity of the data to the candidate parameters g (EI, EA, T0, hole
+offsets, ...): for keypoint logs the forward differences of the forward replay's residuals
+(:mod:`.replay_fit`; every residual divided by its noise standard deviation), so the poses and
+tensions are the model's own and no nuisance unknown is left to absorb anything. (Where a
+problem carries per-point nuisance unknowns, J must first have them projected out.)
 
 Each column is scaled by the parameter's tolerance u (a relative change ``max_rel`` for the
 log-fitted positive parameters, ``max_offset_rad`` for angle offsets), so one unit of every
 column is "as much change as we would accept as an error". Then
 
-* the singular values of J_eff say how many independent directions the log resolves and how
+* the singular values of J say how many independent directions the log resolves and how
   well (a singular value s means: moving one tolerance along its direction changes the weighted
   residuals by s noise standard deviations); the right singular vector names the parameters
   that make the direction;
-* cov = (J_effᵀ J_eff)⁻¹ (in tolerance units, noise variance 1 because every residual is
+* cov = (Jᵀ J)⁻¹ (in tolerance units, noise variance 1 because every residual is
   divided by its noise standard deviation) gives each parameter's 95 % half-width
   h_j = 1.96 sqrt(cov_jj); the parameter is *identifiable* when h_j <= 1 (its 95 % interval is
   inside its tolerance).
@@ -77,36 +75,16 @@ def tolerance(fp: FitParameter, max_rel: float, max_offset_rad: float) -> float:
     return max_rel * max(abs(fp.nominal), abs(fp.upper - fp.lower) * 0.05)
 
 
-def schur_sensitivity(
-    J: np.ndarray, n_globals: int, row_off: np.ndarray, col_off: np.ndarray
-) -> np.ndarray:
-    """J_eff (rows, n_globals): the global columns with each point's nuisance projected out.
-
-    ``row_off``/``col_off``: where point j's rows and nuisance columns start (length N + 1,
-    nuisance columns counted after the globals)."""
-    Jg = J[:, :n_globals]
-    out = Jg.copy()
-    for j in range(len(row_off) - 1):
-        r0, r1 = int(row_off[j]), int(row_off[j + 1])
-        c0, c1 = n_globals + int(col_off[j]), n_globals + int(col_off[j + 1])
-        Jn = J[r0:r1, c0:c1]
-        if Jn.size == 0:
-            continue
-        coef = np.linalg.lstsq(Jn, Jg[r0:r1], rcond=None)[0]
-        out[r0:r1] -= Jn @ coef
-    return out
-
-
 def analyse(
-    J_eff: np.ndarray, fps: Sequence[FitParameter], scales: Sequence[float], s2: float = 1.0
+    J: np.ndarray, fps: Sequence[FitParameter], scales: Sequence[float], s2: float = 1.0
 ) -> Observability:
-    """Singular values, directions and 95 % half-widths of ``fps`` from ``J_eff`` (columns in
+    """Singular values, directions and 95 % half-widths of ``fps`` from ``J`` (columns in
     the fit variables: ln value for log-fitted parameters) scaled by ``scales``; ``s2`` the
     variance factor (1 when the residual weights are the noise, else the reduced chi^2)."""
     names = tuple(fp.name for fp in fps)
     if not fps:
         return Observability((), (), (), (), ())
-    A = J_eff * np.asarray(scales, dtype=float)[None, :]
+    A = J * np.asarray(scales, dtype=float)[None, :]
     U, sv, Vt = np.linalg.svd(A, full_matrices=False)
     del U
     dirs = []
@@ -126,7 +104,7 @@ def analyse(
 
 
 def select(
-    J_eff: np.ndarray,
+    J: np.ndarray,
     fps: Sequence[FitParameter],
     scales: Sequence[float],
     s2: float = 1.0,
@@ -138,9 +116,9 @@ def select(
     """
     keep = list(range(len(fps)))
     dropped: list[tuple[int, str]] = []
-    full = analyse(J_eff, fps, scales, s2)
+    full = analyse(J, fps, scales, s2)
     while keep:
-        sub = analyse(J_eff[:, keep], [fps[i] for i in keep], [scales[i] for i in keep], s2)
+        sub = analyse(J[:, keep], [fps[i] for i in keep], [scales[i] for i in keep], s2)
         worst = int(np.argmax(sub.halfwidth))
         if sub.halfwidth[worst] <= 1.0:
             break

@@ -21,6 +21,13 @@ Identifiability (what shows the parameter in the data; derivations in :mod:`.est
   residual of the dwells after pulling in and after paying out differ by b_k at one pose (EA and
   T0 change it with the tension, not with the direction). Needs drive feedback, the tip and both
   motion directions; it is fitted with or without a load cell.
+* Mount tilt (gravity direction), two angles ``tilt_x``/``tilt_y`` (deg) turning the config's
+  gravity vector about the base x and y axes (g = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg, its
+  size kept; the parametrisation of :class:`cdcr_ctl.model.effect_terms.GravityDirection`):
+  the disk weights enter the moment balance (eq. 7-9, external load W_e) along the true
+  gravity, so a mount that is not where the config says leaves a moment residual that depends
+  on the bending direction. Needs the tip, a load cell (the moment balance) and disks with
+  mass in a model with gravity on. Written back as ``robot.gravity_mm_s2``.
 * Pulley α (and n) (eq. 25-32): with load cells at the actuator, the ratio of actuator tension
   to the tension entering the robot (inferred from the moment balance); the friction exponent n
   from how that ratio changes with the tension level. With load cells at the robot base the
@@ -30,6 +37,7 @@ Identifiability (what shows the parameter in the data; derivations in :mod:`.est
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,13 +45,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdcr_ctl.identify.dwell import DwellPoint
+from cdcr_ctl.model.effect_spec import STANDARD_GRAVITY_MM_S2, rotation_from_rotvec
 from cdcr_ctl.model.identification import ParamRef, get_value, with_values
-from cdcr_ctl.model.params import Location, RobotParams
+from cdcr_ctl.model.params import Effects, Location, RobotParams
 
 #: Kinds of fitted parameters, in report order.
-KINDS = ("EI", "mu", "EA", "pretension", "backlash", "pulley_alpha", "pulley_n")
+KINDS = ("EI", "mu", "EA", "pretension", "backlash", "gravity_tilt", "pulley_alpha", "pulley_n")
 #: Kinds fitted from the force side (tensions, moment balance) in the first stage.
-FORCE_KINDS = frozenset({"EI", "mu"})
+FORCE_KINDS = frozenset({"EI", "mu", "gravity_tilt"})
+#: Bound of a fitted mount tilt (deg): beyond it the robot hangs sideways, not a tilted mount.
+MAX_TILT_DEG = 60.0
+#: A mount tilt whose 95 % half-interval exceeds this (deg) is reported as poorly identified
+#: (a tilt, nominal 0, has no relative error): 2 deg turns the disk weights' moment by
+#: sin 2 deg = 3.5 % of its size, about the load-cell noise's share of it on the default rig.
+TILT_CI_DEG = 2.0
 #: A segment whose dwells span less bend than this (rad) shows no stiffness.
 MIN_BEND_RANGE_RAD = 0.2
 
@@ -90,18 +105,38 @@ class NotIdentified:
     reason: str
 
 
+def tilted_gravity(gravity_mm_s2: Sequence[float], tilt_deg: Sequence[float]) -> np.ndarray:
+    """The config's gravity vector (base frame, mm/s^2; standard gravity along -z if it is
+    zero) turned by the mount tilt ``tilt_deg`` = (about base x, about base y) in degrees:
+    g = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg (Rodrigues), size kept. Tilt 0 gives g_cfg."""
+    g = np.asarray(gravity_mm_s2, dtype=float)
+    if not np.any(g):
+        g = np.asarray(STANDARD_GRAVITY_MM_S2, dtype=float)
+    a, b = (math.radians(float(t)) for t in tilt_deg)
+    return rotation_from_rotvec((a, b, 0.0)) @ g
+
+
 def apply_values(
     params: RobotParams, fps: Sequence[FitParameter], values: Sequence[float]
 ) -> RobotParams:
-    """``params`` with every fitted parameter set (natural units; tied refs scaled)."""
+    """``params`` with every fitted parameter set (natural units; tied refs scaled; a mount
+    tilt turns ``params``' gravity vector, :func:`tilted_gravity`)."""
     refs: list[ParamRef] = []
     vals: list[float] = []
+    tilt = [0.0, 0.0]
     for fp, v in zip(fps, values, strict=True):
+        if fp.kind == "gravity_tilt":
+            tilt[fp.index] = float(v)
+            continue
         offs = fp.offsets or (0.0,) * len(fp.refs)
         for ref, sc, off in zip(fp.refs, fp.scales, offs, strict=True):
             refs.append(ref)
             vals.append(float(v) * sc + off)
-    return with_values(params, refs, vals) if refs else params
+    out = with_values(params, refs, vals) if refs else params
+    if any(fp.kind == "gravity_tilt" for fp in fps):
+        g = tilted_gravity(params.gravity_mm_s2, tilt)
+        out = dataclasses.replace(out, gravity_mm_s2=(float(g[0]), float(g[1]), float(g[2])))
+    return out
 
 
 def _pulley_names(params: RobotParams) -> list[str]:
@@ -118,12 +153,14 @@ def plan_parameters(
     points: Sequence[DwellPoint],
     locations: Sequence[Location],
     fit_pulleys: str = "auto",
+    effects: Effects | None = None,
 ) -> tuple[list[FitParameter], list[NotIdentified]]:
     """The parameters the dwell data can identify (module docstring) and the ones it cannot.
 
     ``locations`` per cable: where its load cell sits (the config's). ``fit_pulleys``:
     ``"auto"`` (α always tried, n only with actuator-side cells), ``"on"`` (α and n tried),
-    ``"off"``.
+    ``"off"``. ``effects``: the controller's model effects (the mount tilt is fitted only
+    with gravity on; None: the defaults).
     """
     K = params.n_cables
     pts = list(points)
@@ -206,6 +243,25 @@ def plan_parameters(
             ref = ParamRef("cable", k, "backlash_mm")
             hi = max(5.0, 4.0 * nom)
             fit.append(FitParameter(name, "backlash", k, (ref,), (1.0,), nom, 0.0, hi, log=False))
+
+    gravity_on = (Effects() if effects is None else effects).gravity
+    massive = any(seg.disk_mass_g > 0 for seg in params.segments)
+    for axis, label in enumerate(("x", "y")):
+        name = f"mount.tilt_{label}_deg"
+        if not (gravity_on and massive):
+            why = "the model has no gravity load (gravity off or massless disks)"
+        elif not has_tip:
+            why = "no tracker tip: the pose the weights act at is unknown"
+        elif not any(cell):
+            why = "no load cell: the moment balance is not measured"
+        else:
+            fit.append(
+                FitParameter(
+                    name, "gravity_tilt", axis, (), (), 0.0, -MAX_TILT_DEG, MAX_TILT_DEG, log=False
+                )
+            )
+            continue
+        fixed.append(NotIdentified(name, 0.0, why))
 
     names = _pulley_names(params)
     if names and fit_pulleys != "off":

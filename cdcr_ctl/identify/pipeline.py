@@ -65,7 +65,7 @@ def identify_runs(
     model = build_model(cfg)
     locs = loadcell_locations(cfg)
     points, warnings = dwell_points(run_dirs)
-    fps, fixed = plan_parameters(model.params, points, locs, fit_pulleys)
+    fps, fixed = plan_parameters(model.params, points, locs, fit_pulleys, model.effects)
     if not fps:
         raise RigError(
             "identification: nothing identifiable in these runs: "
@@ -138,7 +138,17 @@ def overlay_document(
                 name = str(ref.index)
                 pul_doc.setdefault(name, {"name": name})[key] = round(e.value * sc, 5)
             notes.append(f"pulleys {key} {e.value:.5g} (shared): {_fmt_ci(e)}")
+    tilts = {e.parameter.index: e for e in ident.estimates if e.parameter.kind == "gravity_tilt"}
     rob: dict[str, Any] = {}
+    if tilts:
+        g = ident.fitted.gravity_mm_s2
+        rob["gravity_mm_s2"] = [round(float(v), 2) for v in g]
+        for axis, e in sorted(tilts.items()):
+            notes.append(
+                f"mount tilt about base {'xy'[axis]} {e.value:.3g} deg "
+                f"(gravity_mm_s2 turned from the config's {list(robot.gravity_mm_s2)}): "
+                + _fmt_ci(e)
+            )
     if seg_doc:
         rob["segments"] = list(seg_doc.values())
     if pul_doc:

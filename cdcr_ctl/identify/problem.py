@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.identify.dwell import DwellPoint
@@ -28,6 +29,19 @@ _H_X = 1e-7  # rad
 _H_S = 1e-6
 _X_BOUND = 3.2  # rad, bound of each bending-vector component
 _T_MAX = 1e3  # N
+#: Drive travel (mm) after which a cable's position in its play is known whatever it was at the
+#: start of the run: the play operator forgets its start once the drive's range since then
+#: exceeds the width b (from either end of the gap, a range >= b pushes the cable against the
+#: same side). 1 mm is above any lost motion of a usable rig (issue #17 worlds: 0.2-0.4 mm);
+#: the width used is the larger of this and twice the config's largest backlash_mm.
+PLAY_SETTLE_MM = 1.0
+
+
+def single_blas():
+    """Context: BLAS on one thread. The solver's SVDs (trust region, ~1000 x 500) take 0.35 s
+    on one thread but 10 s with OpenBLAS's two spinning threads on a busy 2-core machine
+    (measured under load ~10); the residuals are Python, so a second BLAS thread gains nothing."""
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 class _Problem:
@@ -70,6 +84,7 @@ class _Problem:
             self.sig_M.append(
                 max(options.moment_floor_Nmm, math.sqrt(sum((sT[k] * r[k]) ** 2 for k in range(K))))
             )
+        self.play_known = self._play_known(fps)
         self.block = [2 * S + K + len(u) for u in self.unc]
         self.offsets = np.concatenate(([0], np.cumsum(self.block)))
         self._ft_key: tuple[float, ...] | None = None
@@ -77,6 +92,33 @@ class _Problem:
         self._ft: ForceTransfer | None = None
         self.g_all = np.array([fp.to_var(fp.nominal) for fp in self.fps])
         self.set_stage(list(range(len(self.fps))), RESIDUAL_KINDS)
+
+    def _play_known(self, fps: Sequence[FitParameter]) -> list[list[bool]]:
+        """Per point and cable: whether its position in the play is known (see
+        :data:`PLAY_SETTLE_MM`). The play state at the start of a run is unknown (a run that
+        follows another one in the same session starts wherever that one left the cable in
+        its gap), so the compatibility rows before the drive has ranged over the gap are not
+        used; the mask comes from the logged drive positions only, not from the fitted
+        widths, so the rows stay fixed during the fit. Everything is known when the model has
+        no play and none is fitted."""
+        widths = [c.backlash_mm for c in self.base.cables]
+        if not any(fp.kind == "backlash" for fp in fps) and not any(w > 0 for w in widths):
+            return [[True] * self.K for _ in self.points]
+        settle = max(PLAY_SETTLE_MM, 2.0 * max(widths))
+        span: dict[str, list[tuple[float, float]]] = {}
+        out: list[list[bool]] = []
+        for p in self.points:
+            x = [float(v) for v in p.q_act_mm]
+            prev = span.get(p.run)
+            cur = []
+            for k in range(self.K):
+                lo, hi = prev[k] if prev is not None else (math.inf, -math.inf)
+                if math.isfinite(x[k]):
+                    lo, hi = min(lo, x[k]), max(hi, x[k])
+                cur.append((lo, hi))
+            span[p.run] = cur
+            out.append([hi - lo >= settle for lo, hi in cur])
+        return out
 
     # ------------------------------------------------------------------ layout
     def set_stage(self, free: Sequence[int], kinds: Sequence[str]) -> None:
@@ -93,10 +135,13 @@ class _Problem:
             if "moment" in self.kinds:
                 rows += [("moment", a) for a in range(2 * self.S)]
             if "compat" in self.kinds:
+                known = self.play_known[len(self.rows)]
                 for k in range(self.K):
                     T = float(p.tension_N[k])
-                    if math.isfinite(float(p.q_act_mm[k])) and not (
-                        math.isfinite(T) and T < self.opt.slack_N
+                    if (
+                        known[k]
+                        and math.isfinite(float(p.q_act_mm[k]))
+                        and not (math.isfinite(T) and T < self.opt.slack_N)
                     ):
                         rows.append(("compat", k))
             self.rows.append(rows)
@@ -250,18 +295,19 @@ class _Problem:
     def solve(self, nuis0: np.ndarray, max_nfev: int) -> tuple[np.ndarray, object]:
         lo, hi = self.bounds()
         z0 = np.clip(self.pack(nuis0), lo + 1e-12, hi - 1e-12)
-        sol = least_squares(
-            self.residuals,
-            z0,
-            jac=lambda z: self.jacobian(z, lo, hi),
-            bounds=(lo, hi),
-            method="trf",
-            x_scale="jac",
-            max_nfev=max_nfev,
-            xtol=1e-10,
-            ftol=1e-10,
-            gtol=1e-10,
-        )
+        with single_blas():
+            sol = least_squares(
+                self.residuals,
+                z0,
+                jac=lambda z: self.jacobian(z, lo, hi),
+                bounds=(lo, hi),
+                method="trf",
+                x_scale="jac",
+                max_nfev=max_nfev,
+                xtol=1e-10,
+                ftol=1e-10,
+                gtol=1e-10,
+            )
         g, nuis = self.unpack(sol.x)
         self.g_all = g
         return nuis, sol

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from cdcr_ctl.model.effects import BacklashPlay, with_cable_play
 from cdcr_ctl.model.forward import ForwardStepper
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_displacement
@@ -136,7 +137,10 @@ def write_log(
 
     run_dir.mkdir(parents=True, exist_ok=True)
     q = np.round(np.asarray(q_act_mm) / Q_RESOLUTION_MM) * Q_RESOLUTION_MM
-    rep = replay(ForwardStepper(params_true, effects), q)
+    # the world's own play (cables' backlash_mm) replaces any play built from the config
+    rest = tuple(e for e in effects.actuator if not isinstance(e, BacklashPlay))
+    world = with_cable_play(params_true, dataclasses.replace(effects, actuator=rest))
+    rep = replay(ForwardStepper(params_true, world), q)
     N, K = q.shape
     t = np.arange(N) * period_s + rng.uniform(-0.02, 0.02, N)
     t[0] = 0.0

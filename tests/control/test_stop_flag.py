@@ -69,3 +69,39 @@ def test_a_stalled_cycle_says_so_in_the_next_row_and_the_counters():
         assert np.isfinite(after["t_s"])
     finally:
         loop.stop()
+
+
+def _flagged(rows, pattern: str) -> int:
+    """Sum of N in ``late: N cycles missed`` (or count of ``long:`` notes) over ``rows``."""
+    total = 0
+    for r in rows:
+        ev = r["event"]
+        if pattern == "late" and "late: " in ev:
+            total += int(ev.split("late: ")[1].split()[0])
+        elif pattern == "long" and "long: previous cycle" in ev:
+            total += 1
+    return total
+
+
+def test_the_loops_counters_and_the_rows_agree():
+    """Issue #21: missed deadlines and long cycles the loop's global counters add while a run is
+    logged equal what its rows report, and every cycle of the run has a row."""
+    loop, _drives, _ten, _sup = make_loop()
+    loop.start()
+    try:
+        sink = StallingSink(stall_s=0.03)  # one long cycle with missed deadlines
+        run = loop.follow(Ramp(0.1, 0.3), "r", None, sink)
+        assert wait_until(lambda: run.state != "running")
+        rows = sink.rows
+        assert sink.stalled_at is not None
+        cycles = [r["cycle"] for r in rows]
+        assert cycles == list(range(run.first_cycle, run.last_cycle + 1))  # no cycle unlogged
+        assert run.rows == len(rows)
+        assert run.long_cycles >= 1 and run.missed_cycles >= 1
+        assert _flagged(rows, "late") == run.missed_cycles
+        assert _flagged(rows, "long") == run.long_cycles
+        # The stalled cycle's own lateness reaches the next row only.
+        after = next(r for r in rows if r["cycle"] == sink.stalled_at + 1)
+        assert "long: previous cycle" in after["event"]
+    finally:
+        loop.stop()

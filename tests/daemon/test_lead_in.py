@@ -158,3 +158,42 @@ def test_start_pose_is_recovered_from_the_cable_displacements(psi):
     est, residual = estimate_pose(model, model.q_nominal(truth), cfg.limits.bend_rad)
     assert residual < 1e-3  # mm
     np.testing.assert_allclose(tj.bend_vectors(est), tj.bend_vectors(truth), atol=1e-4)
+
+
+def _with_friction(cfg, factor: float):
+    """``cfg`` with every cable's disk friction coefficient times ``factor`` (what an identified
+    overlay changes: the compensation's delta, hence the switch steps, scale with it)."""
+    cables = [c.model_copy(update={"mu_disk": c.mu_disk * factor}) for c in cfg.robot.cables]
+    return cfg.model_copy(update={"robot": cfg.robot.model_copy(update={"cables": cables})})
+
+
+@pytest.mark.parametrize("friction", [0.5, 1.0, 1.6])
+def test_the_experiments_runs_in_every_order_stay_within_the_velocity_limit(
+    friction, experiments_cfg
+):
+    """``cdcr-ctl experiments`` runs the planar bend and the circle in every mode one after the
+    other, with the nominal and the identified parameters: every switch between them (from the
+    end pose of either experiment or straight, from any mode to any mode) and its lead-in stays
+    within the limit, with disk friction from half to 1.6 times the nominal (Qi et al. 2023
+    Table 1 gives mu 0.26-0.31; an identification moves it within that span and more)."""
+    from cdcr_ctl.cli.experiments import _experiments
+
+    cfg = _with_friction(experiments_cfg, friction)
+    model = build_model(cfg)
+    S, K = model.n_segments, model.n_cables
+    v = cfg.limits.cable_velocity_mm_s
+    tension = np.full(K, 2.5)  # N
+    runs = {name: traj for name, traj in _experiments(quick=False).items()}
+    ends = {f"end of {n}": np.asarray(t.sample(t.duration_s)) for n, t in runs.items()}
+    ends["straight"] = np.zeros((S, 2))
+    worst = (0.0, "")
+    for (where, psi_now), (name, traj), before, after in itertools.product(
+        ends.items(), runs.items(), MODES, MODES
+    ):
+        state, q_prev = _state_after_bending_to(model, psi_now, before, tension)
+        plan = plan_lead_in(model, psi_now, q_prev, traj, after, v, measured_N=tension, state=state)
+        lead_s = plan.trajectory.duration_s - traj.duration_s
+        peak = _replay_peak(model, plan.trajectory, lead_s, after, q_prev, v, tension, state)
+        if peak > worst[0]:
+            worst = (peak, f"{before}->{after} from {where} to {name}")
+    assert worst[0] <= v, f"{worst[1]}: {worst[0]:.1f} mm/s against {v} mm/s"

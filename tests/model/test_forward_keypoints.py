@@ -3,8 +3,9 @@
 The lab case: a 3-segment, 9-cable robot with ``free_length_mm: 0`` and disk friction on, fed
 the measured actuator positions of quasi-static keypoints far apart. Before the fix the active
 set over the cable modes cycled ("friction/slack modes did not settle") on about 1 row in 10 of
-such a path (4 of its first 30 rows with the path below). The test counts the failures over a
-120-row path (a 2000-row count is ``benchmarks/bench_forward_keypoints.py``: 0 of 2000).
+such a path (4 of its first 30 rows with the path below). The tests count the failures over a
+120-row random walk and over a 2000-row keypoint log of out-and-back sweeps to 1.2 rad (the
+poses the simulated lab logs use; ``benchmarks/bench_keypoint_identify.py forward`` times it).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.sim.keypoint_log import sweep_poses
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example.yaml"
 
@@ -87,3 +89,17 @@ def test_large_keypoint_steps_settle(seed):
     q = keypoint_path(params, 90, seed=seed, step=0.25, bend_max=1.4)
     rep = replay(ForwardStepper(params, effects), q)
     assert rep.failed == []
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_every_row_of_a_2000_row_keypoint_log_settles():
+    """Issue 18 acceptance 4, counted: 0 of 2000 rows without a static solution (about 11 s)."""
+    params, effects = lab_model()
+    psi = sweep_poses(params.n_segments, 2000, np.random.default_rng(1), bend_max_rad=1.2)
+    q = np.array([cable_displacement(x, params) for x in psi])
+    rep = replay(ForwardStepper(params, effects), q)
+    assert len(q) == 2000
+    assert rep.failed == []
+    assert np.all(np.isfinite(rep.tip_mm))
+    assert np.max(np.hypot(rep.tip_mm[:, 0], rep.tip_mm[:, 1])) > 50.0

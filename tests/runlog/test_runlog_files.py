@@ -370,7 +370,7 @@ def test_disk_full_keeps_earlier_rows_and_reports_the_failure(tmp_path):
     files[0].capacity = files[0].used + 40  # room for part of one more line
     for n in range(20, 500):
         w.write(loop_row(n, 1, 3, rng))
-    assert wait_until(lambda: w.failure is not None)
+    assert wait_until(lambda: w.failure is not None and failures)  # on_failure runs just after
     assert "No space left on device" in w.failure and "samples.csv" in w.failure
     assert failures == [w.failure] and isinstance(w.error, OSError)
     assert w.write(first[0]) is False  # refused, never raised

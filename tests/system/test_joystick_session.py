@@ -153,4 +153,4 @@ def test_joystick_unplugged_mid_session_holds_the_arm(tmp_path):
     assert max(before["loop"]["psi_cmd_rad"][2][0], 0) > 0.0  # it was steering when unplugged
     run = load_run(res["log_dir"])
     assert run.ended["outcome"] == "tripped" and "joystick_lost" in run.ended["reason"]
-    assert run.data["event"][-1] == "joystick_lost"
+    assert run.data["event"][-1].split("; ")[0] == "joystick_lost"  # notes may follow

@@ -27,6 +27,7 @@ from cdcr_ctl.control.loop.records import (
 from cdcr_ctl.control.ports import SetpointSource
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import Reaction, Trip
+from cdcr_ctl.errors import ModelError
 
 
 class LoopCommands:
@@ -225,9 +226,20 @@ class LoopCommands:
             self.home_counts = payload
             self._psi_cmd = np.zeros_like(self._psi_cmd)
             self._source, self._t_source0 = Hold(self._psi_cmd), now
-            self._q_offset[:] = 0.0
-            self._q_offset_target[:] = 0.0
             self._model_state = self.model.new_state()
+            self._measured_slew.reset()
+            # Home makes the drives' zero the straight pose. A model whose compensation is not
+            # zero there (a fitted mount tilt: the sideways disk weights need uneven tensions
+            # at straight) would step the first command by it (0.17 mm in one cycle on the
+            # hard simulated world: a velocity trip): start from it in the offset and ramp it
+            # out at once, as a mode switch does.
+            try:
+                q_home = self._hold_command(self._psi_cmd)
+            except ModelError:  # the cycle trips on it (model_unreachable) as before
+                q_home = np.zeros_like(self._q_offset)
+            self._q_offset = -np.asarray(q_home, dtype=float)
+            self._q_offset_target = np.zeros_like(self._q_offset)
+            self._q_cmd = np.zeros_like(self._q_offset)
         elif kind == "sink":
             self._manual_sink = payload
         elif kind == "pose":
@@ -236,19 +248,25 @@ class LoopCommands:
             self._psi_cmd = payload
             self._source, self._t_source0 = Hold(payload), now
             self._model_state = self.model.new_state()
-            mode = "model" if self._mode == "measured" else self._mode
-            q_pose = self.model.q_command(
-                payload, self.model.q_nominal(payload), self._model_state, mode, None
-            )
-            fb = self.drives.feedback()
-            q_act = (
-                np.array([f.position_counts for f in fb]) - self.home_counts
-            ) / self.cfg.counts_per_mm
+            self._measured_slew.reset()
+            q_pose = self._hold_command(payload)
+            q_act = self._q_act_mm(self.drives.feedback())
             self._q_offset = q_act - q_pose
             self._q_offset_target = self._q_offset.copy()
             self._q_cmd = q_act.copy()
         else:  # pragma: no cover - a programming error
             raise ValueError(f"unknown loop command {kind!r}")
+
+    def _hold_command(self, psi: np.ndarray) -> np.ndarray:
+        """The model's cable command (mm) holding segment pose ``psi`` (rad) from the current
+        model state, without load-cell tensions (mode ``measured`` uses ``model`` here)."""
+        mode = "model" if self._mode == "measured" else self._mode
+        return self.model.q_command(psi, self.model.q_nominal(psi), self._model_state, mode, None)
+
+    def _q_act_mm(self, fb: Sequence[Any]) -> np.ndarray:
+        """Cable displacements (mm) from the drives' feedback (counts, relative to home)."""
+        counts = np.array([f.position_counts for f in fb]) - self.home_counts
+        return counts / self.cfg.counts_per_mm
 
     def drives_reenabled(self) -> None:
         """Called by the daemon after re-enabling drives: resume sending computed targets."""
@@ -256,15 +274,13 @@ class LoopCommands:
             self._post("reenabled")
 
     def _resume_after_enable(self) -> None:
-        # Absorb the difference between where the drives are and where the command is into the
-        # cable offset and hold there: no jump on re-enable. The next run ramps it out.
-        fb = self.drives.feedback()
-        q_act = (
-            np.array([f.position_counts for f in fb]) - self.home_counts
-        ) / self.cfg.counts_per_mm
+        # Plan from where the drives are: the next command starts at their actual positions and
+        # the difference to the model's command of that cycle (computed then, from the tensions
+        # of then) goes into the cable offset, held there: no jump on re-enable. The next run
+        # ramps it out. (Not from the command computed, but not sent, while they were stopped.)
+        q_act = self._q_act_mm(self.drives.feedback())
         self._q_offset = self._q_offset + (q_act - self._q_cmd)
         self._q_offset_target = self._q_offset.copy()
-        # The drives are at q_act: the next command's velocity is measured from there, not from
-        # the command computed (but not sent) while they were stopped.
         self._q_cmd = q_act.copy()
+        self._absorb_step = True
         self._stopped_drives = False

@@ -32,6 +32,7 @@ from cdcr_ctl.control.loop.records import (
     _Command,
 )
 from cdcr_ctl.control.loop.rows import CycleRow, RowLayout
+from cdcr_ctl.control.loop.slew import MeasuredSlew
 from cdcr_ctl.control.ports import (
     DrivePort,
     RobotModelPort,
@@ -41,6 +42,7 @@ from cdcr_ctl.control.ports import (
 )
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
+from cdcr_ctl.control.timing import raise_loop_priority
 from cdcr_ctl.errors import ModelError
 
 # The logger keeps the name it had when the loop was one module.
@@ -91,6 +93,11 @@ class ControlLoop(LoopCommands):
         self.stop_flag = StopFlag()
         self._flag_seen = 0
         self._missed_now = 0
+        #: The previous cycle's work when it ran past the period (us), else 0: its row cannot
+        #: know (it is written during the cycle), so the next row says so.
+        self._long_prev_us = 0.0
+        #: The global (missed, long) counters before the current run's first row.
+        self._run_base = (0, 0)
         #: An event of this cycle decided outside the checks (an operator stop) for its row.
         self._row_event = ""
         self._thread: threading.Thread | None = None
@@ -107,6 +114,14 @@ class ControlLoop(LoopCommands):
         self._q_offset = np.zeros(K)
         self._q_offset_target = np.zeros(K)
         self._model_state = model.new_state()
+        #: Mode ``measured``'s compensation term, rate-bounded (see :mod:`.slew`).
+        self._measured_slew = MeasuredSlew(
+            COMMAND_STEP_FRACTION * cfg.cable_velocity_mm_s * cfg.period_s
+        )
+        self._q_nom_prev: np.ndarray | None = None
+        #: Set when this cycle's command is to start from the one the drives hold (a refused
+        #: command, a re-enable): the step from it goes into the offset (see ``_cycle``).
+        self._absorb_step = False
         self._last_row: Mapping[str, Any] = {}
         self._row_layout = RowLayout(S, K)
         self._stopped_drives = False
@@ -133,6 +148,9 @@ class ControlLoop(LoopCommands):
         # collector's full passes stay short while the loop runs (they run in whatever thread
         # allocates, this one included).
         gc.freeze()
+        note = raise_loop_priority()
+        if note:
+            log.info("realtime: %s", note)
         cpu0 = time.thread_time()
         if self._clock is None:
             self.ticker = wall_clock(self.cfg.period_s)
@@ -151,8 +169,12 @@ class ControlLoop(LoopCommands):
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
             self.counters.cycles += 1
-            if dt_us > self.cfg.period_s * 1e6:
+            # On a simulated clock (lock-step) the clock waits for the work: no cycle is late
+            # on it, and a row must not depend on the host's speed.
+            long_cycle = self._clock is None and dt_us > self.cfg.period_s * 1e6
+            if long_cycle:
                 self.counters.long_cycles += 1
+            self._long_prev_us = dt_us if long_cycle else 0.0
             skipped = self.ticker.stats.skipped
             self.ticker.done()
             # Deadlines skipped after this cycle: the next row says so (its lateness counts
@@ -202,7 +224,26 @@ class ControlLoop(LoopCommands):
             # command rather than guess.
             self._react(Trip("model_unreachable", Reaction.HOLD, str(exc), t_s))
             psi, q_cmd = self._psi_cmd, self._q_cmd - self._q_offset
-        if mode_changed and self.counters.cycles > 0:
+        else:
+            if mode != "measured" or mode_changed:
+                self._measured_slew.reset()
+            if mode == "measured" and self._q_nom_prev is not None:
+                # The load-cell tensions move the term as fast as the world changes them: bound
+                # its step by what the velocity limit leaves after the trajectory's own.
+                q_cmd = self._measured_slew.bound(q_nom, self._q_nom_prev, q_cmd)
+        self._q_nom_prev = q_nom
+        if self._absorb_step:
+            # Plan from where the drives are: after a refused command (a trip) or a re-enable
+            # the command starts from the one the drives hold, and the step to this cycle's
+            # model command goes into the offset (held; a run ramps it out), so the command the
+            # supervisor refused is not asked for again at once (it would trip again at every
+            # recovery).
+            self._absorb_step = False
+            self._q_offset = self._q_cmd - q_cmd
+            self._q_offset_target = (
+                np.zeros_like(self._q_offset) if self._run is not None else self._q_offset.copy()
+            )
+        elif mode_changed and self.counters.cycles > 0:
             # Switching compensation steps the command by delta: take the step into the offset
             # and let it ramp out instead of jumping (and tripping the velocity limit).
             self._q_offset = self._q_cmd - q_cmd
@@ -258,6 +299,7 @@ class ControlLoop(LoopCommands):
         if worst is not None and worst.reaction >= Reaction.HOLD:
             q_cmd = self._q_cmd.copy()  # never send a command that violates a limit
             psi = self._psi_cmd
+            self._absorb_step = True
         if run is not None and run.state == "running" and t_run >= run.duration_s:
             self._end_after_cycle = ("completed", "trajectory completed")
         m3 = clock()
@@ -278,9 +320,7 @@ class ControlLoop(LoopCommands):
         m4 = clock()
 
         # Log: the row keeps this cycle's numbers; the writer thread makes the columns.
-        q_act = (
-            np.array([f.position_counts for f in fb]) - self.home_counts
-        ) / self.cfg.counts_per_mm
+        q_act = self._q_act_mm(fb)
         row = self._row(t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event)
         self._last_row = row
         for sink in (self._sink, self._manual_sink):
@@ -288,6 +328,8 @@ class ControlLoop(LoopCommands):
                 continue
             if sink.write(row):
                 self.counters.rows_logged += 1
+                if sink is self._sink and self._run is not None:
+                    self._count_run_row(self._run)
             else:
                 self.counters.rows_dropped += 1
             failure = getattr(sink, "failure", None)
@@ -303,6 +345,21 @@ class ControlLoop(LoopCommands):
             self._end_after_cycle = None
         self.counters._stages((m0, m1, m2, m3, m4, clock()))
 
+    def _count_run_row(self, run: RunInfo) -> None:
+        """The run's share of the global counters, up to the row just logged (see RunInfo)."""
+        c = self.counters
+        if run.rows == 0:
+            # What the first row reports happened before it: not yet in the base.
+            self._run_base = (
+                c.missed_cycles - self._missed_now,
+                c.long_cycles - (1 if self._long_prev_us else 0),
+            )
+            run.first_cycle = c.cycles
+        run.rows += 1
+        run.last_cycle = c.cycles
+        run.missed_cycles = c.missed_cycles - self._run_base[0]
+        run.long_cycles = c.long_cycles - self._run_base[1]
+
     def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event) -> CycleRow:
         layout = self._row_layout
         # One fresh array: later cycles may reuse the arrays they were given.
@@ -315,6 +372,9 @@ class ControlLoop(LoopCommands):
             # The deadlines before this cycle were skipped: its lateness counts from the first.
             lateness_s += missed * self.cfg.period_s
             note = f"late: {missed} cycles missed"
+            event = f"{event}; {note}" if event else note
+        if self._long_prev_us:
+            note = f"long: previous cycle {self._long_prev_us:.0f} us"
             event = f"{event}; {note}" if event else note
         return CycleRow(layout, t_s, self.counters.cycles, values, lateness_s, event)
 

@@ -54,6 +54,15 @@ class RunInfo:
     elapsed_s: float = 0.0
     end_reason: str = ""
     log_dir: str = ""
+    #: The loop's counters over this run's rows (issue #21: counters and rows agree): the
+    #: ``cycle`` of its first and last logged row, rows its log took, and the deadlines missed
+    #: and long cycles the loop's global counters added that these rows report (a row reports
+    #: those since the previous cycle: ``late: N cycles missed``, ``long: previous cycle``).
+    first_cycle: int = -1
+    last_cycle: int = -1
+    rows: int = 0
+    missed_cycles: int = 0
+    long_cycles: int = 0
 
 
 @dataclass

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.friction import FrictionState, direction_update
@@ -80,6 +81,11 @@ class ForwardModel:
         self._T_scale = max(1.0, max(c.pretension_N for c in params.cables))
         self._Jraw: np.ndarray | None = None  # last raw Jacobian (chord Newton, warm start)
         self._slow = True
+        # LU factors of the last assembled Jacobian and what it was assembled from (the raw
+        # Jacobian's generation and the modes): chord Newton steps reuse them (performance only)
+        self._jac_gen = 0
+        self._lu: tuple | None = None
+        self._lu_key: tuple | None = None
 
     # ------------------------------------------------------------------ public
     def solve(
@@ -127,9 +133,11 @@ class ForwardModel:
         rounds = _MODE_ROUNDS
         r = 0
         while True:
-            z, it, res = self._newton(z, q_act, w_prev, modes, sigma, hold)
+            z, it, res, raw = self._newton(z, q_act, w_prev, modes, sigma, hold)
             total_it += it
-            changed = self._update_modes(z, q_act, w_prev, modes, sigma, hold, one_at_a_time)
+            changed = self._update_modes(
+                z, q_act, w_prev, modes, sigma, hold, one_at_a_time, raw=raw
+            )
             if not changed:
                 break
             r += 1
@@ -296,8 +304,8 @@ class ForwardModel:
             fresh = need_jac or self._Jraw is None
             if fresh:
                 self._Jraw = self._jacobian(raw, z, modes)
-            J = self._assemble(self._Jraw, modes)
-            dz = np.linalg.lstsq(J, -r, rcond=None)[0]
+                self._jac_gen += 1
+            dz = self._step(modes, r)
             big = float(np.max(np.abs(dz[:S2]))) if S2 else 0.0
             if big > _MAX_DX:  # trust region on the pose
                 dz *= _MAX_DX / big
@@ -328,14 +336,42 @@ class ForwardModel:
             # a stuck cable that needs far more than full friction will slide: stop early
             if any(modes[k] == STICK and abs(z[S2 + K + k]) > 2.0 for k in range(K)):
                 break
-        return z, it, norm
+        return z, it, norm, raw
 
-    def _update_modes(self, z, q_act, w_prev, modes, sigma, hold, one_at_a_time=False) -> bool:
+    def _step(self, modes, r: np.ndarray) -> np.ndarray:
+        """Newton step dz solving J dz = -r, J the assembled Jacobian of ``modes``.
+
+        J is square (2S + 2K); its LU factors are kept while neither the raw Jacobian nor the
+        modes change (chord Newton reuses them: one O(n^2) solve per step). A singular J falls
+        back to least squares (minimum-norm step), as before.
+        """
+        key = (self._jac_gen, tuple(modes))
+        if self._lu_key != key:
+            J = self._assemble(self._Jraw, modes)
+            self._lu_key = key
+            # LAPACK getrf directly: no warnings machinery (not thread-safe), info > 0 on an
+            # exactly zero pivot
+            lu, piv, info = dgetrf(J)
+            d = np.abs(np.diag(lu))
+            # a pivot far below the largest (relative to float64 precision) is singular
+            ok = info == 0 and bool(np.all(np.isfinite(d))) and d.min() > 1e-13 * d.max()
+            self._lu = (lu, piv) if ok else (None, J)
+        lu, other = self._lu
+        if lu is not None:
+            dz, info = dgetrs(lu, other, -r)
+            if info == 0:
+                return dz
+            return np.linalg.lstsq(self._assemble(self._Jraw, modes), -r, rcond=None)[0]
+        return np.linalg.lstsq(other, -r, rcond=None)[0]
+
+    def _update_modes(
+        self, z, q_act, w_prev, modes, sigma, hold, one_at_a_time=False, raw=None
+    ) -> bool:
         """Change the modes whose conditions ``z`` violates; all of them, or with
         ``one_at_a_time`` only the most violated one (scaled like the residuals: rad-equivalent).
-        Returns whether a mode changed."""
+        ``raw``: :meth:`_raw` at ``z`` if already computed. Returns whether a mode changed."""
         S2, K = 2 * self.S, self.K
-        P, Fb, Eb, _, cab = self._raw(z)
+        P, Fb, Eb, _, cab = self._raw(z) if raw is None else raw
         tol_w = 1e-9
         changes: list[tuple[float, int, str, float]] = []  # (violation, cable, mode, value)
         for k in range(K):

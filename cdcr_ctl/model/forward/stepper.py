@@ -33,8 +33,13 @@ class ForwardStepper:
         params: RobotParams,
         effects: Effects | None = None,
         state: FrictionState | None = None,
+        tol: float | None = None,
     ) -> None:
-        self.model = ForwardModel(params, effects)
+        """``tol``: the Newton tolerance of :class:`ForwardModel` (largest scaled residual,
+        rad-equivalent; its default when None)."""
+        self.model = (
+            ForwardModel(params, effects) if tol is None else ForwardModel(params, effects, tol=tol)
+        )
         self.reset(state)
 
     def reset(self, state: FrictionState | None = None) -> None:
@@ -47,6 +52,8 @@ class ForwardStepper:
         self._modes: tuple[str, ...] | None = None
         self._q: np.ndarray | None = None  # last solved cable displacement (mm)
         self.last: ForwardResult | None = None
+        # the solve before the last: (q, x, T) when both had the same modes (predictor)
+        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def cable_displacement(self, q_act_mm: np.ndarray) -> np.ndarray:
         """Actuator position -> cable pulled in at the spool, through the actuator effects."""
@@ -73,7 +80,29 @@ class ForwardStepper:
         self._accept(res, q)
         return res
 
+    def _predict(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Warm start extrapolated along the path (performance only): the last two solutions'
+        bending vectors and anchor tensions continued linearly by the projection of this step's
+        cable displacement on the last one's (a path sampled at a steady rate, as a simulator's
+        or a replay's, moves on a nearly straight line). None without two solutions of the same
+        modes. The solve still converges to the solver's tolerance from here."""
+        if self._prev is None or self._q is None or self._x is None or self._T is None:
+            return None
+        q1, x1, T1 = self._prev
+        d0 = self._q - q1
+        den = float(d0 @ d0)
+        if den <= 0.0:
+            return None
+        a = float((q - self._q) @ d0) / den
+        return self._x + a * (self._x - x1), self._T + a * (self._T - T1)
+
     def _solve_from_memory(self, q: np.ndarray) -> ForwardResult | None:
+        guess = self._predict(q)
+        if guess is not None:
+            try:
+                return self.model.solve(q, self.state, guess[0], guess[1], self._modes)
+            except ModelError:
+                pass
         try:
             return self.model.solve(q, self.state, self._x, self._T, self._modes)
         except ModelError:
@@ -88,6 +117,10 @@ class ForwardStepper:
             return None
 
     def _accept(self, res: ForwardResult, q: np.ndarray) -> None:
+        self._prev = None
+        mem = (self._q, self._x, self._T)
+        if self._modes == res.modes and all(v is not None for v in mem):
+            self._prev = mem  # type: ignore[assignment]
         self.state = res.state
         self._x = res.x
         self._T = res.tension_distal_N
@@ -96,7 +129,7 @@ class ForwardStepper:
         self.last = res
 
     def _substep(self, q: np.ndarray) -> ForwardResult:
-        start = (self.state, self._x, self._T, self._modes, self._q, self.last)
+        start = (self.state, self._x, self._T, self._modes, self._q, self.last, self._prev)
         q0 = np.zeros_like(q) if self._q is None else self._q
         err = "no attempt"
         for level in range(1, SUBSTEP_LEVELS + 1):
@@ -112,7 +145,7 @@ class ForwardStepper:
                 self._accept(res, qi)
             if ok:
                 return res
-            self.state, self._x, self._T, self._modes, self._q, self.last = start
+            self.state, self._x, self._T, self._modes, self._q, self.last, self._prev = start
         try:  # last resort: a static pose without the friction memory of the path
             return self.model.solve(q, None, None, None, None)
         except ModelError:

@@ -37,8 +37,52 @@ class _Stepping:
             n = max(1, math.ceil(dt_s / p.substep_s - 1e-9))
             h = dt_s / n
             self._step_period_s = self.interpolation_period_s  # objects change between steps
-            for _ in range(n):
+            done = self._csp_substeps(h, n) if self.mode == Mode.CYCLIC_SYNC_POSITION else 0
+            for _ in range(n - done):
                 self._substep(h)
+
+    def _csp_substeps(self, h: float, n: int) -> int:
+        """Up to ``n`` sub-steps of :meth:`_substep` in its most common case (operation enabled,
+        cyclic synchronous position, not halted, no supervision limit near), with the objects it
+        reads looked up once per step instead of once per sub-step (the lock is held: nothing
+        writes them meanwhile). The same arithmetic in the same order as :meth:`_substep` and
+        :meth:`_supervise`; a sub-step outside that case goes through :meth:`_supervise`, and
+        the first sub-step whose state or mode changed ends the fast path. Returns the sub-steps
+        done (the caller does the rest with :meth:`_substep`)."""
+        if self.state is not State.OPERATION_ENABLED or self._controlword_halted():
+            return 0
+        prof, motor, load_fn = self.profile, self.motor, self.load_fn
+        period = self._step_period_s
+        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
+        unbounded = window == 0xFFFFFFFF
+        lo, hi = self._limits()
+        lo1, hi1 = lo - 1, hi + 1
+        offset = self.offset
+        switches = motor.p.limit_switches_counts
+        sw_lo, sw_hi = switches if switches is not None else (-math.inf, math.inf)
+        tau = self.load_torque_Nm
+        done = 0
+        while done < n:
+            if load_fn is not None:
+                tau = load_fn(motor.x + offset, motor.v)
+            motor.substep(h, prof.x, prof.v, prof.a, True, tau)
+            self._csp_t = min(self._csp_t + h, period)
+            v = (self._csp_to - self._csp_from) / period
+            prof.a = 0.0
+            prof.x, prof.v = self._csp_from + v * self._csp_t, (v if self._csp_t < period else 0.0)
+            done += 1
+            err = abs(prof.x - motor.x)
+            actual = motor.x + offset
+            if (unbounded or err <= window) and lo1 <= actual <= hi1 and sw_lo < motor.x < sw_hi:
+                if err > self.max_following_error_counts:
+                    self.max_following_error_counts = err
+                self.following_error = False
+                self._ferr_s = 0.0
+            else:
+                self._supervise(h)
+                if self.state is not State.OPERATION_ENABLED:
+                    break
+        return done
 
     def _rpm(self, index: int, sub: int = 0) -> float:
         """A velocity/acceleration object in rpm (or rpm/s) as counts/s (or counts/s²)."""

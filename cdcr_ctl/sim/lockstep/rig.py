@@ -30,6 +30,7 @@ import contextlib
 import logging
 import socket
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,7 @@ from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.epos.node import SimEpos
 from cdcr_ctl.sim.epos.plant import MotorParams
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
-from cdcr_ctl.sim.lockstep.canlink import CanLink
+from cdcr_ctl.sim.lockstep.canlink import CanLink, no_cpu_clock
 from cdcr_ctl.sim.lockstep.clock import SimClock
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
@@ -108,6 +109,7 @@ class LockstepRig:
         self.physics_period_s = 1.0 / loaded.sim.physics_rate_hz
         self._physics_next_s = 0.0
         self.truth_cpu_s = 0.0
+        self.cpu_clock: Callable[[], float] = no_cpu_clock  # see measure_cpu
         self.truth_steps = 0
         self._solved_counts: list[int] = []
         #: The truth solved in a worker process one period behind (:mod:`.truthproc`), or None:
@@ -284,7 +286,7 @@ class LockstepRig:
         if proc is not None and proc.pending:
             proc.collect()  # the positions of the previous period, solved meanwhile
         if self._physics_next_s <= t1:
-            c0 = time.thread_time()
+            c0 = self.cpu_clock()
             counts = self.positions()
             if counts != self._solved_counts:  # a world at rest stays where it is
                 if proc is not None:
@@ -293,13 +295,23 @@ class LockstepRig:
                     self.truth.step(counts)
                 self._solved_counts = counts
                 self.truth_steps += 1
-            self.truth_cpu_s += time.thread_time() - c0
+            self.truth_cpu_s += self.cpu_clock() - c0
             while self._physics_next_s <= t1:
                 self._physics_next_s += self.physics_period_s
         if self.loadcells is not None:
             self.loadcells.advance(t0, t1)
         if self.tracker is not None:
             self.tracker.advance(t0, t1)
+
+    def measure_cpu(self, on: bool = True) -> None:
+        """Count the CPU time of the simulated parts (:meth:`cpu_breakdown_s`) from now on, or
+        stop counting. Off by default: it reads the thread-CPU clock (a system call) around every
+        frame, poll and solve."""
+        clock = time.thread_time if on else no_cpu_clock
+        self.cpu_clock = self.can.cpu_clock = clock
+        for part in (self.loadcells, self.tracker):
+            if part is not None:
+                part.cpu_clock = clock
 
     def cpu_breakdown_s(self) -> dict[str, float]:
         """CPU time (s) spent so far in the simulated parts: truth (here; ``truth_worker``: in

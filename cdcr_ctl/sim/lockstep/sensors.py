@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import time
 from collections.abc import Callable
 
 from cdcr_ctl.sensors.loadcell_modbus import READ_REQUEST_BYTES, ModbusLoadCellBus, char_time_s
@@ -27,6 +26,7 @@ from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler
 from cdcr_ctl.sensors.natnet import FrameOfData, pack_frame_of_data
 from cdcr_ctl.sensors.tracker import NatNetTracker
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim
+from cdcr_ctl.sim.lockstep.canlink import no_cpu_clock
 from cdcr_ctl.sim.tracker import SIM_CLOCK_HZ, SimNatNetServer
 
 
@@ -88,18 +88,19 @@ class LoadCellSchedule:
         self.transaction_s = wire_chars * char_s + silence_s
         self.next_s = self.transaction_s  # the first reply arrives one transaction after t = 0
         self.cpu_s = 0.0
+        self.cpu_clock: Callable[[], float] = no_cpu_clock  # time.thread_time to measure
         self.polls = 0
 
     def advance(self, t0: float, t1: float) -> None:
         """Every transaction whose reply arrives in (t0, t1]."""
-        c0 = time.thread_time()
+        c0 = self.cpu_clock()
         while self.next_s <= t1:
             got = self.link.poll()
             if got:
                 self.sampler.publish(got, self.next_s)
             self.polls += 1
             self.next_s += self.transaction_s
-        self.cpu_s += time.thread_time() - c0
+        self.cpu_s += self.cpu_clock() - c0
 
 
 class TrackerSchedule:
@@ -112,12 +113,13 @@ class TrackerSchedule:
         self._queue: collections.deque[tuple[float, FrameOfData]] = collections.deque()
         self._source = server.data_address
         self.cpu_s = 0.0
+        self.cpu_clock: Callable[[], float] = no_cpu_clock  # time.thread_time to measure
         self.frames = 0
 
     def advance(self, t0: float, t1: float) -> None:
         """Frames exposed in (t0, t1] are made now (from the truth as stepped for this period);
         frames due by t1 are packed and parsed."""
-        c0 = time.thread_time()
+        c0 = self.cpu_clock()
         server = self.server
         while self.next_s <= t1:
             self._queue.append((self.next_s + server.latency_s, server.make_frame(self.next_s)))
@@ -128,7 +130,7 @@ class TrackerSchedule:
             data = pack_frame_of_data(sent, server.version)
             self.reader.handle_datagram(data, self._source, t_rx)
             self.frames += 1
-        self.cpu_s += time.thread_time() - c0
+        self.cpu_s += self.cpu_clock() - c0
 
 
 __all__ = ["LoadCellSchedule", "SerialLoopback", "TrackerSchedule"]

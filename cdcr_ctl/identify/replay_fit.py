@@ -1,0 +1,268 @@
+"""Output-error fit of keypoint and tip-only logs: the forward replay is the model (issue 18).
+
+A quasi-static keypoint log is an actuator path q(t) and, at each row, the tracked tip (and
+maybe the load cells). The forward model (:func:`cdcr_ctl.model.forward.replay`: Qi et al. 2023
+eq. 9-15 statics, eq. 16-24 disk friction with stick memory, eq. 33-37 cable compatibility)
+turns the path into a tip and tensions per row, keeping the friction memory from row to row as
+the rig does. For candidate parameters g (:func:`cdcr_ctl.identify.keypoints.candidates`) the
+residuals are, per fitted row i,
+
+    r_tip,i = (p_model,i(g) - p_measured,i) / sigma_tip          (3 per row, mm / mm)
+    r_cell,i = (T_model,i(g) - T_measured,i) / sigma_cell        (one per finite load cell)
+
+and the fit is min_g sum r^2 (``scipy.optimize.least_squares``, trust region, bounds), the
+Jacobian by forward differences: one replay per parameter, run in parallel processes. The
+rows fitted are the first ones of each run (by time) so that every replay starts at the run's
+start (straight, pretensioned) and follows the same friction history as the rig did; no pose
+or tension is a free unknown, so stick after a reversal, slack and sliding come out of the
+replay and never from a rule applied to the rows.
+
+Statistics: with J the weighted Jacobian at the solution (columns in the fit variables, ln of
+positive parameters, rad for hole offsets) and chi2_red = sum r^2 / (m - n),
+cov = s2 (J^T J)^-1 with s2 = max(1, chi2_red): when the residual exceeds the assumed noise
+the intervals are widened by sqrt(chi2_red) (the report says so).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from cdcr_ctl.identify.fit_types import Estimate
+from cdcr_ctl.identify.parameters import FitParameter, apply_values
+from cdcr_ctl.model.effects import BacklashPlay, with_cable_play
+from cdcr_ctl.model.forward import ForwardStepper, replay
+from cdcr_ctl.model.params import Effects, Location, RobotParams
+
+#: Step of the forward differences in the fit variables (ln value, or rad): small next to a
+#: tolerance (25 %, 1 deg = 0.017 rad), large next to the forward solve's convergence.
+DIFF_STEP = 1e-4
+#: Weighted residual (noise standard deviations) of a row the replay could not solve.
+FAILED_ROW_RESIDUAL = 20.0
+
+
+@dataclass(frozen=True)
+class RunRows:
+    """One run as the replay fit sees it: the actuator path (N, K) mm from the run's start to
+    the last fitted row, the fitted rows' indices into it, their tips (n, 3) mm and load-cell
+    tensions (n, K) N (NaN where none)."""
+
+    name: str
+    q_path: np.ndarray
+    rows: np.ndarray
+    tip_mm: np.ndarray
+    tension_N: np.ndarray
+
+
+@dataclass(frozen=True)
+class ReplayProblem:
+    """Weighted residuals of the fitted rows for parameter values (module docstring)."""
+
+    base: RobotParams
+    effects: Effects
+    runs: tuple[RunRows, ...]
+    locations: tuple[Location, ...]  # load-cell location per cable
+    tip_noise_mm: float
+    tension_noise_N: float
+
+    def params_of(self, fps: Sequence[FitParameter], x: Sequence[float]) -> RobotParams:
+        return apply_values(self.base, fps, [fp.from_var(v) for fp, v in zip(fps, x, strict=True)])
+
+    def residuals_of(self, params: RobotParams) -> tuple[np.ndarray, np.ndarray, int]:
+        """(weighted residuals, which are tip rows (bool), rows with no static solution)."""
+        out: list[np.ndarray] = []
+        is_tip: list[np.ndarray] = []
+        failed = 0
+        effects = effects_of(params, self.effects)
+        for r in self.runs:
+            rep = replay(ForwardStepper(params, effects), r.q_path)
+            failed += len(rep.failed)
+            d = (rep.tip_mm[r.rows] - r.tip_mm) / self.tip_noise_mm
+            out.append(np.where(np.isfinite(d), d, FAILED_ROW_RESIDUAL).ravel())
+            is_tip.append(np.ones(d.size, bool))
+            cell = np.isfinite(r.tension_N)
+            if cell.any():
+                at_act = np.array([loc == "actuator" for loc in self.locations], bool)
+                T = np.where(at_act, rep.tension_actuator_N[r.rows], rep.tension_base_N[r.rows])
+                e = (T - r.tension_N) / self.tension_noise_N
+                e = np.where(np.isfinite(e), e, FAILED_ROW_RESIDUAL)[cell]
+                out.append(e)
+                is_tip.append(np.zeros(e.size, bool))
+        return np.concatenate(out), np.concatenate(is_tip), failed
+
+    def is_tip(self) -> np.ndarray:
+        """Which entries of the residual vector are tip residuals (the others: load cells)."""
+        out: list[np.ndarray] = []
+        for r in self.runs:
+            out.append(np.ones(r.tip_mm.size, bool))
+            out.append(np.zeros(int(np.isfinite(r.tension_N).sum()), bool))
+        return np.concatenate(out)
+
+    def residuals(self, fps: Sequence[FitParameter], x: Sequence[float]) -> np.ndarray:
+        return self.residuals_of(self.params_of(fps, x))[0]
+
+
+def effects_of(params: RobotParams, effects: Effects) -> Effects:
+    """``effects`` with the transmission play of ``params``' cables (``backlash_mm``) in place
+    of any play built from the config's values, so a fitted play takes effect."""
+    rest = tuple(e for e in effects.actuator if not isinstance(e, BacklashPlay))
+    return with_cable_play(params, replace(effects, actuator=rest))
+
+
+# --- the Jacobian, one replay per column, in worker processes ------------------------------
+
+_WORKER: ReplayProblem | None = None
+
+
+def _init_worker(prob: ReplayProblem) -> None:
+    global _WORKER
+    _WORKER = prob
+
+
+def _column(args: tuple[Sequence[FitParameter], np.ndarray]) -> np.ndarray:
+    fps, x = args
+    assert _WORKER is not None
+    return _WORKER.residuals(fps, x)
+
+
+def _replay_params(params: RobotParams) -> np.ndarray:
+    assert _WORKER is not None
+    return _WORKER.residuals_of(params)[0]
+
+
+class Evaluator:
+    """Residuals and forward-difference Jacobians of a :class:`ReplayProblem`, the columns
+    computed in ``jobs`` worker processes (1: in this process). Use as a context manager."""
+
+    def __init__(self, prob: ReplayProblem, jobs: int | None = None) -> None:
+        self.prob = prob
+        self.jobs = max(1, min(jobs or (os.cpu_count() or 1), 8))
+        self.pool: Executor | None = None
+        self.n_replays = 0
+
+    def __enter__(self) -> Evaluator:
+        if self.jobs > 1:
+            self.pool = ProcessPoolExecutor(
+                self.jobs, initializer=_init_worker, initargs=(self.prob,)
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown()
+
+    def map_params(self, plist: Sequence[RobotParams]) -> list[np.ndarray]:
+        """Weighted residuals for each parameter set (in parallel)."""
+        self.n_replays += len(plist)
+        if self.pool is None:
+            return [self.prob.residuals_of(p)[0] for p in plist]
+        return list(self.pool.map(_replay_params, plist))
+
+    def jacobian(
+        self, fps: Sequence[FitParameter], x: np.ndarray, f0: np.ndarray, hi: np.ndarray
+    ) -> np.ndarray:
+        """Forward differences (backward at an upper bound) of the weighted residuals."""
+        steps = np.where(x + DIFF_STEP <= hi, DIFF_STEP, -DIFF_STEP)
+        xs = []
+        for j, h in enumerate(steps):
+            xj = np.array(x, dtype=float)
+            xj[j] += h
+            xs.append(xj)
+        cols = self.map_params([self.prob.params_of(fps, xj) for xj in xs])
+        return np.column_stack([(c - f0) / h for c, h in zip(cols, steps, strict=True)])
+
+
+@dataclass
+class ReplayFit:
+    """Result of :func:`fit`: values in natural units, estimates with 95 % intervals."""
+
+    x: np.ndarray
+    estimates: list[Estimate]
+    chi2_reduced: float
+    s2: float  # variance factor applied to the intervals (max(1, chi2_reduced))
+    n_residuals: int
+    res_before: np.ndarray
+    res_after: np.ndarray
+    is_tip: np.ndarray
+    nfev: int
+    message: str
+
+
+def fit(
+    ev: Evaluator,
+    fps: Sequence[FitParameter],
+    scales: Sequence[float],
+    max_nfev: int,
+    first: tuple[np.ndarray, np.ndarray] | None = None,
+) -> ReplayFit:
+    """Least squares over ``fps`` from their nominal values (module docstring); ``scales``
+    their tolerances in the fit variables (``x_scale``); ``first``: (residuals, Jacobian) at
+    the nominal values, already computed (the observability step), reused once."""
+    prob = ev.prob
+    x0 = np.array([fp.to_var(fp.nominal) for fp in fps])
+    lo = np.array([fp.var_bounds()[0] for fp in fps])
+    hi = np.array([fp.var_bounds()[1] for fp in fps])
+    # a nominal on its bound (a play of 0): start a tenth of its scale inside, where the
+    # trust region's bound scaling does not freeze it
+    x_nom = x0
+    sc = np.asarray(scales, dtype=float)
+    x0 = np.minimum(np.maximum(x0, lo + 0.1 * sc), hi - 0.1 * sc)
+    cache: dict[bytes, np.ndarray] = {}
+    jac0 = None
+    if first is not None and np.array_equal(x0, x_nom):
+        cache[x0.tobytes()] = first[0]
+        jac0 = first[1]
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        key = np.asarray(x, float).tobytes()
+        if key not in cache:
+            cache.clear() if len(cache) > 8 else None
+            cache[key] = ev.map_params([prob.params_of(fps, x)])[0]
+        return cache[key]
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        if jac0 is not None and np.array_equal(x, x0):
+            return jac0
+        return ev.jacobian(fps, np.asarray(x, float), fun(x), hi)
+
+    if first is not None:
+        r_before, is_tip = first[0], prob.is_tip()
+    else:
+        r_before, is_tip, _ = prob.residuals_of(prob.params_of(fps, x_nom))
+    sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=sc, max_nfev=max_nfev)
+    m, n = sol.fun.size, len(fps)
+    chi2 = float(sol.fun @ sol.fun) / max(m - n, 1)
+    s2 = max(1.0, chi2)
+    J = sol.jac
+    cov = np.linalg.pinv(J.T @ J) * s2
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    est: list[Estimate] = []
+    for fp, v, s, a, b in zip(fps, sol.x, sd, lo, hi, strict=True):
+        z = 1.959964 * s
+        val = fp.from_var(v)
+        std = val * s if fp.log else s
+        at_bound = bool(min(v - a, b - v) < 1e-6)
+        est.append(Estimate(fp, val, std, (fp.from_var(v - z), fp.from_var(v + z)), at_bound))
+    return ReplayFit(
+        sol.x, est, chi2, s2, m, r_before, sol.fun, is_tip, int(sol.nfev), str(sol.message)
+    )
+
+
+def rms_by_kind(res: np.ndarray, is_tip: np.ndarray, prob: ReplayProblem) -> dict[str, float]:
+    """RMS in natural units: tip distance per row (mm) and load-cell error (N)."""
+    out = {"tip": math.nan, "cell": math.nan}
+    t = res[is_tip]
+    if t.size:
+        out["tip"] = float(np.sqrt(np.mean(np.sum(t.reshape(-1, 3) ** 2, axis=1)))) * (
+            prob.tip_noise_mm
+        )
+    c = res[~is_tip]
+    if c.size:
+        out["cell"] = float(np.sqrt(np.mean(c**2))) * prob.tension_noise_N
+    return out

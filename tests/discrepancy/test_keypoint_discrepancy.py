@@ -1,0 +1,50 @@
+"""``cdcr-ctl discrepancy`` on a keypoint log (issue 18, acceptance 5), end to end.
+
+A small simulated keypoint log of ``config/three_segment_example.yaml`` whose world is the
+config plus, hidden, 0.4 mm of lost motion between every drive and its cable (kept small so
+the test costs ~10 s CPU). The 2000-row log with the parameters also off nominal, and its
+timing, are ``benchmarks/bench_keypoint_identify.py discrepancy``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from cdcr_ctl.cli.main import main
+from cdcr_ctl.config import load_rig_config
+from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.sim.keypoint_log import Truth, make_keypoint_log
+
+CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example.yaml"
+
+
+# ~22 s CPU measured (forward replays in 2 worker processes); the limit guards a hang, not speed
+@pytest.mark.timeout(400)
+def test_discrepancy_names_a_hidden_lost_motion_on_a_keypoint_log(tmp_path, capsys):
+    m = build_model(load_rig_config(CONFIG))
+    world = dataclasses.replace(
+        m.params,
+        cables=tuple(
+            dataclasses.replace(c, backlash_mm=c.backlash_mm + 0.4) for c in m.params.cables
+        ),
+    )
+    same = Truth((1.0,) * 3, 1.0, 1.0, (0.0,) * 3)
+    run, _ = make_keypoint_log(world, m.effects, tmp_path, n_rows=40, seed=7, truth=same)
+    code = main(["--json", "discrepancy", "--rig-config", str(CONFIG), str(run)])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    res = json.loads(out)
+    assert res["verdict"].startswith("EFFECT: transmission lost motion"), res["verdict"]
+    eff = res["effect"]
+    assert eff["name"] == "cables.backlash_mm"
+    lo, hi = eff["ci95"]
+    assert 0.0 < lo <= eff["value"] <= hi
+    # the named play is the hidden one within a tolerance far above its interval (0.1 mm)
+    assert abs(eff["value"] - 0.4) < 0.1
+    assert res["tracker_lag_s"] is None and sum(res["reversals"]["keypoints"]) > 0
+    nominal, fitted = res["heldout_tip_rmse_mm"]
+    assert fitted < nominal

@@ -1,0 +1,100 @@
+"""The output-error fit of keypoint logs (:mod:`cdcr_ctl.identify.replay_fit`), model level.
+
+Small simulated keypoint logs of ``config/three_segment_example.yaml``; the world is the forward
+replay with known parameters (``cdcr_ctl.sim.keypoint_log``), so the replay with the world's
+parameters must explain the log to the tracker noise, and a fit from the config's values must
+come back to the world's within its own interval.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cdcr_ctl.config import load_rig_config
+from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.identify.keypoints import _load, _run_rows, candidates
+from cdcr_ctl.identify.logkind import split_by_time
+from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, fit
+from cdcr_ctl.sim.keypoint_log import TIP_NOISE_MM, Truth, make_keypoint_log
+
+CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example.yaml"
+# ~8 s CPU for the three tests (measured); the limit guards a hang, not speed
+pytestmark = pytest.mark.timeout(400)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return build_model(load_rig_config(CONFIG))
+
+
+def _problem(model, run_dir, max_rows=60):
+    runs, _, _ = _load([run_dir], None, model.params.n_segments)
+    pts = [p for r in runs for p in r.points]
+    fit_pts, _ = split_by_time(pts, 0.3)
+    keys = {(p.run, p.index) for p in fit_pts}
+    rr = tuple(_run_rows(r, keys, max_rows) for r in runs)
+    return ReplayProblem(model.params, model.effects, rr, (), TIP_NOISE_MM, 0.02)
+
+
+def test_replay_with_the_worlds_parameters_explains_the_log_to_the_noise(model, tmp_path):
+    """The cause of the old fit's 7.7x: with the world's parameters the replay reproduces the
+    simulator's tips row by row; its reduced chi^2 is 1 within the spread of a chi^2 with m
+    degrees of freedom (sd sqrt(2/m)); with the config's values it is far above."""
+    run, truth = make_keypoint_log(model.params, model.effects, tmp_path, n_rows=60, seed=3)
+    prob = _problem(model, run)
+    r_true, is_tip, failed = prob.residuals_of(truth.apply(model.params))
+    m = r_true.size
+    assert failed == 0 and is_tip.all() and m == 3 * len(prob.runs[0].rows)
+    chi2 = float(r_true @ r_true) / m
+    assert abs(chi2 - 1.0) < 5 * math.sqrt(2.0 / m)
+    r_nom, _, _ = prob.residuals_of(model.params)
+    assert float(r_nom @ r_nom) / m > 100 * chi2
+
+
+def test_fit_from_the_config_recovers_the_world_within_its_interval(model, tmp_path):
+    """Two parameters off nominal (seg1 EI +35 %, seg2 hole offset 2.5 deg), the rest at the
+    config: the fit of those two from the config's values lands within 4 standard errors of
+    the world's and reaches the noise (reduced chi^2 within 5 sd of 1)."""
+    off = math.radians(2.5)
+    truth = Truth((1.35, 1.0, 1.0), 1.0, 1.0, (0.0, off, 0.0))
+    run, _ = make_keypoint_log(
+        model.params, model.effects, tmp_path, n_rows=50, seed=4, truth=truth
+    )
+    prob = _problem(model, run)
+    fps = [
+        f for f in candidates(model.params) if f.name in ("seg1.EI_Nmm2", "seg2.hole_offset_rad")
+    ]
+    with Evaluator(prob, jobs=1) as ev:
+        sol = fit(ev, fps, [0.25, math.radians(1.0)], max_nfev=15)
+    ei, ho = sol.estimates
+    ei_true = model.params.segments[0].EI_Nmm2 * 1.35
+    assert abs(ei.value - ei_true) < 4 * ei.std
+    assert abs(ho.value - off) < 4 * ho.std
+    assert ei.ci95[0] < ei.value < ei.ci95[1]
+    assert abs(sol.chi2_reduced - 1.0) < 5 * math.sqrt(2.0 / sol.n_residuals)
+
+
+def test_a_hidden_transmission_play_is_fitted_as_backlash(model, tmp_path):
+    """A world with 0.4 mm of lost motion on every cable: the candidate cables.backlash_mm
+    (added to the config's play) is fitted near 0.4 mm, and its interval excludes 0."""
+    world = dataclasses.replace(
+        model.params,
+        cables=tuple(
+            dataclasses.replace(c, backlash_mm=c.backlash_mm + 0.4) for c in model.params.cables
+        ),
+    )
+    ident = Truth((1.0, 1.0, 1.0), 1.0, 1.0, (0.0, 0.0, 0.0))
+    run, _ = make_keypoint_log(world, model.effects, tmp_path, n_rows=50, seed=6, truth=ident)
+    prob = _problem(model, run)
+    fps = [f for f in candidates(model.params, backlash=True) if f.kind == "backlash"]
+    with Evaluator(prob, jobs=1) as ev:
+        sol = fit(ev, fps, [0.05], max_nfev=15)
+    (b,) = sol.estimates
+    assert abs(b.value - 0.4) < max(4 * b.std, 0.02)
+    assert b.ci95[0] > 0.0
+    assert np.isfinite(sol.chi2_reduced)
