@@ -129,6 +129,7 @@ def test_a_full_ring_refuses_rows_and_run_yaml_counts_them(tmp_path):
     finally:
         os.kill(w._proc.pid, signal.SIGCONT)
     assert accepted == [True] * 20 + [False] * 5
+    assert str(w.samples_path) in w.overflow and "ring full (20 rows" in w.overflow
     w.close("done")
     assert w.stats.queued == 20 and w.stats.written == 20 and w.stats.dropped == 5
     ended = yaml.safe_load((tmp_path / "r" / "run.yaml").read_text())["ended"]

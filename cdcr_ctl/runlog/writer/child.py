@@ -42,6 +42,7 @@ from cdcr_ctl.runlog.writer.ring import (
     W_BYTES,
     W_DROPPED,
     W_FSYNCS,
+    W_HIGH,
     W_LOST,
     W_WRITTEN,
     SharedRing,
@@ -81,6 +82,8 @@ class RingDrain:
         """Hand every published row to the writer; the number moved."""
         hdr = self.ring.hdr
         tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
+        if head - tail > hdr[W_HIGH]:
+            hdr[W_HIGH] = head - tail
         nums, write, n = self.ring.nums, self.writer.write, self.n
         for seq in range(tail, head):
             slot = seq % self.cap
@@ -123,11 +126,14 @@ class RingDrain:
 
     upstream = 0
 
-    def all(self) -> None:
+    def all(self) -> int:
+        """Drain rows and frames until the ring is empty; the rows moved."""
         self.frames()
-        while self.rows():
-            pass
+        moved = 0
+        while n := self.rows():
+            moved += n
         self.frames()
+        return moved
 
 
 def main() -> int:
@@ -155,6 +161,10 @@ def main() -> int:
             extra_files=spec["extra_files"],
             fsync_every_s=spec["fsync_every_s"],
             max_queued_rows=2 * spec["layout"].rows,
+            # Back-pressure from the thread to the ring: the drain waits for the thread rather
+            # than drop a row the loop's side counted as logged; the ring then fills, and the
+            # loop's side applies its own rule (trip in real time, wait in lock-step).
+            on_full="wait",
             drain_interval_s=spec["drain_interval_s"],
             second_sink=spec["second_sink"],
             on_failure=failures.append,
@@ -174,13 +184,17 @@ def main() -> int:
     while True:
         request = ring.close_request()
         gone = os.getppid() != parent
-        drain.all()
+        moved = drain.all()
         drain.publish()
         if request is not None or gone:
             if request is not None:
                 reason, outcome = request["reason"], request["outcome"]
             break
-        time.sleep(period)
+        # A drain that found the ring a quarter full or more: the loop is outpacing the drain
+        # period (a loop on simulated time waiting for room, or one catching up), so drain
+        # again at once rather than let the ring fill while this process sleeps.
+        if moved < max(1, drain.cap // 4):
+            time.sleep(period)
     drain.upstream = int(ring.hdr[ROW_DROPPED])
     writer._dropped += drain.upstream  # rows the loop's side refused count in run.yaml too
     writer.close(reason, outcome=outcome)

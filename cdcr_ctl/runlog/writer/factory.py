@@ -4,6 +4,7 @@ rig's metadata, config copies and (``run.mcap``) second sink; the daemon's ``run
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -16,7 +17,12 @@ from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
 from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter, start_writer_process
-from cdcr_ctl.runlog.writer.thread import CLOSE_TIMEOUT_S, DEFAULT_QUEUE_ROWS, RunLogWriter
+from cdcr_ctl.runlog.writer.thread import (
+    CLOSE_TIMEOUT_S,
+    DEFAULT_QUEUE_ROWS,
+    ON_FULL,
+    RunLogWriter,
+)
 
 if TYPE_CHECKING:
     from cdcr_ctl.config.schema import RigConfig
@@ -48,14 +54,23 @@ class RunLogFactory:
         effective_config: str | None = None,
         fsync_every_s: float = 0.5,
         extra_columns: Sequence[str] = LOOP_EXTRA_COLUMNS,
-        max_queued_rows: int = DEFAULT_QUEUE_ROWS,
+        max_queued_rows: int | None = None,
         on_failure: Callable[[str], None] | None = None,
         mcap: bool = False,
         tip_from_psi: Callable[[Any], Any] | None = None,
         writer: str = "process",
+        ring_s: float = DEFAULT_QUEUE_ROWS / 1000.0,
+        on_full: str = "trip",
     ) -> None:
         if writer not in ("process", "thread"):
             raise ValueError(f"writer {writer!r}: use 'process' or 'thread'")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        if ring_s <= 0:
+            raise ValueError(f"ring_s {ring_s!r}: must be > 0")
+        #: What a full ring does (``trip`` in real time, ``wait`` when the loop runs on
+        #: simulated time: see :mod:`cdcr_ctl.runlog.writer.process`).
+        self.on_full = on_full
         self.writer = writer
         self.base_dir = Path(base_dir)
         #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
@@ -67,7 +82,13 @@ class RunLogFactory:
         self.effective_config = effective_config
         self.fsync_every_s = fsync_every_s
         self.extra_columns = tuple(extra_columns)
-        self.max_queued_rows = max_queued_rows
+        #: Rows a writer may hold: ``ring_s`` seconds at the loop's rate (``logging.ring_s``),
+        #: bounded by time, never by the run's length; ``max_queued_rows`` overrides (tests).
+        self.max_queued_rows = (
+            max(1, math.ceil(ring_s * float(rate_hz)))
+            if max_queued_rows is None
+            else int(max_queued_rows)
+        )
         self.on_failure = on_failure
         sample_columns(n_segments, n_cables, self.extra_columns)  # fail early on bad names
         #: Writers made and not yet seen finished (held: the loop drops a run's writer as soon
@@ -117,6 +138,7 @@ class RunLogFactory:
             fsync_every_s=cfg.logging.fsync_every_s,
             mcap=cfg.logging.mcap,
             writer=cfg.logging.writer,
+            ring_s=cfg.logging.ring_s,
             **kwargs,
         )
 
@@ -149,6 +171,7 @@ class RunLogFactory:
             max_queued_rows=self.max_queued_rows,
             on_failure=self.on_failure,
             second_sink=self.second_sink,
+            on_full=self.on_full,
             **kw,
         )
         if self.writer == "process":

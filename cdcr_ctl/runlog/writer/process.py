@@ -12,8 +12,14 @@ waits for.
 
 - A write error in the writer process is published in the shared header; :attr:`failure` reads
   it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
-- A full ring refuses the row (``write`` returns False, counted as dropped, as the thread writer's
-  full queue does).
+- The ring is sized by time (``logging.ring_s`` of rows at the loop's rate, see
+  :class:`~cdcr_ctl.runlog.writer.factory.RunLogFactory`). When it is full, ``on_full`` decides:
+  ``trip`` (real time, the default) refuses the row (``write`` returns False, counted as dropped)
+  and sets :attr:`~ProcessRunLogWriter.overflow`, on which the loop trips ``log_overflow``
+  (quick stop; the rows in the ring are still written and the run closed, its reason naming the
+  overflow); ``wait`` (a loop on simulated time, lock-step) blocks ``write`` until the writer
+  process has made room, so no row is lost whatever the load and the files are the same on
+  every run.
 - The writer process exiting without closing the run (a crash) is also a failure.
 - If the loop's process dies (SIGKILL), the writer process sees its parent change, drains what is
   in the ring, and closes the run with outcome ``aborted``: ``samples.csv`` and ``run.mcap`` end
@@ -31,6 +37,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -50,11 +57,13 @@ from cdcr_ctl.runlog.writer.ring import (
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
+    ROW_WAITS,
     ROWS_OFFSET,
     SLOT_HEAD,
     W_BYTES,
     W_DROPPED,
     W_FSYNCS,
+    W_HIGH,
     W_LOST,
     W_WRITTEN,
     RingLayout,
@@ -73,6 +82,17 @@ ALIVE_EVERY_ROWS = 256
 INT_COLUMNS = frozenset({"cycle"})
 #: Nice increment of the writer process.
 WRITER_NICE = 10
+#: Scheduling policy of the writer process (``os.SCHED_*`` name).
+WRITER_POLICY = "SCHED_BATCH"
+#: What a full ring does to a row (see :meth:`ProcessRunLogWriter._room`): ``trip`` refuses it
+#: and records :attr:`~ProcessRunLogWriter.overflow` (real time: the loop must never wait), or
+#: ``wait`` blocks the loop until the writer process has made room (simulated time: no row
+#: lost, the same files whatever the load).
+ON_FULL = ("trip", "wait")
+#: Poll period of a loop waiting for room in the ring (s) and polls between two checks that the
+#: writer process still runs.
+WAIT_POLL_S = 0.001
+WAIT_ALIVE_EVERY = 100
 
 #: The writer process's first statements: off real time and down in priority before its imports
 #: (a second of CPU on a loaded machine), then :func:`cdcr_ctl.runlog.writer.child.main`.
@@ -80,7 +100,7 @@ _BOOT = (
     "import os, signal, sys\n"
     "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
     "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
-    "try:\n    os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))\n"
+    "try:\n    os.sched_setscheduler(0, os.{policy}, os.sched_param(0))\n"
     "except (OSError, AttributeError):\n    pass\n"
     "try:\n    os.nice({nice})\n"
     "except OSError:\n    pass\n"
@@ -103,7 +123,7 @@ def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
     Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
     exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
     until it has its settings). One that never gets settings exits when its stdin closes."""
-    cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE)]
+    cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE, policy=WRITER_POLICY)]
     fds = () if ring_fd is None else (ring_fd,)
     return subprocess.Popen(
         cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, pass_fds=fds, close_fds=True
@@ -169,9 +189,14 @@ class ProcessRunLogWriter:
         second_sink: Any = None,
         can_frames: int = DEFAULT_CAN_FRAMES,
         process: subprocess.Popen | None = None,
+        on_full: str = "trip",
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        self.on_full = on_full
+        self._overflow: str | None = None
         self.run_dir = Path(run_dir)
         self.columns = list(columns)
         if len(set(self.columns)) != len(self.columns) or not self.columns:
@@ -271,7 +296,8 @@ class ProcessRunLogWriter:
 
     # ------------------------------------------------------------------ real-time side
     def write(self, row: Any) -> bool:
-        """Copy one row's numbers into the ring; never blocks, never raises. False: dropped.
+        """Copy one row's numbers into the ring; never raises, never blocks unless
+        ``on_full="wait"`` and the ring is full (see :meth:`_room`). False: dropped.
 
         ``row``: a mapping column -> value, a sequence in column order, or an object with
         ``row_parts()`` -> (names of the values, float64 values, ``t_s``, ``cycle``,
@@ -288,7 +314,7 @@ class ProcessRunLogWriter:
             return False
         if head - self._tail >= self._cap:
             self._tail = ring.hq[ROW_TAIL]
-            if head - self._tail >= self._cap:
+            if head - self._tail >= self._cap and not self._room(head):
                 self._dropped += 1
                 ring.hq[ROW_DROPPED] = self._dropped
                 return False
@@ -320,6 +346,54 @@ class ProcessRunLogWriter:
         if self._queued % ALIVE_EVERY_ROWS == 0:
             self._check_alive()
         return True
+
+    def _room(self, head: int) -> bool:
+        """The ring is full at ``head``. ``on_full="wait"`` (the loop on simulated time): wait
+        until the writer process has taken rows (True), or until it failed or ended (False).
+        ``on_full="trip"`` (real time): never wait; record :attr:`overflow` (False)."""
+        if self.on_full != "wait":
+            if self._overflow is None:
+                cap = self._cap
+                rate = self.metadata.rate_hz
+                span = f" = {cap / rate:.3g} s at {rate:g} Hz" if rate else ""
+                self._overflow = (
+                    f"{self.samples_path}: run-log ring full ({cap} rows{span}): the writer "
+                    "process fell behind the loop; rows from here on are not logged"
+                )
+                log.error("run log: %s", self._overflow)
+            return False
+        ring = self._ring
+        ring.hq[ROW_WAITS] += 1
+        waited = 0
+        while head - self._tail >= self._cap:
+            if self.failure is not None:
+                return False
+            waited += 1
+            if waited % WAIT_ALIVE_EVERY == 0:
+                self._check_alive()
+                if self._exit_checked:
+                    return False
+            time.sleep(WAIT_POLL_S)
+            self._tail = ring.hq[ROW_TAIL]
+        return True
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its ring once a row was refused because the ring was
+        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
+
+    @property
+    def high_water(self) -> int:
+        """Most rows the ring held at one of the writer process's drains (rows)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[W_HIGH])
+
+    @property
+    def waits(self) -> int:
+        """Rows the loop waited for room for (``on_full="wait"``)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[ROW_WAITS])
 
     def _set_names(self, keys: Sequence[str]) -> None:
         """The first loop row: its value names into the ring (the writer process maps them to

@@ -53,6 +53,8 @@ W_DROPPED = 11
 ROW_DROPPED = 12  # rows the producer refused (ring full, closing, failed)
 CAN_DROPPED = 13  # CAN frames the producer refused (ring full)
 READY = 14  # 1: the writer process has opened its files
+W_HIGH = 15  # high-water mark: most rows the ring held at a drain (published by the writer)
+ROW_WAITS = 16  # rows the producer had to wait for room for (back-pressure, lock-step only)
 #: Bytes of each text area (close request, write error).
 TEXT_BYTES = 4096
 #: Bytes of a row's text (the ``event`` column); longer text is cut and marked.
@@ -138,8 +140,10 @@ class SharedRing:
             raise
         # Touch every page of the header, the rows and the CAN records now: a page first
         # written by the loop would cost it a page fault (the shared memory is allocated on
-        # first touch), one every few rows during the ring's first round. The text fields are
-        # touched only by rows with an event.
+        # first touch), one every few rows during the ring's first round. The ring is sized by
+        # time (``logging.ring_s`` of rows at the loop's rate: 10 s at 1 kHz of a 3-cable rig is
+        # ~3 MB of rows and 4 MB of CAN records), so this is a bounded cost at the run's start.
+        # The text fields (1 kB a slot) are touched only by rows with an event.
         ring.hdr[:] = 0
         ring.nums[:] = 0.0
         ring.can[:] = bytes(len(ring.can))

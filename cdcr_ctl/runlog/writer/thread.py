@@ -46,6 +46,12 @@ log = logging.getLogger("cdcr_ctl.runlog.writer")
 DRAIN_INTERVAL_S = 0.05
 #: Default bound of the row queue (rows): 10 s of a 1 kHz loop.
 DEFAULT_QUEUE_ROWS = 10_000
+#: What a full queue does to a row: ``trip`` refuses it and records ``overflow`` (real time:
+#: the loop must never wait; it trips ``log_overflow``), ``wait`` blocks the writing thread until
+#: the writer has made room (the loop on simulated time: no row lost).
+ON_FULL = ("trip", "wait")
+#: Poll period of a loop waiting for room in the queue (s).
+WAIT_POLL_S = 0.001
 #: Rows formatted and written per write call.
 BATCH_ROWS = 2_000
 #: How long ``close(wait=True)`` waits for the writer thread to finish (s).
@@ -100,9 +106,15 @@ class RunLogWriter(RunFileFormats):
         drain_interval_s: float = DRAIN_INTERVAL_S,
         second_sink: SecondSinkFactory | None = None,
         require_empty: bool = True,
+        on_full: str = "trip",
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        self.on_full = on_full
+        self._overflow: str | None = None
+        self._waits = 0
         self.run_dir = Path(run_dir)
         self.columns = list(columns)
         if len(set(self.columns)) != len(self.columns) or not self.columns:
@@ -191,19 +203,55 @@ class RunLogWriter(RunFileFormats):
 
     # ------------------------------------------------------------------ real-time side
     def write(self, row: Mapping[str, Any] | Sequence[Any]) -> bool:
-        """Queue one row; never blocks, never raises. Returns False if the row was dropped.
+        """Queue one row; never raises, never blocks unless ``on_full="wait"`` and the queue is
+        full. Returns False if the row was dropped.
 
         ``row`` is a mapping column -> value (missing columns are empty fields; unknown keys are
         ignored and logged once) or a sequence in column order. Values: float/int/numpy
         scalars, str, None/NaN (empty). The row object must not be mutated afterwards.
         Call from one thread (the loop's): the counters are not locked.
         """
-        if self._closing or self._failure is not None or len(self._queue) >= self.max_queued_rows:
+        if self._closing or self._failure is not None:
+            self._dropped += 1
+            return False
+        if len(self._queue) >= self.max_queued_rows and not self._room():
             self._dropped += 1
             return False
         self._queue.append(row)
         self._queued += 1
         return True
+
+    def _room(self) -> bool:
+        """The queue is full. ``on_full="wait"`` (the loop on simulated time): wait until the
+        writer thread has taken rows (True) or failed or ended (False). ``on_full="trip"``
+        (real time): never wait; record :attr:`overflow` (False)."""
+        if self.on_full != "wait":
+            if self._overflow is None:
+                n, rate = self.max_queued_rows, self.metadata.rate_hz
+                span = f" = {n / rate:.3g} s at {rate:g} Hz" if rate else ""
+                self._overflow = (
+                    f"{self.samples_path}: run-log queue full ({n} rows{span}): the writer "
+                    "thread fell behind the loop; rows from here on are not logged"
+                )
+                log.error("run log: %s", self._overflow)
+            return False
+        self._waits += 1
+        while len(self._queue) >= self.max_queued_rows:
+            if self._failure is not None or self._done_evt.is_set():
+                return False
+            time.sleep(WAIT_POLL_S)
+        return True
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its queue once a row was refused because the queue was
+        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
+
+    @property
+    def waits(self) -> int:
+        """Rows the loop waited for room for (``on_full="wait"``)."""
+        return self._waits
 
     @property
     def failure(self) -> str | None:
