@@ -2,8 +2,8 @@
 
 Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`, which first moves it
 from any real-time scheduling it inherited to SCHED_BATCH (a batch task never preempts a running
-one when it wakes, so the loop is not cut mid-cycle by the writer's drains), lowers its priority
-and has it ignore SIGINT and SIGTERM (a Ctrl-C or a service manager's SIGTERM to the whole group
+one when it wakes, so the loop is not cut mid-cycle by the writer's drains), sets its nice level
+(``WRITER_NICE``) and has it ignore SIGINT and SIGTERM (a Ctrl-C or a service manager's SIGTERM to the whole group
 goes to the daemon, which closes the run: this process follows the close request, or the
 daemon's death). Reads its settings (a length-prefixed pickle) from stdin, maps the shared ring
 from the inherited descriptor, makes an ordinary
@@ -44,6 +44,7 @@ from cdcr_ctl.runlog.writer.ring import (
     W_FSYNCS,
     W_HIGH,
     W_LOST,
+    W_START,
     W_WRITTEN,
     SharedRing,
 )
@@ -70,6 +71,7 @@ class RingDrain:
         self.n = len(num_cols)
         self.num_cols = num_cols
         self._by_names: list[int] | None = None
+        self.drained = False
 
     def _names_index(self) -> list[int]:
         """Column position (among the numeric columns) of each value of an ORDER_NAMES slot."""
@@ -82,7 +84,10 @@ class RingDrain:
         """Hand every published row to the writer; the number moved."""
         hdr = self.ring.hdr
         tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
-        if head - tail > hdr[W_HIGH]:
+        if not self.drained:
+            self.drained = True
+            hdr[W_START] = head - tail  # the start's backlog, apart from the steady state
+        elif head - tail > hdr[W_HIGH]:
             hdr[W_HIGH] = head - tail
         nums, write, n = self.ring.nums, self.writer.write, self.n
         for seq in range(tail, head):

@@ -4,7 +4,7 @@
 :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``write``, ``failure``, ``stats``,
 ``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
 into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
-process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, nice 10, never real-time)
+process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, never real-time)
 drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the
 flushes and fsyncs every ``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end
 all happen as before, but under the writer process's interpreter lock, which the loop never
@@ -65,6 +65,7 @@ from cdcr_ctl.runlog.writer.ring import (
     W_FSYNCS,
     W_HIGH,
     W_LOST,
+    W_START,
     W_WRITTEN,
     RingLayout,
     SharedRing,
@@ -80,9 +81,19 @@ DEFAULT_CAN_FRAMES = 50_000
 ALIVE_EVERY_ROWS = 256
 #: Columns written back as integers by the writer process.
 INT_COLUMNS = frozenset({"cycle"})
-#: Nice increment of the writer process.
-WRITER_NICE = 10
-#: Scheduling policy of the writer process (``os.SCHED_*`` name).
+#: Nice increment of the writer process: 0, the daemon's own. Measured at 1 kHz with MCAP under
+#: ``stress-ng --cpu 2`` on the 2-core machine (``benchmarks/bench_loop.py --runlog mcap
+#: --seconds 15 --spare-s 3 --writer-nice N``, two runs each, README "Run logs"): at nice +10
+#: the writer got about a tenth of a nice-0 task's share, less than its ~20-30 % of a core, and
+#: fell 6 s behind (one run never drained before its close, another was not done 30 s after
+#: it): a longer run would have overflowed any ring. At nice +5 it started 1.6-1.7 s behind; at
+#: nice 0 0.6-0.9 s, then held at most 0.12-0.14 s of rows, and the loop's rate was no lower
+#: (715-752 Hz against 394-708 at +10). The loop on the rig runs SCHED_FIFO, above any nice
+#: level, so the writer's share is taken from other ordinary work, never from the loop.
+WRITER_NICE = 0
+#: Scheduling policy of the writer process (``os.SCHED_*`` name): SCHED_BATCH, so the writer
+#: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
+#: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
 WRITER_POLICY = "SCHED_BATCH"
 #: What a full ring does to a row (see :meth:`ProcessRunLogWriter._room`): ``trip`` refuses it
 #: and records :attr:`~ProcessRunLogWriter.overflow` (real time: the loop must never wait), or
@@ -94,7 +105,7 @@ ON_FULL = ("trip", "wait")
 WAIT_POLL_S = 0.001
 WAIT_ALIVE_EVERY = 100
 
-#: The writer process's first statements: off real time and down in priority before its imports
+#: The writer process's first statements: off real time (and at WRITER_NICE) before its imports
 #: (a second of CPU on a loaded machine), then :func:`cdcr_ctl.runlog.writer.child.main`.
 _BOOT = (
     "import os, signal, sys\n"
@@ -263,9 +274,9 @@ class ProcessRunLogWriter:
         except RigError:
             self._ring.close()
             raise
-        # Never wait here for the writer process to make the files: it runs at a low priority
-        # (SCHED_BATCH, nice +10), so on a loaded machine it gets little CPU and making the
-        # files can take a second or more, even from a spare with its imports done; a run's
+        # Never wait here for the writer process to make the files: it runs off real time
+        # (SCHED_BATCH), so on a loaded machine making the files can take a second or more,
+        # even from a spare with its imports done; a run's
         # start (the command thread, a joystick already streaming) must not wait for that.
         # Rows wait in the ring; an error making the files is published as the log's failure
         # and trips the loop (as a write error does). The checks the daemon can make itself
@@ -385,9 +396,17 @@ class ProcessRunLogWriter:
 
     @property
     def high_water(self) -> int:
-        """Most rows the ring held at one of the writer process's drains (rows)."""
+        """Most rows the ring held at one of the writer process's drains after its first
+        (rows; the steady state)."""
         h = self._ring.hdr if self._ring is not None else self._final
         return int(h[W_HIGH])
+
+    @property
+    def start_backlog(self) -> int:
+        """Rows the ring held at the writer process's first drain (its start: interpreter,
+        imports unless it was a spare, the run's files)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[W_START])
 
     @property
     def waits(self) -> int:

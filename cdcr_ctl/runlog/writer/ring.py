@@ -53,7 +53,8 @@ W_DROPPED = 11
 ROW_DROPPED = 12  # rows the producer refused (ring full, closing, failed)
 CAN_DROPPED = 13  # CAN frames the producer refused (ring full)
 READY = 14  # 1: the writer process has opened its files
-W_HIGH = 15  # high-water mark: most rows the ring held at a drain (published by the writer)
+W_HIGH = 15  # high-water mark: most rows the ring held at a drain after the first
+W_START = 17  # rows the ring held at the writer's first drain (its start-up: files, imports)
 ROW_WAITS = 16  # rows the producer had to wait for room for (back-pressure, lock-step only)
 #: Bytes of each text area (close request, write error).
 TEXT_BYTES = 4096
