@@ -3,10 +3,10 @@
 Started by :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`, which first moves it
 from any real-time scheduling it inherited to SCHED_BATCH (a batch task never preempts a running
 one when it wakes, so the loop is not cut mid-cycle by the writer's drains), sets its nice level
-(``WRITER_NICE``) and has it ignore SIGINT and SIGTERM (a Ctrl-C or a service manager's SIGTERM to the whole group
-goes to the daemon, which closes the run: this process follows the close request, or the
-daemon's death). Reads its settings (a length-prefixed pickle) from stdin, maps the shared ring
-from the inherited descriptor, makes an ordinary
+(``WRITER_NICE``) and has it ignore SIGINT and SIGTERM (a Ctrl-C or a service manager's SIGTERM
+to the whole group goes to the daemon, which closes the run: this process follows the close
+request, or the daemon's death). Reads its settings (a length-prefixed pickle) from stdin,
+maps the shared ring from the inherited descriptor, makes an ordinary
 :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` in the run directory and sets ``READY``
 (or publishes the error as the log's failure). Then, every drain interval: moves the ring's rows
 and CAN frames to that writer, publishes its counters and any write error in the shared header,
