@@ -174,6 +174,7 @@ def main() -> int:
             second_sink=spec["second_sink"],
             on_failure=failures.append,
             require_empty=False,
+            files_made=bool(spec.get("files_made")),
         )
     except (RigError, OSError, ValueError) as exc:
         text = str(exc)

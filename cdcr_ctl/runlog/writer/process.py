@@ -70,7 +70,12 @@ from cdcr_ctl.runlog.writer.ring import (
     RingLayout,
     SharedRing,
 )
-from cdcr_ctl.runlog.writer.thread import CLOSE_TIMEOUT_S, DEFAULT_QUEUE_ROWS, DRAIN_INTERVAL_S
+from cdcr_ctl.runlog.writer.thread import (
+    CLOSE_TIMEOUT_S,
+    DEFAULT_QUEUE_ROWS,
+    DRAIN_INTERVAL_S,
+    RunLogWriter,
+)
 
 log = logging.getLogger("cdcr_ctl.runlog.writer")
 
@@ -179,9 +184,11 @@ class ProcessRunLogWriter:
     pickle: the writer process makes the sink). ``process``: a spare writer process from
     :func:`start_writer_process` (started ahead, its interpreter start and imports under way
     or done; the factory keeps one ready), else one is started here. ``run_dir`` must be empty
-    or not exist. Raises :class:`RigError` naming the path if the run directory cannot be made
-    or is not empty, or the writer process cannot start; the constructor does not wait for the
-    writer process to make the files (an error there is a :attr:`failure`, which trips the loop).
+    or not exist. The constructor makes the run's first files (config copies, ``run.yaml``,
+    ``samples.csv``'s header) as the thread writer does; raises :class:`RigError` naming the path
+    if they cannot be made or the directory is not empty, or the writer process cannot start. It
+    does not wait for the writer process (an error there is a :attr:`failure`, which trips the
+    loop).
     """
 
     def __init__(
@@ -258,6 +265,7 @@ class ProcessRunLogWriter:
             "layout": layout,
             "fd": self._ring.fd,
             "parent_pid": os.getpid(),
+            "files_made": True,
         }
         try:
             blob = pickle.dumps(spec)
@@ -268,19 +276,30 @@ class ProcessRunLogWriter:
             self.run_dir.mkdir(parents=True, exist_ok=True)
             if any(self.run_dir.iterdir()):
                 raise RigError(f"{self.run_dir}: run directory is not empty")
+            # The run's first files here, as the thread writer makes them (a few ms): the run
+            # directory is whole from the run's start (readers, a SIGKILL before the writer
+            # process is going), whatever CPU the writer process gets on a loaded machine.
+            RunLogWriter.make_start_files(
+                self.run_dir,
+                self.columns,
+                metadata,
+                config_text=config_text,
+                config_source=config_source,
+                extra_files=extra_files,
+                fsync_every_s=self.fsync_every_s,
+            )
         except OSError as exc:
             self._ring.close()
             raise RigError(f"{self.run_dir}: cannot start the run log: {exc}") from exc
         except RigError:
             self._ring.close()
             raise
-        # Never wait here for the writer process to make the files: it runs off real time
-        # (SCHED_BATCH), so on a loaded machine making the files can take a second or more,
-        # even from a spare with its imports done; a run's
-        # start (the command thread, a joystick already streaming) must not wait for that.
-        # Rows wait in the ring; an error making the files is published as the log's failure
-        # and trips the loop (as a write error does). The checks the daemon can make itself
-        # (directory made and empty) were made above and raise here.
+        # Never wait here for the writer process to take the run over: it runs off real time
+        # (SCHED_BATCH), so on a loaded machine its start (run.mcap, the first drain) can take
+        # a second or more, even from a spare with its imports done; a run's start (the
+        # command thread, a joystick already streaming) must not wait for that. Rows wait in
+        # the ring; an error there is published as the log's failure and trips the loop (as a
+        # write error does). The files the daemon makes itself were made above and raise here.
         self._proc = self._start(blob, process)
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         _OPEN.add(self)

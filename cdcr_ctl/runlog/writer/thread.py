@@ -81,7 +81,9 @@ class RunLogWriter(RunFileFormats):
     ``run_dir`` must not exist yet or be empty (see :meth:`create` for a fresh one).
     ``columns`` is the CSV header (see :func:`~cdcr_ctl.runlog.columns.sample_columns`).
     ``require_empty`` False skips that check (the writer process: its parent checked, and the
-    CAN log may already be open beside it).
+    CAN log may already be open beside it). ``files_made``: the config copies, ``run.yaml`` and
+    ``samples.csv`` with its header were made by :meth:`make_start_files` (the writer process's
+    parent); this writer appends to ``samples.csv``.
     ``config_text`` is copied to ``config.yaml``; ``extra_files`` maps further file names in the
     run directory to their text. ``opener`` opens ``samples.csv`` for binary writing (tests inject
     failing files). ``on_failure(text)`` is called once, from the writer thread, on a write error.
@@ -107,6 +109,7 @@ class RunLogWriter(RunFileFormats):
         second_sink: SecondSinkFactory | None = None,
         require_empty: bool = True,
         on_full: str = "trip",
+        files_made: bool = False,
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
@@ -153,21 +156,13 @@ class RunLogWriter(RunFileFormats):
             self.run_dir.mkdir(parents=True, exist_ok=True)
             if require_empty and any(self.run_dir.iterdir()):
                 raise RigError(f"{self.run_dir}: run directory is not empty")
-            if config_text is not None:
-                _write_atomic(self.run_dir / CONFIG_YAML, config_text)
-            for name, text in (extra_files or {}).items():
-                _write_atomic(self.run_dir / name, text)
-            first = self._run_yaml()
-            # Reserve the space the end of the run needs (see RUN_YAML_RESERVE_BYTES).
-            reserved = _padded(first, len(first.encode("utf-8")) + RUN_YAML_RESERVE_BYTES)
-            _write_atomic_bytes(self.run_dir / RUN_YAML, reserved)
-            self._dir_id = _file_id(os.stat(self.run_dir))
-            self._file = opener(self.samples_path)
-            header = self._encode([self.columns], raw=True)
-            self._file.write(header)
-            self._file.flush()
-            self._fsync()
-            self._bytes += len(header)
+            if files_made:
+                # The loop's process made them (ProcessRunLogWriter): write on after the header.
+                self._dir_id = _file_id(os.stat(self.run_dir))
+                self._file = open(self.samples_path, "ab")  # noqa: SIM115 - closed at the end
+                self._bytes = self._file.tell()
+            else:
+                self._file = self._make_start_files(config_text, extra_files, opener)
             if second_sink is not None:
                 files = {CONFIG_YAML: config_text} if config_text is not None else {}
                 files.update(extra_files or {})
@@ -185,6 +180,59 @@ class RunLogWriter(RunFileFormats):
         _OPEN_WRITERS.add(self)
 
     # ------------------------------------------------------------------ construction helpers
+    def _make_start_files(
+        self,
+        config_text: str | None,
+        extra_files: Mapping[str, str] | None,
+        opener: FileOpener = _default_opener,
+    ) -> IO[bytes]:
+        """The files a run starts with: the config copies, ``run.yaml`` (the space its end
+        needs reserved) and ``samples.csv`` with its header, flushed and fsynced. Returns the
+        open ``samples.csv``. Raises OSError."""
+        if config_text is not None:
+            _write_atomic(self.run_dir / CONFIG_YAML, config_text)
+        for name, text in (extra_files or {}).items():
+            _write_atomic(self.run_dir / name, text)
+        first = self._run_yaml()
+        # Reserve the space the end of the run needs (see RUN_YAML_RESERVE_BYTES).
+        reserved = _padded(first, len(first.encode("utf-8")) + RUN_YAML_RESERVE_BYTES)
+        _write_atomic_bytes(self.run_dir / RUN_YAML, reserved)
+        self._dir_id = _file_id(os.stat(self.run_dir))
+        f = self._file = opener(self.samples_path)
+        header = self._encode([self.columns], raw=True)
+        f.write(header)
+        f.flush()
+        self._fsync()
+        self._bytes += len(header)
+        return f
+
+    @classmethod
+    def make_start_files(
+        cls,
+        run_dir: str | Path,
+        columns: Sequence[str],
+        metadata: RunMetadata,
+        *,
+        config_text: str | None = None,
+        config_source: str = "",
+        extra_files: Mapping[str, str] | None = None,
+        fsync_every_s: float = 0.5,
+    ) -> None:
+        """What the constructor writes first, without a writer thread (the loop's process
+        before a writer process takes the run over with ``files_made=True``). Raises OSError."""
+        w = cls.__new__(cls)
+        w.run_dir, w.columns, w.metadata = Path(run_dir), list(columns), metadata
+        w.samples_path = w.run_dir / SAMPLES_CSV
+        w.fsync_every_s, w._config_source = float(fsync_every_s), config_source
+        w._files = [CONFIG_YAML] if config_text is not None else []
+        w._files += list(extra_files or {})
+        w._ended, w._bytes, w._fsyncs, w._file = None, 0, 0, None
+        try:
+            w._make_start_files(config_text, extra_files)
+        finally:
+            if w._file is not None:
+                w._file.close()
+
     @classmethod
     def create(
         cls,
