@@ -7,13 +7,18 @@ rules (the ``log_overflow`` trip, the lock-step wait) is in tests/control/test_l
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import threading
 import time
+from pathlib import Path
 
+import pytest
 import yaml
 
+from cdcr_ctl.config import load_rig_config
+from cdcr_ctl.errors import ConfigError, ConfigErrors
 from cdcr_ctl.runlog import RunLogFactory, RunLogWriter, RunMetadata, load_run
 from cdcr_ctl.runlog.reader import run_closed, wait_run_closed
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
@@ -125,3 +130,24 @@ def test_the_factory_sizes_the_ring_by_time(tmp_path):
     f.close_all("done")
     doc = yaml.safe_load((w.run_dir / "run.yaml").read_text())
     assert doc["ended"]["outcome"] == "aborted"
+
+
+QI = Path(__file__).resolve().parents[2] / "config" / "qi2023.yaml"
+
+
+@pytest.mark.parametrize("value", ["0", "-1.0", "1.0e9"])
+def test_a_bad_ring_length_is_refused_naming_file_and_key(tmp_path, value):
+    path = tmp_path / "rig.yaml"
+    path.write_text(f"extends: {QI}\nlogging: {{ring_s: {value}}}\n")
+    with pytest.raises((ConfigError, ConfigErrors)) as info:
+        load_rig_config(path)
+    errors = info.value.errors if isinstance(info.value, ConfigErrors) else [info.value]
+    assert [e.file for e in errors if e.key == "logging.ring_s"] == [str(path)]
+
+
+def test_the_config_sets_the_ring_length(tmp_path):
+    path = tmp_path / "rig.yaml"
+    path.write_text(f"extends: {QI}\nlogging: {{ring_s: 2.5, writer: thread}}\n")
+    cfg = load_rig_config(path)
+    f = RunLogFactory.from_config(cfg, path, base_dir=tmp_path / "runs")
+    assert f.max_queued_rows == math.ceil(2.5 * cfg.control.rate_hz) and f.on_full == "trip"
