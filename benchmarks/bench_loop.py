@@ -60,8 +60,9 @@ from cdcr_ctl.drives.group import open_drive_group
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
 from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata, new_run_dir
-from cdcr_ctl.runlog.writer import process as process_mod
-from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter, start_writer_process
+from cdcr_ctl.runlog.writer import spawn as spawn_mod
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
+from cdcr_ctl.runlog.writer.spawn import start_writer_process
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
@@ -215,9 +216,9 @@ class RunLogBench:
         self.writer_kind = getattr(args, "writer", "thread")
         self.rate = args.rate
         if getattr(args, "writer_nice", None) is not None:
-            process_mod.WRITER_NICE = args.writer_nice
+            spawn_mod.WRITER_NICE = args.writer_nice
         if getattr(args, "writer_policy", None) is not None:
-            process_mod.WRITER_POLICY = args.writer_policy
+            spawn_mod.WRITER_POLICY = args.writer_policy
         cls = ProcessRunLogWriter if self.writer_kind == "process" else RunLogWriter
         cols = sample_columns(model.n_segments, model.n_cables, LOOP_EXTRA_COLUMNS)
         run_dir = new_run_dir(Path(work) / "runs", meta.name)
@@ -267,7 +268,7 @@ class RunLogBench:
                 f"; ring high-water {self.writer.high_water} rows of {self.writer.max_queued_rows}"
                 f" ({self.writer.high_water / self.rate * 1e3:.0f} ms of rows; at the writer's "
                 f"first drain {self.writer.start_backlog}; writer process "
-                f"{process_mod.WRITER_POLICY}, nice +{process_mod.WRITER_NICE})"
+                f"{spawn_mod.WRITER_POLICY}, nice +{spawn_mod.WRITER_NICE})"
                 if self.writer_kind == "process"
                 else ""
             ),

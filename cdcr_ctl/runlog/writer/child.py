@@ -141,19 +141,32 @@ class RingDrain:
         return moved
 
 
-def main() -> int:
+def main(run_nice: int | None = None) -> int:
+    """The writer process: wait for the settings, then write the run at ``run_nice`` (the
+    spare waited at a lower priority, see :data:`~cdcr_ctl.runlog.writer.spawn.SPARE_NICE`)."""
     raw = sys.stdin.buffer
     head = raw.read(8)
     if len(head) < 8:
         return 0  # a spare whose factory went away: nothing to write
     (n,) = struct.unpack("<Q", head)
     spec = pickle.loads(raw.read(n))
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    if run_nice is not None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, 0, run_nice)
+        except OSError as exc:  # no right to raise a priority: write at the spare's
+            log.warning(
+                "run-log writer stays at nice %d (cannot set %d: %s; allow it with systemd "
+                "LimitNICE= or CAP_SYS_NICE)",
+                os.getpriority(os.PRIO_PROCESS, 0),
+                run_nice,
+                exc.strerror or exc,
+            )
     if spec.get("fd_inherited"):
         fd = spec["fd"]
     else:  # a spare, started before the ring existed
         fd = os.open(f"/proc/{spec['parent_pid']}/fd/{spec['fd']}", os.O_RDWR)
     ring = SharedRing(spec["layout"], fd)
-    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone
     failures: list[str] = []
     try:

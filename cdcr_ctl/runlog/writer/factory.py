@@ -16,7 +16,8 @@ from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
 from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
-from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter, start_writer_process
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
+from cdcr_ctl.runlog.writer.spawn import start_writer_process
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
     DEFAULT_QUEUE_ROWS,

@@ -35,20 +35,15 @@ import os
 import pickle
 import struct
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import can
-
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
 from cdcr_ctl.runlog.writer.files import LogStats, RunMetadata, can_log_path, utc_now_iso
 from cdcr_ctl.runlog.writer.ring import (
-    CAN_DROPPED,
     CLOSE,
     DONE,
     FAILED,
@@ -70,6 +65,7 @@ from cdcr_ctl.runlog.writer.ring import (
     RingLayout,
     SharedRing,
 )
+from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
     DEFAULT_QUEUE_ROWS,
@@ -86,20 +82,6 @@ DEFAULT_CAN_FRAMES = 50_000
 ALIVE_EVERY_ROWS = 256
 #: Columns written back as integers by the writer process.
 INT_COLUMNS = frozenset({"cycle"})
-#: Nice increment of the writer process: 0, the daemon's own. Measured at 1 kHz with MCAP under
-#: ``stress-ng --cpu 2`` on the 2-core machine (``benchmarks/bench_loop.py --runlog mcap
-#: --seconds 15 --spare-s 3 --writer-nice N``, two runs each, README "Run logs"): at nice +10
-#: the writer got about a tenth of a nice-0 task's share, less than its ~20-30 % of a core, and
-#: fell 6 s behind (one run never drained before its close, another was not done 30 s after
-#: it): a longer run would have overflowed any ring. At nice +5 it started 1.6-1.7 s behind; at
-#: nice 0 0.6-0.9 s, then held at most 0.12-0.14 s of rows, and the loop's rate was no lower
-#: (715-752 Hz against 394-708 at +10). The loop on the rig runs SCHED_FIFO, above any nice
-#: level, so the writer's share is taken from other ordinary work, never from the loop.
-WRITER_NICE = 0
-#: Scheduling policy of the writer process (``os.SCHED_*`` name): SCHED_BATCH, so the writer
-#: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
-#: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
-WRITER_POLICY = "SCHED_BATCH"
 #: What a full ring does to a row (see :meth:`ProcessRunLogWriter._room`): ``trip`` refuses it
 #: and records :attr:`~ProcessRunLogWriter.overflow` (real time: the loop must never wait), or
 #: ``wait`` blocks the loop until the writer process has made room (simulated time: no row
@@ -110,19 +92,6 @@ ON_FULL = ("trip", "wait")
 WAIT_POLL_S = 0.001
 WAIT_ALIVE_EVERY = 100
 
-#: The writer process's first statements: off real time (and at WRITER_NICE) before its imports
-#: (a second of CPU on a loaded machine), then :func:`cdcr_ctl.runlog.writer.child.main`.
-_BOOT = (
-    "import os, signal, sys\n"
-    "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-    "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
-    "try:\n    os.sched_setscheduler(0, os.{policy}, os.sched_param(0))\n"
-    "except (OSError, AttributeError):\n    pass\n"
-    "try:\n    os.nice({nice})\n"
-    "except OSError:\n    pass\n"
-    "from cdcr_ctl.runlog.writer.child import main\n"
-    "sys.exit(main())\n"
-)
 #: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
 _OPEN: set[ProcessRunLogWriter] = set()
 
@@ -132,48 +101,6 @@ def _close_open() -> None:
     """An interpreter exit closes any run log left open (outcome ``aborted``)."""
     for writer in list(_OPEN):
         writer.close("process exit with the log still open", outcome="aborted")
-
-
-def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
-    """A writer process that imports what it needs and then waits for its settings on stdin.
-    Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
-    exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
-    until it has its settings). One that never gets settings exits when its stdin closes."""
-    cmd = [sys.executable, "-c", _BOOT.format(nice=WRITER_NICE, policy=WRITER_POLICY)]
-    fds = () if ring_fd is None else (ring_fd,)
-    return subprocess.Popen(
-        cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, pass_fds=fds, close_fds=True
-    )
-
-
-class RingCanTap(can.Listener):
-    """A python-can listener putting frames into the ring's CAN records for ``/can``. Any thread
-    may call it (a lock orders the producers); a full ring counts the frame as dropped."""
-
-    def __init__(self, ring: SharedRing) -> None:
-        self._ring = ring
-        self._lock = threading.Lock()
-        self.dropped = 0
-
-    def on_message_received(self, msg: can.Message) -> None:
-        flags = (
-            msg.is_extended_id | msg.is_rx << 1 | msg.is_error_frame << 2 | msg.is_remote_frame << 3
-        )
-        with self._lock:
-            ring = self._ring
-            if ring is None or not ring.put_frame(
-                msg.timestamp, msg.arbitration_id, flags, msg.dlc, bytes(msg.data)
-            ):
-                self.dropped += 1
-                if ring is not None:
-                    ring.hq[CAN_DROPPED] = self.dropped
-
-    def detach(self) -> None:
-        with self._lock:
-            self._ring = None
-
-    def stop(self) -> None:  # python-can API; nothing to release
-        pass
 
 
 class ProcessRunLogWriter:
