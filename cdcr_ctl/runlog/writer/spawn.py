@@ -34,7 +34,7 @@ WRITER_POLICY = "SCHED_BATCH"
 #: CPU idle, more under load) and waits as a spare: the factory starts the next run's spare as
 #: a run starts, and at nice 0 that burst competed with the simulator and the loop at the
 #: moment a run begins (tests/system/test_daemon_stops.py tripped on a drive heartbeat lost
-#: within 0.7 s of the run's start, 3 of 4 runs on the loaded machine, 0 of 4 on main). Once
+#: within 0.7 s of the run's start, 3 of 11 runs on the loaded machine, 0 of 4 on main). Once
 #: it has a run it goes to WRITER_NICE, which needs the right to raise a priority (root,
 #: CAP_SYS_NICE, or RLIMIT_NICE, systemd ``LimitNICE=``); without it it stays here and says so.
 SPARE_NICE = 10
