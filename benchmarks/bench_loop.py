@@ -57,8 +57,12 @@ from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.control.timing import Ticker, try_realtime
 from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import open_drive_group
+from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
-from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata
+from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata, new_run_dir
+from cdcr_ctl.runlog.writer import spawn as spawn_mod
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
+from cdcr_ctl.runlog.writer.spawn import start_writer_process
 from cdcr_ctl.sim.epos.rig import SimDriveBus
 
 #: Multicast group of the benchmark's udp_multicast bus (inside its own network namespace).
@@ -209,9 +213,22 @@ class RunLogBench:
         self.kind = args.runlog
         second = McapSinkFactory(model.tip, args.rate) if self.kind == "mcap" else None
         meta = RunMetadata(name=f"bench-{self.kind}", rate_hz=args.rate)
-        self.writer = RunLogWriter.create(
-            Path(work) / "runs", meta, model.n_segments, model.n_cables, second_sink=second
-        )
+        self.writer_kind = getattr(args, "writer", "thread")
+        self.rate = args.rate
+        if getattr(args, "writer_nice", None) is not None:
+            spawn_mod.WRITER_NICE = args.writer_nice
+        if getattr(args, "writer_policy", None) is not None:
+            spawn_mod.WRITER_POLICY = args.writer_policy
+        cls = ProcessRunLogWriter if self.writer_kind == "process" else RunLogWriter
+        cols = sample_columns(model.n_segments, model.n_cables, LOOP_EXTRA_COLUMNS)
+        run_dir = new_run_dir(Path(work) / "runs", meta.name)
+        kw = {}
+        if self.writer_kind == "process" and getattr(args, "spare_s", 0.0) > 0:
+            # As the daemon's factory does: a spare writer process started ahead, its imports
+            # done by the time the run starts (the benchmark gives it spare_s seconds).
+            kw["process"] = start_writer_process()
+            time.sleep(args.spare_s)
+        self.writer = cls(run_dir, cols, meta, second_sink=second, **kw)
         self.loop, self.group = loop, group
         self.samples = np.zeros(int(args.seconds * args.rate * 1.5) + 1000)
         self.n = 0
@@ -240,12 +257,21 @@ class RunLogBench:
         sizes = {p.name: p.stat().st_size for p in run_dir.iterdir() if p.is_file()}
         per_row = {k: v / max(st.written, 1) for k, v in sizes.items()}
         return [
-            f"run log ({self.kind}): log stage mean {log_us.mean():.1f} us, p50 "
+            f"run log ({self.kind}, writer {self.writer_kind}): log stage mean "
+            f"{log_us.mean():.1f} us, p50 "
             f"{np.percentile(log_us, 50):.1f}, p99 {np.percentile(log_us, 99):.1f}, p99.9 "
             f"{np.percentile(log_us, 99.9):.1f}, max {log_us.max():.1f} us over {len(log_us)} "
             "cycles",
             f"run log rows: queued {st.queued}, written {st.written}, dropped {st.dropped}, "
-            f"lost {st.lost}",
+            f"lost {st.lost}"
+            + (
+                f"; ring high-water {self.writer.high_water} rows of {self.writer.max_queued_rows}"
+                f" ({self.writer.high_water / self.rate * 1e3:.0f} ms of rows; at the writer's "
+                f"first drain {self.writer.start_backlog}; writer process "
+                f"{spawn_mod.WRITER_POLICY}, nice +{spawn_mod.WRITER_NICE})"
+                if self.writer_kind == "process"
+                else ""
+            ),
             "run log size: "
             + ", ".join(
                 f"{k} {v / 1e6:.2f} MB = {per_row[k]:.0f} B/row = {per_row[k] * 3.6e6 / 1e6:.0f}"
@@ -285,6 +311,33 @@ def main() -> None:
         default="none",
         help="log every cycle as the daemon does: csv = samples.csv, mcap = samples.csv + "
         "run.mcap (with the CAN frames); prints the log stage's percentiles and bytes per hour",
+    )
+    ap.add_argument(
+        "--writer-nice",
+        type=int,
+        default=None,
+        help="with --writer process: the writer process's nice increment (default: the "
+        "daemon's, WRITER_NICE)",
+    )
+    ap.add_argument(
+        "--spare-s",
+        type=float,
+        default=0.0,
+        help="with --writer process: start the writer process this long before the run, as "
+        "the daemon keeps a spare (0: started with the run)",
+    )
+    ap.add_argument(
+        "--writer-policy",
+        choices=("SCHED_BATCH", "SCHED_OTHER"),
+        default=None,
+        help="with --writer process: its scheduling policy (default: the daemon's)",
+    )
+    ap.add_argument(
+        "--writer",
+        choices=("process", "thread"),
+        default="process",
+        help="with --runlog: encode and write in a writer process fed through shared memory "
+        "(logging.writer: process, the default) or in a thread of this process (the old writer)",
     )
     ap.add_argument(
         "--backlash-mm",

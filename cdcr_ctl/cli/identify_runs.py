@@ -17,6 +17,7 @@ import click
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify.estimator import FitOptions
+from cdcr_ctl.runlog.reader import wait_run_closed
 
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: Extra time allowed beyond a run's duration before giving up on it (s).
@@ -41,6 +42,10 @@ def run_trajectory(
             st = c.call("status")
             done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
             if done is not None:
+                # The run has ended in the loop; its log is complete once the writer (a
+                # process at low priority, seconds behind on a loaded machine) has closed it.
+                if log and res.get("log_dir"):
+                    wait_run_closed(res["log_dir"], max(0.0, end - time.monotonic()))
                 return {**res, "state": done["state"], "end_reason": done["end_reason"]}
             time.sleep(0.25)
     raise RigError(f"run {name} did not finish within {res['duration_s'] + RUN_SLACK_S:.0f} s")

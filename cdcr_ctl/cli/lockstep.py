@@ -16,10 +16,6 @@ from pathlib import Path
 
 import click
 
-#: Rows a run log may queue: in lock-step the loop outpaces the disk for a while; no row may be
-#: dropped (the logs must be the same on every run).
-LOCKSTEP_QUEUE_ROWS = 10_000_000
-
 
 def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: str | None) -> str:
     """Build the lock-step rig of ``sim_config`` with the controller config ``ctl_config``,
@@ -40,7 +36,9 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
             update={"daemon": cfg.daemon.model_copy(update={"socket_path": socket_path})}
         )
     model = build_model(cfg, source=str(path))
-    sinks = RunLogFactory.from_config(cfg, path, max_queued_rows=LOCKSTEP_QUEUE_ROWS)
+    # The loop runs on simulated time: in lock-step it outpaces the disk, so a full run-log ring
+    # makes it wait for the writer (no row may be dropped: the logs are the same on every run).
+    sinks = RunLogFactory.from_config(cfg, path, on_full="wait")
     rig = LockstepRig.open(loaded, cfg, str(path))
     assert rig.drives is not None
     io = RigIO(drives=rig.drives, tensions=rig.tensions, tip=rig.tip, close=rig.close)

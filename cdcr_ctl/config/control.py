@@ -103,6 +103,17 @@ class LoggingConfig(Section):
     #: Also write the run as ``run.mcap`` (Foxglove, PlotJuggler): one channel per stream, zstd
     #: chunks closed and flushed every ``fsync_every_s``. ``samples.csv`` is written either way.
     mcap: bool = True
+    #: Where the rows are encoded and written: ``process`` (a writer process of its own; the
+    #: loop only copies each row's numbers into shared memory, so the encoding never holds the
+    #: loop's interpreter lock) or ``thread`` (a thread of the daemon, as before).
+    writer: Literal["process", "thread"] = "process"
+    #: Rows the loop may hand over before the writer has taken them, in seconds of the loop's
+    #: rate (the shared-memory ring of ``writer: process``, the queue of ``writer: thread``).
+    #: In real time a full ring trips ``log_overflow`` (quick stop, the log kept) rather than
+    #: drop rows unseen; a loop on simulated time (lock-step) waits for the writer instead.
+    #: The writer process under a 2-core ``stress-ng --cpu 2`` held at most ~1 s of a 1 kHz
+    #: loop's rows (README, run logs), so 10 s is a tenfold margin for ~14 MB of memory.
+    ring_s: Annotated[float, Field(gt=0, le=60)] = 10.0
 
 
 class LiveViewConfig(Section):

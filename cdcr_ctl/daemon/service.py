@@ -200,6 +200,8 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
             ("disable drives", self.io.drives.disable),
             ("traffic log", lambda: getattr(self.io.drives, "log_traffic", lambda p: None)(None)),
             ("stop loop", lambda: self.loop.stop(LOOP_JOIN_TIMEOUT_S)),
+            # The run logs' writers finish their files (the loop closed them without waiting).
+            ("run logs", lambda: getattr(self.new_sink, "close_all", lambda r: None)(reason)),
             ("close socket", lambda: self.server.close() if self.server else None),
             ("live view", lambda: self.live.stop() if self.live else None),
             ("intake", self.intake.close),

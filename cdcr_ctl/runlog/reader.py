@@ -11,6 +11,7 @@ file and the line.
 from __future__ import annotations
 
 import csv
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from math import nan
@@ -210,6 +211,28 @@ def load_mcap_run(path: str | Path) -> Run:
         can_log=can_log,
         warnings=warnings,
     )
+
+
+def run_closed(run_dir: str | Path) -> bool:
+    """True once the writer has closed the run in ``run_dir`` (``run.yaml`` has its ``ended``):
+    every row it took is in ``samples.csv``/``run.mcap``. A run's end in the daemon's status
+    comes first (the loop never waits for the writer), so a client that reads the log right
+    after a run waits for this. A ``run.yaml`` being rewritten reads as not closed yet."""
+    try:
+        doc = yaml.safe_load((Path(run_dir) / RUN_YAML).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False
+    return isinstance(doc, dict) and isinstance(doc.get("ended"), dict)
+
+
+def wait_run_closed(run_dir: str | Path, timeout_s: float, poll_s: float = 0.05) -> bool:
+    """Wait up to ``timeout_s`` (wall clock) for :func:`run_closed`; its last answer."""
+    end = time.monotonic() + timeout_s
+    while not run_closed(run_dir):
+        if time.monotonic() >= end:
+            return False
+        time.sleep(poll_s)
+    return True
 
 
 def _load_metadata(path: Path, warnings: list[str]) -> dict[str, Any]:

@@ -107,6 +107,10 @@ def start_moving_run(work: Path, name: str, seconds: float = 8.0, seed: int = 0)
 
 
 def rows_on_disk(run_dir: str) -> int:
+    """Rows in the run's samples.csv; 0 before the writer process has made the file (a run's
+    start does not wait for it: ``logging.writer: process``)."""
+    if not (Path(run_dir) / "samples.csv").is_file():
+        return 0
     return len(load_run(run_dir))
 
 

@@ -22,6 +22,7 @@ from cdcr_ctl.control.loop.commands import LoopCommands
 from cdcr_ctl.control.loop.records import (
     COMMAND_STEP_FRACTION,
     DIVERGENCE_LAG_S,
+    LOG_OVERFLOW,
     OFFSET_RAMP_FRACTION,
     OPERATOR_STOP,
     Hold,
@@ -332,6 +333,15 @@ class ControlLoop(LoopCommands):
                     self._count_run_row(self._run)
             else:
                 self.counters.rows_dropped += 1
+                overflow = getattr(sink, "overflow", None)
+                if overflow and self.supervisor.trip is None:
+                    # The writer fell behind a real-time loop and its ring is full: stop rather
+                    # than go on with rows missing from the log (the log keeps what it holds).
+                    trip = self.supervisor.external(
+                        LOG_OVERFLOW, Reaction.QUICK_STOP, str(overflow), t_s
+                    )
+                    if trip is not None:
+                        self._react(trip)
             failure = getattr(sink, "failure", None)
             if failure and self.supervisor.trip is None:
                 # Latched in the supervisor like any trip: status names it, runs are refused.

@@ -25,6 +25,9 @@ GIL_SWITCH_INTERVAL_S = 5e-5
 DIVERGENCE_LAG_S = 0.05
 #: Cause of a stop the operator (or the daemon's shutdown) asked for: the run ends "stopped".
 OPERATOR_STOP = "operator_stop"
+#: Trip cause when a run log's ring (or queue) is full in real time: the writer fell behind and
+#: a row was refused (QUICK_STOP; the log keeps every row it took and names the cause).
+LOG_OVERFLOW = "log_overflow"
 
 
 class Hold:

@@ -4,6 +4,8 @@ rig's metadata, config copies and (``run.mcap``) second sink; the daemon's ``run
 
 from __future__ import annotations
 
+import math
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,15 +15,26 @@ import yaml
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
-from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata
-from cdcr_ctl.runlog.writer.thread import DEFAULT_QUEUE_ROWS, RunLogWriter
+from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
+from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
+from cdcr_ctl.runlog.writer.spawn import start_writer_process
+from cdcr_ctl.runlog.writer.thread import (
+    CLOSE_TIMEOUT_S,
+    DEFAULT_QUEUE_ROWS,
+    ON_FULL,
+    RunLogWriter,
+)
 
 if TYPE_CHECKING:
     from cdcr_ctl.config.schema import RigConfig
 
 
 class RunLogFactory:
-    """Makes one :class:`RunLogWriter` per run with the rig's metadata and config copy.
+    """Makes one run-log writer per run with the rig's metadata and config copy.
+
+    ``writer``: ``"process"`` (default, ``logging.writer``): a
+    :class:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`, the encoding in a writer
+    process of its own; ``"thread"``: a :class:`RunLogWriter` thread in this process.
 
     Called as ``factory(name, compensation, trajectory="")`` (the daemon's ``run_sink_factory``).
     ``config_text`` is the rig config file as loaded; ``effective_config`` (optional) the
@@ -42,11 +55,24 @@ class RunLogFactory:
         effective_config: str | None = None,
         fsync_every_s: float = 0.5,
         extra_columns: Sequence[str] = LOOP_EXTRA_COLUMNS,
-        max_queued_rows: int = DEFAULT_QUEUE_ROWS,
+        max_queued_rows: int | None = None,
         on_failure: Callable[[str], None] | None = None,
         mcap: bool = False,
         tip_from_psi: Callable[[Any], Any] | None = None,
+        writer: str = "process",
+        ring_s: float = DEFAULT_QUEUE_ROWS / 1000.0,
+        on_full: str = "trip",
     ) -> None:
+        if writer not in ("process", "thread"):
+            raise ValueError(f"writer {writer!r}: use 'process' or 'thread'")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        if ring_s <= 0:
+            raise ValueError(f"ring_s {ring_s!r}: must be > 0")
+        #: What a full ring does (``trip`` in real time, ``wait`` when the loop runs on
+        #: simulated time: see :mod:`cdcr_ctl.runlog.writer.process`).
+        self.on_full = on_full
+        self.writer = writer
         self.base_dir = Path(base_dir)
         #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
         #: tip of a commanded pose for its ``/tip/model`` channel.
@@ -57,9 +83,21 @@ class RunLogFactory:
         self.effective_config = effective_config
         self.fsync_every_s = fsync_every_s
         self.extra_columns = tuple(extra_columns)
-        self.max_queued_rows = max_queued_rows
+        #: Rows a writer may hold: ``ring_s`` seconds at the loop's rate (``logging.ring_s``),
+        #: bounded by time, never by the run's length; ``max_queued_rows`` overrides (tests).
+        self.max_queued_rows = (
+            max(1, math.ceil(ring_s * float(rate_hz)))
+            if max_queued_rows is None
+            else int(max_queued_rows)
+        )
         self.on_failure = on_failure
         sample_columns(n_segments, n_cables, self.extra_columns)  # fail early on bad names
+        #: Writers made and not yet seen finished (held: the loop drops a run's writer as soon
+        #: as it asked it to close, and the daemon's shutdown waits for the files).
+        self._made: list[Any] = []
+        #: A writer process started ahead, imports done, for the next run (a run then starts
+        #: without waiting for an interpreter: ~0.5 s idle, seconds on a loaded machine).
+        self._spare = start_writer_process() if writer == "process" else None
 
     @classmethod
     def from_config(
@@ -100,10 +138,14 @@ class RunLogFactory:
             effective_config=effective,
             fsync_every_s=cfg.logging.fsync_every_s,
             mcap=cfg.logging.mcap,
+            writer=cfg.logging.writer,
+            ring_s=cfg.logging.ring_s,
             **kwargs,
         )
 
-    def __call__(self, name: str, compensation: str, trajectory: str = "") -> RunLogWriter:
+    def __call__(
+        self, name: str, compensation: str, trajectory: str = ""
+    ) -> RunLogWriter | ProcessRunLogWriter:
         meta = RunMetadata(
             name=name,
             rig=self.rig,
@@ -113,12 +155,16 @@ class RunLogFactory:
             trajectory=trajectory or name,
         )
         extra = {EFFECTIVE_CONFIG_YAML: self.effective_config} if self.effective_config else None
-        return RunLogWriter.create(
-            self.base_dir,
+        kw: dict[str, Any] = {}
+        if self.writer == "process":
+            cls: Any = ProcessRunLogWriter
+            kw["process"], self._spare = self._spare, None
+        else:
+            cls = RunLogWriter
+        writer = cls(
+            new_run_dir(self.base_dir, meta.name),
+            sample_columns(self.n_segments, self.n_cables, self.extra_columns),
             meta,
-            self.n_segments,
-            self.n_cables,
-            self.extra_columns,
             config_text=self.config_text,
             config_source=self.config_source,
             extra_files=extra,
@@ -126,4 +172,21 @@ class RunLogFactory:
             max_queued_rows=self.max_queued_rows,
             on_failure=self.on_failure,
             second_sink=self.second_sink,
+            on_full=self.on_full,
+            **kw,
         )
+        if self.writer == "process":
+            self._spare = start_writer_process()
+        self._made = [w for w in self._made if not (w.closed and w.wait_closed(0))]
+        self._made.append(writer)
+        return writer
+
+    def close_all(self, reason: str, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
+        """Close every writer this factory made that is still open (outcome ``aborted``) and
+        wait, up to ``timeout_s`` in all, until each has written its files and run.yaml (the
+        daemon's shutdown: the loop closes a run's log without waiting). False on timeout."""
+        writers = list(self._made)
+        for w in writers:
+            w.close(reason, outcome="aborted", wait=False)  # no change to one already closing
+        end = time.monotonic() + timeout_s
+        return all(w.wait_closed(max(0.0, end - time.monotonic())) for w in writers)

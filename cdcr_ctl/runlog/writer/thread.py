@@ -46,6 +46,12 @@ log = logging.getLogger("cdcr_ctl.runlog.writer")
 DRAIN_INTERVAL_S = 0.05
 #: Default bound of the row queue (rows): 10 s of a 1 kHz loop.
 DEFAULT_QUEUE_ROWS = 10_000
+#: What a full queue does to a row: ``trip`` refuses it and records ``overflow`` (real time:
+#: the loop must never wait; it trips ``log_overflow``), ``wait`` blocks the writing thread until
+#: the writer has made room (the loop on simulated time: no row lost).
+ON_FULL = ("trip", "wait")
+#: Poll period of a loop waiting for room in the queue (s).
+WAIT_POLL_S = 0.001
 #: Rows formatted and written per write call.
 BATCH_ROWS = 2_000
 #: How long ``close(wait=True)`` waits for the writer thread to finish (s).
@@ -74,6 +80,10 @@ class RunLogWriter(RunFileFormats):
 
     ``run_dir`` must not exist yet or be empty (see :meth:`create` for a fresh one).
     ``columns`` is the CSV header (see :func:`~cdcr_ctl.runlog.columns.sample_columns`).
+    ``require_empty`` False skips that check (the writer process: its parent checked, and the
+    CAN log may already be open beside it). ``files_made``: the config copies, ``run.yaml`` and
+    ``samples.csv`` with its header were made by :meth:`make_start_files` (the writer process's
+    parent); this writer appends to ``samples.csv``.
     ``config_text`` is copied to ``config.yaml``; ``extra_files`` maps further file names in the
     run directory to their text. ``opener`` opens ``samples.csv`` for binary writing (tests inject
     failing files). ``on_failure(text)`` is called once, from the writer thread, on a write error.
@@ -97,9 +107,17 @@ class RunLogWriter(RunFileFormats):
         opener: FileOpener = _default_opener,
         drain_interval_s: float = DRAIN_INTERVAL_S,
         second_sink: SecondSinkFactory | None = None,
+        require_empty: bool = True,
+        on_full: str = "trip",
+        files_made: bool = False,
     ) -> None:
         if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
             raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        self.on_full = on_full
+        self._overflow: str | None = None
+        self._waits = 0
         self.run_dir = Path(run_dir)
         self.columns = list(columns)
         if len(set(self.columns)) != len(self.columns) or not self.columns:
@@ -136,23 +154,15 @@ class RunLogWriter(RunFileFormats):
         self._second: Any = None
         try:
             self.run_dir.mkdir(parents=True, exist_ok=True)
-            if any(self.run_dir.iterdir()):
+            if require_empty and any(self.run_dir.iterdir()):
                 raise RigError(f"{self.run_dir}: run directory is not empty")
-            if config_text is not None:
-                _write_atomic(self.run_dir / CONFIG_YAML, config_text)
-            for name, text in (extra_files or {}).items():
-                _write_atomic(self.run_dir / name, text)
-            first = self._run_yaml()
-            # Reserve the space the end of the run needs (see RUN_YAML_RESERVE_BYTES).
-            reserved = _padded(first, len(first.encode("utf-8")) + RUN_YAML_RESERVE_BYTES)
-            _write_atomic_bytes(self.run_dir / RUN_YAML, reserved)
-            self._dir_id = _file_id(os.stat(self.run_dir))
-            self._file = opener(self.samples_path)
-            header = self._encode([self.columns], raw=True)
-            self._file.write(header)
-            self._file.flush()
-            self._fsync()
-            self._bytes += len(header)
+            if files_made:
+                # The loop's process made them (ProcessRunLogWriter): write on after the header.
+                self._dir_id = _file_id(os.stat(self.run_dir))
+                self._file = open(self.samples_path, "ab")  # noqa: SIM115 - closed at the end
+                self._bytes = self._file.tell()
+            else:
+                self._file = self._make_start_files(config_text, extra_files, opener)
             if second_sink is not None:
                 files = {CONFIG_YAML: config_text} if config_text is not None else {}
                 files.update(extra_files or {})
@@ -170,6 +180,59 @@ class RunLogWriter(RunFileFormats):
         _OPEN_WRITERS.add(self)
 
     # ------------------------------------------------------------------ construction helpers
+    def _make_start_files(
+        self,
+        config_text: str | None,
+        extra_files: Mapping[str, str] | None,
+        opener: FileOpener = _default_opener,
+    ) -> IO[bytes]:
+        """The files a run starts with: the config copies, ``run.yaml`` (the space its end
+        needs reserved) and ``samples.csv`` with its header, flushed and fsynced. Returns the
+        open ``samples.csv``. Raises OSError."""
+        if config_text is not None:
+            _write_atomic(self.run_dir / CONFIG_YAML, config_text)
+        for name, text in (extra_files or {}).items():
+            _write_atomic(self.run_dir / name, text)
+        first = self._run_yaml()
+        # Reserve the space the end of the run needs (see RUN_YAML_RESERVE_BYTES).
+        reserved = _padded(first, len(first.encode("utf-8")) + RUN_YAML_RESERVE_BYTES)
+        _write_atomic_bytes(self.run_dir / RUN_YAML, reserved)
+        self._dir_id = _file_id(os.stat(self.run_dir))
+        f = self._file = opener(self.samples_path)
+        header = self._encode([self.columns], raw=True)
+        f.write(header)
+        f.flush()
+        self._fsync()
+        self._bytes += len(header)
+        return f
+
+    @classmethod
+    def make_start_files(
+        cls,
+        run_dir: str | Path,
+        columns: Sequence[str],
+        metadata: RunMetadata,
+        *,
+        config_text: str | None = None,
+        config_source: str = "",
+        extra_files: Mapping[str, str] | None = None,
+        fsync_every_s: float = 0.5,
+    ) -> None:
+        """What the constructor writes first, without a writer thread (the loop's process
+        before a writer process takes the run over with ``files_made=True``). Raises OSError."""
+        w = cls.__new__(cls)
+        w.run_dir, w.columns, w.metadata = Path(run_dir), list(columns), metadata
+        w.samples_path = w.run_dir / SAMPLES_CSV
+        w.fsync_every_s, w._config_source = float(fsync_every_s), config_source
+        w._files = [CONFIG_YAML] if config_text is not None else []
+        w._files += list(extra_files or {})
+        w._ended, w._bytes, w._fsyncs, w._file = None, 0, 0, None
+        try:
+            w._make_start_files(config_text, extra_files)
+        finally:
+            if w._file is not None:
+                w._file.close()
+
     @classmethod
     def create(
         cls,
@@ -188,19 +251,55 @@ class RunLogWriter(RunFileFormats):
 
     # ------------------------------------------------------------------ real-time side
     def write(self, row: Mapping[str, Any] | Sequence[Any]) -> bool:
-        """Queue one row; never blocks, never raises. Returns False if the row was dropped.
+        """Queue one row; never raises, never blocks unless ``on_full="wait"`` and the queue is
+        full. Returns False if the row was dropped.
 
         ``row`` is a mapping column -> value (missing columns are empty fields; unknown keys are
         ignored and logged once) or a sequence in column order. Values: float/int/numpy
         scalars, str, None/NaN (empty). The row object must not be mutated afterwards.
         Call from one thread (the loop's): the counters are not locked.
         """
-        if self._closing or self._failure is not None or len(self._queue) >= self.max_queued_rows:
+        if self._closing or self._failure is not None:
+            self._dropped += 1
+            return False
+        if len(self._queue) >= self.max_queued_rows and not self._room():
             self._dropped += 1
             return False
         self._queue.append(row)
         self._queued += 1
         return True
+
+    def _room(self) -> bool:
+        """The queue is full. ``on_full="wait"`` (the loop on simulated time): wait until the
+        writer thread has taken rows (True) or failed or ended (False). ``on_full="trip"``
+        (real time): never wait; record :attr:`overflow` (False)."""
+        if self.on_full != "wait":
+            if self._overflow is None:
+                n, rate = self.max_queued_rows, self.metadata.rate_hz
+                span = f" = {n / rate:.3g} s at {rate:g} Hz" if rate else ""
+                self._overflow = (
+                    f"{self.samples_path}: run-log queue full ({n} rows{span}): the writer "
+                    "thread fell behind the loop; rows from here on are not logged"
+                )
+                log.error("run log: %s", self._overflow)
+            return False
+        self._waits += 1
+        while len(self._queue) >= self.max_queued_rows:
+            if self._failure is not None or self._done_evt.is_set():
+                return False
+            time.sleep(WAIT_POLL_S)
+        return True
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its queue once a row was refused because the queue was
+        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
+
+    @property
+    def waits(self) -> int:
+        """Rows the loop waited for room for (``on_full="wait"``)."""
+        return self._waits
 
     @property
     def failure(self) -> str | None:

@@ -26,8 +26,6 @@ from cdcr_ctl.runlog.writer import RunLogFactory
 from cdcr_ctl.sim.lockstep.rig import LockstepRig
 from cdcr_ctl.sim.simconfig import LoadedSim
 
-#: Rows a run log may queue (no row may be dropped: the logs must be the same on every run).
-QUEUE_ROWS = 10_000_000
 #: Longest wall time a run may take per simulated second before it counts as stuck (s/s).
 STUCK_WALL_PER_SIM_S = 20.0
 
@@ -46,9 +44,9 @@ class LockstepSession:
     ) -> None:
         self.cfg = ctl
         self.model = build_model(ctl, source=str(ctl_path))
-        self.sinks = RunLogFactory.from_config(
-            ctl, ctl_path, base_dir=log_dir, max_queued_rows=QUEUE_ROWS
-        )
+        # The loop runs on simulated time: a full run-log ring makes it wait for the writer (no
+        # row may be dropped: the logs must be the same on every run, whatever the load).
+        self.sinks = RunLogFactory.from_config(ctl, ctl_path, base_dir=log_dir, on_full="wait")
         self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process)
         assert self.rig.drives is not None
         self.drives = self.rig.drives

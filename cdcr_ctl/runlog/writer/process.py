@@ -1,0 +1,506 @@
+"""The run-log writer in a process of its own: the loop's process only copies numbers.
+
+:class:`ProcessRunLogWriter` has the interface of
+:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``write``, ``failure``, ``stats``,
+``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
+into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
+process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, never real-time)
+drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the
+flushes and fsyncs every ``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end
+all happen as before, but under the writer process's interpreter lock, which the loop never
+waits for.
+
+- A write error in the writer process is published in the shared header; :attr:`failure` reads
+  it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
+- The ring is sized by time (``logging.ring_s`` of rows at the loop's rate, see
+  :class:`~cdcr_ctl.runlog.writer.factory.RunLogFactory`). When it is full, ``on_full`` decides:
+  ``trip`` (real time, the default) refuses the row (``write`` returns False, counted as dropped)
+  and sets :attr:`~ProcessRunLogWriter.overflow`, on which the loop trips ``log_overflow``
+  (quick stop; the rows in the ring are still written and the run closed, its reason naming the
+  overflow); ``wait`` (a loop on simulated time, lock-step) blocks ``write`` until the writer
+  process has made room, so no row is lost whatever the load and the files are the same on
+  every run.
+- The writer process exiting without closing the run (a crash) is also a failure.
+- If the loop's process dies (SIGKILL), the writer process sees its parent change, drains what is
+  in the ring, and closes the run with outcome ``aborted``: ``samples.csv`` and ``run.mcap`` end
+  complete, ``run.mcap`` with its summary and footer.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import math
+import os
+import pickle
+import struct
+import subprocess
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
+from cdcr_ctl.runlog.writer.files import LogStats, RunMetadata, can_log_path, utc_now_iso
+from cdcr_ctl.runlog.writer.ring import (
+    CLOSE,
+    DONE,
+    FAILED,
+    ORDER_COLUMNS,
+    ORDER_NAMES,
+    ROW_DROPPED,
+    ROW_HEAD,
+    ROW_TAIL,
+    ROW_WAITS,
+    ROWS_OFFSET,
+    SLOT_HEAD,
+    W_BYTES,
+    W_DROPPED,
+    W_FSYNCS,
+    W_HIGH,
+    W_LOST,
+    W_START,
+    W_WRITTEN,
+    RingLayout,
+    SharedRing,
+)
+from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process
+from cdcr_ctl.runlog.writer.thread import (
+    CLOSE_TIMEOUT_S,
+    DEFAULT_QUEUE_ROWS,
+    DRAIN_INTERVAL_S,
+    RunLogWriter,
+)
+
+log = logging.getLogger("cdcr_ctl.runlog.writer")
+
+#: CAN frames the ring holds: 5 s at 10 000 frames/s (a 1 kHz loop with 3 drives sends and
+#: receives about 8 a cycle).
+DEFAULT_CAN_FRAMES = 50_000
+#: Rows between two checks that the writer process still runs (a ``waitpid`` each).
+ALIVE_EVERY_ROWS = 256
+#: Columns written back as integers by the writer process.
+INT_COLUMNS = frozenset({"cycle"})
+#: What a full ring does to a row (see :meth:`ProcessRunLogWriter._room`): ``trip`` refuses it
+#: and records :attr:`~ProcessRunLogWriter.overflow` (real time: the loop must never wait), or
+#: ``wait`` blocks the loop until the writer process has made room (simulated time: no row
+#: lost, the same files whatever the load).
+ON_FULL = ("trip", "wait")
+#: Poll period of a loop waiting for room in the ring (s) and polls between two checks that the
+#: writer process still runs.
+WAIT_POLL_S = 0.001
+WAIT_ALIVE_EVERY = 100
+
+#: Writers whose process has not been waited for (held until then; see :func:`_close_open`).
+_OPEN: set[ProcessRunLogWriter] = set()
+
+
+@atexit.register
+def _close_open() -> None:
+    """An interpreter exit closes any run log left open (outcome ``aborted``)."""
+    for writer in list(_OPEN):
+        writer.close("process exit with the log still open", outcome="aborted")
+
+
+class ProcessRunLogWriter:
+    """Writes one run directory through a writer process. Use as a context manager or call
+    :meth:`close`.
+
+    Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``second_sink`` must
+    pickle: the writer process makes the sink). ``process``: a spare writer process from
+    :func:`start_writer_process` (started ahead, its interpreter start and imports under way
+    or done; the factory keeps one ready), else one is started here. ``run_dir`` must be empty
+    or not exist. The constructor makes the run's first files (config copies, ``run.yaml``,
+    ``samples.csv``'s header) as the thread writer does; raises :class:`RigError` naming the path
+    if they cannot be made or the directory is not empty, or the writer process cannot start. It
+    does not wait for the writer process (an error there is a :attr:`failure`, which trips the
+    loop).
+    """
+
+    def __init__(
+        self,
+        run_dir: str | Path,
+        columns: Sequence[str],
+        metadata: RunMetadata,
+        *,
+        config_text: str | None = None,
+        config_source: str = "",
+        extra_files: Mapping[str, str] | None = None,
+        fsync_every_s: float = 0.5,
+        max_queued_rows: int = DEFAULT_QUEUE_ROWS,
+        on_failure: Callable[[str], None] | None = None,
+        drain_interval_s: float = DRAIN_INTERVAL_S,
+        second_sink: Any = None,
+        can_frames: int = DEFAULT_CAN_FRAMES,
+        process: subprocess.Popen | None = None,
+        on_full: str = "trip",
+    ) -> None:
+        if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
+            raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+        if on_full not in ON_FULL:
+            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        self.on_full = on_full
+        self._overflow: str | None = None
+        self.run_dir = Path(run_dir)
+        self.columns = list(columns)
+        if len(set(self.columns)) != len(self.columns) or not self.columns:
+            raise ValueError("columns must be a non-empty list of distinct names")
+        self.metadata = metadata
+        self.samples_path = self.run_dir / "samples.csv"
+        self.fsync_every_s = float(fsync_every_s)
+        self.max_queued_rows = int(max_queued_rows)
+        self._on_failure = on_failure
+        #: Numeric columns (ring order = column order without the text columns) and the text one.
+        self._num_cols = [c for c in self.columns if c not in TEXT_COLUMNS]
+        self._num_index = {c: j for j, c in enumerate(self._num_cols)}
+        text = [c for c in self.columns if c in TEXT_COLUMNS]
+        self._text_col = text[0] if text else None
+        self._text_pos = self.columns.index(text[0]) if text else -1
+        self._parts_keys: Any = None
+        self._parts_from = self._parts_to = 0
+        self._tail = 0
+        self._warned = False
+        self._queued = 0
+        self._dropped = 0
+        self._head = 0
+        self._closing = False
+        self._failure: str | None = None
+        self._notified = False
+        self._exit_checked = False
+
+        layout = RingLayout(len(self._num_cols), self.max_queued_rows, can_frames)
+        try:
+            self._ring = SharedRing.create(layout)
+        except OSError as exc:
+            raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
+        self._cap = layout.rows
+        self._hq = self._ring.hq
+        self._stride = layout.row_floats * 8
+        self._slot0 = ROWS_OFFSET
+        self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
+        spec = {
+            "run_dir": str(self.run_dir),
+            "columns": self.columns,
+            "metadata": metadata,
+            "config_text": config_text,
+            "config_source": config_source,
+            "extra_files": dict(extra_files or {}),
+            "fsync_every_s": self.fsync_every_s,
+            "drain_interval_s": float(drain_interval_s),
+            "second_sink": second_sink,
+            "layout": layout,
+            "fd": self._ring.fd,
+            "parent_pid": os.getpid(),
+            "files_made": True,
+        }
+        try:
+            blob = pickle.dumps(spec)
+        except Exception as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: the run log's settings do not pickle: {exc}") from exc
+        try:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            if any(self.run_dir.iterdir()):
+                raise RigError(f"{self.run_dir}: run directory is not empty")
+            # The run's first files here, as the thread writer makes them (a few ms): the run
+            # directory is whole from the run's start (readers, a SIGKILL before the writer
+            # process is going), whatever CPU the writer process gets on a loaded machine.
+            RunLogWriter.make_start_files(
+                self.run_dir,
+                self.columns,
+                metadata,
+                config_text=config_text,
+                config_source=config_source,
+                extra_files=extra_files,
+                fsync_every_s=self.fsync_every_s,
+            )
+        except OSError as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: cannot start the run log: {exc}") from exc
+        except RigError:
+            self._ring.close()
+            raise
+        # Never wait here for the writer process to take the run over: it runs off real time
+        # (SCHED_BATCH), so on a loaded machine its start (run.mcap, the first drain) can take
+        # a second or more, even from a spare with its imports done; a run's start (the
+        # command thread, a joystick already streaming) must not wait for that. Rows wait in
+        # the ring; an error there is published as the log's failure and trips the loop (as a
+        # write error does). The files the daemon makes itself were made above and raise here.
+        self._proc = self._start(blob, process)
+        self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
+        _OPEN.add(self)
+
+    def _start(self, blob: bytes, proc: subprocess.Popen | None) -> subprocess.Popen:
+        """Hand the settings to ``proc`` (a spare from :func:`start_writer_process`, started
+        ahead) or to a writer process started now."""
+        try:
+            if proc is None or proc.poll() is not None:
+                proc = start_writer_process(self._ring.fd)
+                blob = pickle.dumps({**pickle.loads(blob), "fd_inherited": True})
+        except OSError as exc:
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
+        try:
+            proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
+            proc.stdin.close()
+        except OSError as exc:
+            proc.kill()
+            proc.wait()
+            self._ring.close()
+            raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
+        return proc
+
+    # ------------------------------------------------------------------ real-time side
+    def write(self, row: Any) -> bool:
+        """Copy one row's numbers into the ring; never raises, never blocks unless
+        ``on_full="wait"`` and the ring is full (see :meth:`_room`). False: dropped.
+
+        ``row``: a mapping column -> value, a sequence in column order, or an object with
+        ``row_parts()`` -> (names of the values, float64 values, ``t_s``, ``cycle``,
+        ``lateness_us``, ``event``) such as the loop's ``CycleRow`` (the names tuple is the
+        same object from row to row; its column positions are looked up once). Numbers go as
+        float64 (``cycle`` comes back as an integer), None and NaN
+        as empty; the ``event`` column as text (cut at the ring's
+        :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
+        """
+        ring = self._ring
+        head = self._head
+        if ring is None or self._closing or self._failure is not None:
+            self._dropped += 1
+            return False
+        if head - self._tail >= self._cap:
+            self._tail = ring.hq[ROW_TAIL]
+            if head - self._tail >= self._cap and not self._room(head):
+                self._dropped += 1
+                ring.hq[ROW_DROPPED] = self._dropped
+                return False
+        slot = head % self._cap
+        try:
+            parts = getattr(row, "row_parts", None)
+            if parts is not None:
+                keys, values, t_s, cycle, lateness_us, text = parts()
+                if keys is not self._parts_keys:
+                    self._set_names(keys)
+                # One copy of the loop's array, one packed store of the rest.
+                self._pack_head(ring.buf, self._slot0 + slot * self._stride, ORDER_NAMES, 0.0,
+                                t_s, cycle, lateness_us)  # fmt: skip
+                ring.nums[slot, self._parts_from : self._parts_to] = values
+            else:
+                text = self._fill_plain(row, ring.nums[slot])
+            if text:
+                ring.put_event(slot, str(text))
+        except Exception as exc:  # a row this writer cannot take: dropped, said once
+            if not self._warned:
+                self._warned = True
+                log.warning("%s: a row could not be logged: %s", self.samples_path, exc)
+            self._dropped += 1
+            ring.hq[ROW_DROPPED] = self._dropped
+            return False
+        self._head = head = head + 1
+        ring.hq[ROW_HEAD] = head
+        self._queued += 1
+        if self._queued % ALIVE_EVERY_ROWS == 0:
+            self._check_alive()
+        return True
+
+    def _room(self, head: int) -> bool:
+        """The ring is full at ``head``. ``on_full="wait"`` (the loop on simulated time): wait
+        until the writer process has taken rows (True), or until it failed or ended (False).
+        ``on_full="trip"`` (real time): never wait; record :attr:`overflow` (False)."""
+        if self.on_full != "wait":
+            if self._overflow is None:
+                cap = self._cap
+                rate = self.metadata.rate_hz
+                span = f" = {cap / rate:.3g} s at {rate:g} Hz" if rate else ""
+                self._overflow = (
+                    f"{self.samples_path}: run-log ring full ({cap} rows{span}): the writer "
+                    "process fell behind the loop; rows from here on are not logged"
+                )
+                log.error("run log: %s", self._overflow)
+            return False
+        ring = self._ring
+        ring.hq[ROW_WAITS] += 1
+        waited = 0
+        while head - self._tail >= self._cap:
+            if self.failure is not None:
+                return False
+            waited += 1
+            if waited % WAIT_ALIVE_EVERY == 0:
+                self._check_alive()
+                if self._exit_checked:
+                    return False
+            time.sleep(WAIT_POLL_S)
+            self._tail = ring.hq[ROW_TAIL]
+        return True
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its ring once a row was refused because the ring was
+        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
+
+    @property
+    def high_water(self) -> int:
+        """Most rows the ring held at one of the writer process's drains after its first
+        (rows; the steady state)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[W_HIGH])
+
+    @property
+    def start_backlog(self) -> int:
+        """Rows the ring held at the writer process's first drain (its start: interpreter,
+        imports unless it was a spare, the run's files)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[W_START])
+
+    @property
+    def waits(self) -> int:
+        """Rows the loop waited for room for (``on_full="wait"``)."""
+        h = self._ring.hdr if self._ring is not None else self._final
+        return int(h[ROW_WAITS])
+
+    def _set_names(self, keys: Sequence[str]) -> None:
+        """The first loop row: its value names into the ring (the writer process maps them to
+        columns). One order per writer: a row with other names is refused."""
+        if self._parts_keys is not None:
+            if tuple(keys) == tuple(self._parts_keys):
+                self._parts_keys = keys
+                return
+            raise ValueError("a row with another layout than the run's first")
+        names = [TIME, "cycle", "lateness_us", *keys]
+        unknown = [k for k in names if k not in self._num_index]
+        if unknown or len(set(names)) != len(names) or len(names) > len(self._num_cols):
+            raise ValueError(f"row names not among the columns (or repeated): {unknown}")
+        self._ring.set_names(names)
+        self._parts_from, self._parts_to = SLOT_HEAD + 3, SLOT_HEAD + len(names)
+        self._parts_keys = keys
+
+    def _fill_plain(self, row: Any, nums: Any) -> str:
+        if isinstance(row, Mapping):
+            if not self._warned and not set(row).issubset(self.columns):
+                self._warned = True
+                unknown = sorted(set(row) - set(self.columns))
+                log.warning("%s: unknown keys ignored: %s", self.samples_path, unknown)
+            values = [row.get(c) for c in self._num_cols]
+            text = row.get(self._text_col) if self._text_col else None
+        else:
+            seq = list(row)
+            seq = (seq + [None] * len(self.columns))[: len(self.columns)]
+            text = seq.pop(self._text_pos) if self._text_pos >= 0 else None
+            values = seq
+        nums[SLOT_HEAD:] = [math.nan if v is None else float(v) for v in values]
+        nums[:SLOT_HEAD] = (ORDER_COLUMNS, 0.0)
+        return "" if text is None else str(text)
+
+    def _check_alive(self) -> None:
+        if self._exit_checked or self._proc.poll() is None:
+            return
+        self._exit_checked = True
+        if not self._ring.hdr[DONE] and self._failure is None:
+            self._failure = (
+                f"{self.samples_path}: the run-log writer process ended "
+                f"(exit status {self._proc.returncode}) before the run was closed"
+            )
+            log.error("run log stopped: %s", self._failure)
+            self._notify()
+
+    def _notify(self) -> None:
+        if self._notified or self._on_failure is None:
+            return
+        self._notified = True
+        try:
+            self._on_failure(self._failure)
+        except Exception:
+            log.exception("run log on_failure callback raised")
+
+    @property
+    def failure(self) -> str | None:
+        """Text of the write error that stopped this log (file and cause), or None."""
+        if self._failure is None and self._hq[FAILED]:  # one int64 load on the loop's path
+            text = self._ring.failure() if self._ring is not None else None
+            if text is not None:
+                self._failure = text
+                self._notify()
+        return self._failure
+
+    @property
+    def error(self) -> BaseException | None:
+        """The writer process's error as an OSError-like text holder (the exception itself
+        stays in that process)."""
+        return None if self.failure is None else OSError(self.failure)
+
+    @property
+    def closed(self) -> bool:
+        """True once the writer process has finished (everything written, run.yaml updated)."""
+        return self._proc.poll() is not None
+
+    @property
+    def stats(self) -> LogStats:
+        h = self._ring.hdr if self._ring is not None else self._final
+        return LogStats(
+            self._queued,
+            int(h[W_WRITTEN]),
+            self._dropped + int(h[W_DROPPED]),
+            int(h[W_LOST]) + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
+            int(h[W_FSYNCS]),
+            int(h[W_BYTES]),
+        )
+
+    def can_log_path(self, fmt: str = "asc") -> Path:
+        """Path reserved for the raw CAN traffic of this run."""
+        return can_log_path(self.run_dir, fmt)
+
+    def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
+        """End the run log: the writer process drains the ring, fsyncs and records
+        ``outcome``/``reason`` in run.yaml. ``wait=False`` returns at once (use that from the
+        loop); :meth:`wait_closed` waits. A second call changes nothing. Never raises."""
+        if not self._closing:
+            self._closing = True
+            if self.can_tap is not None:
+                self.can_tap.detach()
+            self._ring.request_close(str(reason), outcome or "closed", utc_now_iso())
+        if wait:
+            self.wait_closed(CLOSE_TIMEOUT_S)
+
+    def wait_closed(self, timeout_s: float | None = None) -> bool:
+        """Wait until the writer process has finished after :meth:`close`; False on timeout."""
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            return False
+        self._release()
+        return True
+
+    def _release(self) -> None:
+        ring = self._ring
+        if ring is None:
+            return
+        self._check_alive_final()
+        self._final = [int(v) for v in ring.hdr]
+        self._ring = None
+        _OPEN.discard(self)
+        ring.close()
+
+    def _check_alive_final(self) -> None:
+        if self._ring.hdr[CLOSE] and not self._ring.hdr[DONE] and self._failure is None:
+            self._failure = (
+                f"{self.samples_path}: the run-log writer process ended "
+                f"(exit status {self._proc.returncode}) before it closed the run"
+            )
+            log.error("run log: %s", self._failure)
+        self.failure  # noqa: B018 - picks up a failure the writer published last
+
+    def __enter__(self) -> ProcessRunLogWriter:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc is None:
+            self.close("closed")
+        else:
+            self.close(f"{type(exc).__name__}: {exc}", outcome="error")
+
+
+# A closed writer answers ``failure`` without its ring.
+ProcessRunLogWriter._final = [0] * 64  # type: ignore[attr-defined]
+_ = CLOSE  # re-exported name kept in use for readers of the header layout

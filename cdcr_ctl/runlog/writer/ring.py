@@ -1,0 +1,248 @@
+"""The shared-memory rings between the loop's process and the run-log writer process.
+
+One anonymous shared mapping (``memfd_create``, handed to the writer process as a file
+descriptor: no name in ``/dev/shm``, nothing left behind when both processes end) holds
+
+- a header of :data:`HEADER_SLOTS` int64 counters and flags (:data:`ROW_HEAD` ...),
+- two text areas of :data:`TEXT_BYTES` (the close request, the write error) and one of
+  :data:`NAMES_BYTES` (the names of the values of a row in the loop's own order, see below),
+- the row ring: ``rows`` slots of ``n_numbers + 2`` float64 and ``rows`` text fields of
+  :data:`EVENT_BYTES`. A slot is ``[order, text length, values...]``: order 0 means the values
+  are the numeric columns in column order; order 1 means they are in the order named in the
+  names area (``t_s``, ``cycle``, ``lateness_us``, then the loop's flat array), so the loop
+  copies its array in one piece and the writer process puts the numbers in column order,
+- the CAN ring: ``frames`` records of :data:`CAN_RECORD` (timestamp s, arbitration id, flags,
+  dlc, data length, 64 data bytes).
+
+Each ring has one producer and one consumer. The producer fills slot ``head % capacity`` and then
+stores ``head + 1`` in the header; the consumer reads the slots up to the head it loaded and then
+stores its tail. A slot is reused only once the tail has passed it, so neither side ever sees a
+half-written slot. The counters are aligned 8-byte stores, single instructions on x86-64 and
+AArch64, and x86-64 keeps stores in program order; on a weaker memory model the Python
+interpreter's own locking between the two stores orders them in practice.
+
+Nothing here formats text or takes a lock: the producer's cost per row is a few numpy stores
+(measured with ``benchmarks/bench_loop.py --runlog``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import mmap
+import os
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Header slots (int64).
+HEADER_SLOTS = 64
+ROW_HEAD = 0  # rows published by the producer (loop)
+ROW_TAIL = 1  # rows taken by the consumer (writer process)
+CAN_HEAD = 2
+CAN_TAIL = 3
+CLOSE = 4  # 1: the producer asks the writer to close (text in the close area)
+FAILED = 5  # 1: the writer failed (text in the failure area)
+DONE = 6  # 1: the writer process has closed the run (run.yaml written)
+W_WRITTEN = 7  # the writer's counters, published at every drain
+W_LOST = 8
+W_FSYNCS = 9
+W_BYTES = 10
+W_DROPPED = 11
+ROW_DROPPED = 12  # rows the producer refused (ring full, closing, failed)
+CAN_DROPPED = 13  # CAN frames the producer refused (ring full)
+READY = 14  # 1: the writer process has opened its files
+W_HIGH = 15  # high-water mark: most rows the ring held at a drain after the first
+W_START = 17  # rows the ring held at the writer's first drain (its start-up: files, imports)
+ROW_WAITS = 16  # rows the producer had to wait for room for (back-pressure, lock-step only)
+#: Bytes of each text area (close request, write error).
+TEXT_BYTES = 4096
+#: Bytes of a row's text (the ``event`` column); longer text is cut and marked.
+EVENT_BYTES = 1024
+#: Mark appended to a cut event text.
+CUT_MARK = " [cut]"
+#: A CAN frame record: timestamp (s), arbitration id, flags (bit 0 extended, 1 rx, 2 error,
+#: 3 remote), dlc, data length, data (up to 64 bytes, CAN FD), one byte of padding.
+CAN_RECORD = struct.Struct("<dIBBB64sx")
+
+_HEADER_BYTES = HEADER_SLOTS * 8
+_CLOSE_TEXT = _HEADER_BYTES
+_FAIL_TEXT = _CLOSE_TEXT + TEXT_BYTES
+#: Bytes of the names area (JSON list of names; a 3-segment, 12-cable rig needs ~1.3 kB).
+NAMES_BYTES = 16384
+_NAMES_TEXT = _FAIL_TEXT + TEXT_BYTES
+_ROWS = _NAMES_TEXT + NAMES_BYTES
+#: Byte offset of the first row slot.
+ROWS_OFFSET = _ROWS
+#: Float64 fields of a slot before its values: order, text length.
+SLOT_HEAD = 2
+#: Order of a slot's values: the numeric columns in column order / the names area's order.
+ORDER_COLUMNS = 0.0
+ORDER_NAMES = 1.0
+
+
+@dataclass(frozen=True)
+class RingLayout:
+    """Sizes of the shared mapping: ``n_numbers`` float64 per row, ``rows`` row slots,
+    ``frames`` CAN records."""
+
+    n_numbers: int
+    rows: int
+    frames: int
+
+    @property
+    def row_floats(self) -> int:
+        return self.n_numbers + SLOT_HEAD
+
+    @property
+    def events_offset(self) -> int:
+        return _ROWS + self.rows * self.row_floats * 8
+
+    @property
+    def can_offset(self) -> int:
+        return self.events_offset + self.rows * EVENT_BYTES
+
+    @property
+    def size(self) -> int:
+        return self.can_offset + self.frames * CAN_RECORD.size
+
+
+class SharedRing:
+    """The mapping seen through numpy views. ``SharedRing.create(layout)`` makes a new one
+    (its :attr:`fd` goes to the writer process), ``SharedRing(layout, fd)`` maps an existing
+    one. Not thread-safe on the producer side except :meth:`put_frame` under the caller's lock."""
+
+    def __init__(self, layout: RingLayout, fd: int) -> None:
+        self.layout = layout
+        self.fd = fd
+        self.mm = mmap.mmap(fd, layout.size)
+        buf = memoryview(self.mm)
+        self.buf = buf
+        self.hdr = np.frombuffer(buf, np.int64, HEADER_SLOTS, 0)
+        #: The header as a memoryview of int64: a plain item load or store, cheaper than a
+        #: numpy scalar on the producer's paths.
+        self.hq = buf[:_HEADER_BYTES].cast("q")
+        self.nums = np.frombuffer(buf, np.float64, layout.rows * layout.row_floats, _ROWS).reshape(
+            layout.rows, layout.row_floats
+        )
+        self.events = buf[layout.events_offset : layout.can_offset]
+        self.can = buf[layout.can_offset : layout.size]
+
+    @classmethod
+    def create(cls, layout: RingLayout) -> SharedRing:
+        """A fresh zeroed mapping (Linux ``memfd_create``). Raises OSError."""
+        fd = os.memfd_create("cdcr-runlog", 0)  # close-on-exec; passed on explicitly
+        try:
+            os.ftruncate(fd, layout.size)
+            ring = cls(layout, fd)
+        except BaseException:
+            os.close(fd)
+            raise
+        # Touch every page of the header, the rows and the CAN records now: a page first
+        # written by the loop would cost it a page fault (the shared memory is allocated on
+        # first touch), one every few rows during the ring's first round. The ring is sized by
+        # time (``logging.ring_s`` of rows at the loop's rate: 10 s at 1 kHz of a 3-cable rig is
+        # ~3 MB of rows and 4 MB of CAN records), so this is a bounded cost at the run's start.
+        # The text fields (1 kB a slot) are touched only by rows with an event.
+        ring.hdr[:] = 0
+        ring.nums[:] = 0.0
+        ring.can[:] = bytes(len(ring.can))
+        return ring
+
+    def close(self) -> None:
+        """Close this side's descriptor. The mapping itself goes when the last view of it is
+        gone (another thread may still hold one), and with the other process's."""
+        with contextlib.suppress(OSError):
+            os.close(self.fd)
+
+    # ------------------------------------------------------------------ text areas
+    def _put_text(self, offset: int, text: str, size: int = TEXT_BYTES) -> None:
+        data = text.encode("utf-8")[: size - 4]
+        self.buf[offset + 4 : offset + 4 + len(data)] = data
+        struct.pack_into("<I", self.buf, offset, len(data))
+
+    def _get_text(self, offset: int, size: int = TEXT_BYTES) -> str:
+        (n,) = struct.unpack_from("<I", self.buf, offset)
+        return bytes(self.buf[offset + 4 : offset + 4 + min(n, size - 4)]).decode(
+            "utf-8", "replace"
+        )
+
+    def set_names(self, names: list[str]) -> None:
+        """Producer, before the first slot in :data:`ORDER_NAMES`: the names of its values.
+        Raises ValueError if they do not fit the area."""
+        text = json.dumps(names)
+        if len(text.encode()) > NAMES_BYTES - 4:
+            raise ValueError(f"{len(names)} value names do not fit {NAMES_BYTES} bytes")
+        self._put_text(_NAMES_TEXT, text, NAMES_BYTES)
+
+    def names(self) -> list[str]:
+        """Writer: the names of the values of slots in :data:`ORDER_NAMES`."""
+        return json.loads(self._get_text(_NAMES_TEXT, NAMES_BYTES))
+
+    def request_close(self, reason: str, outcome: str, end_utc: str) -> None:
+        """Producer: ask the writer to close the run with this end (then no more rows)."""
+        doc = {"reason": reason[:1500], "outcome": outcome, "end_utc": end_utc}
+        self._put_text(_CLOSE_TEXT, json.dumps(doc))
+        self.hdr[CLOSE] = 1
+
+    def close_request(self) -> dict[str, str] | None:
+        """Writer: the producer's close request, or None."""
+        if not self.hdr[CLOSE]:
+            return None
+        return json.loads(self._get_text(_CLOSE_TEXT))
+
+    def set_failure(self, text: str) -> None:
+        """Writer: record the write error that stopped the log."""
+        self._put_text(_FAIL_TEXT, text)
+        self.hdr[FAILED] = 1
+
+    def failure(self) -> str | None:
+        """Producer: the writer's write error, or None (one int64 load when there is none)."""
+        if not self.hq[FAILED]:
+            return None
+        return self._get_text(_FAIL_TEXT)
+
+    # ------------------------------------------------------------------ row text
+    def put_event(self, slot: int, text: str) -> None:
+        """Producer: the row's text into ``slot`` (cut to :data:`EVENT_BYTES`, marked)."""
+        data = text.encode("utf-8")
+        if len(data) > EVENT_BYTES:
+            mark = CUT_MARK.encode()
+            data = data[: EVENT_BYTES - len(mark)].decode("utf-8", "ignore").encode() + mark
+        off = slot * EVENT_BYTES
+        self.events[off : off + len(data)] = data
+        self.nums[slot, 1] = len(data)
+
+    def get_event(self, slot: int, n: int) -> str:
+        off = slot * EVENT_BYTES
+        return bytes(self.events[off : off + n]).decode("utf-8", "replace")
+
+    # ------------------------------------------------------------------ CAN frames
+    def put_frame(self, ts: float, cob: int, flags: int, dlc: int, data: bytes) -> bool:
+        """Producer (one at a time): one CAN frame; False when the ring is full."""
+        hq, cap = self.hq, self.layout.frames
+        head = hq[CAN_HEAD]
+        if cap == 0 or head - hq[CAN_TAIL] >= cap:
+            return False
+        CAN_RECORD.pack_into(
+            self.can, (head % cap) * CAN_RECORD.size, ts, cob, flags, dlc, len(data), data[:64]
+        )
+        hq[CAN_HEAD] = head + 1
+        return True
+
+    def take_frames(self) -> list[tuple]:
+        """Writer: the frames published so far, as the MCAP sink's ``CanTap`` queues them
+        (timestamp, id, extended, rx, error, remote, dlc, data)."""
+        hdr, cap = self.hdr, self.layout.frames
+        tail, head = int(hdr[CAN_TAIL]), int(hdr[CAN_HEAD])
+        out = []
+        size = CAN_RECORD.size
+        for seq in range(tail, head):
+            ts, cob, flags, dlc, n, data = CAN_RECORD.unpack_from(self.can, (seq % cap) * size)
+            out.append(
+                (ts, cob, bool(flags & 1), bool(flags & 2), bool(flags & 4), bool(flags & 8),
+                 dlc, data[:n])
+            )  # fmt: skip
+        hdr[CAN_TAIL] = head
+        return out

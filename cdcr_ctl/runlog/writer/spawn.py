@@ -1,0 +1,97 @@
+"""Starting the run-log writer process, and the CAN listener feeding its ring.
+
+:func:`start_writer_process` starts ``python -c _BOOT``: off real time (``WRITER_POLICY``) and at
+``WRITER_NICE`` before its imports, then :func:`cdcr_ctl.runlog.writer.child.main`, which waits
+for its settings on stdin (so the factory can keep a spare with its imports done).
+:class:`RingCanTap` puts CAN frames into the ring's records for ``run.mcap``'s ``/can``.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+
+import can
+
+from cdcr_ctl.runlog.writer.ring import CAN_DROPPED, SharedRing
+
+#: Nice increment of the writer process: 0, the daemon's own. Measured at 1 kHz with MCAP under
+#: ``stress-ng --cpu 2`` on the 2-core machine (``benchmarks/bench_loop.py --runlog mcap
+#: --seconds 15 --spare-s 3 --writer-nice N``, two runs each, README "Run logs"): at nice +10
+#: the writer got about a tenth of a nice-0 task's share, less than its ~20-30 % of a core, and
+#: fell 6 s behind (one run never drained before its close, another was not done 30 s after
+#: it): a longer run would have overflowed any ring. At nice +5 it started 1.6-1.7 s behind; at
+#: nice 0 0.6-0.9 s, then held at most 0.12-0.14 s of rows, and the loop's rate was no lower
+#: (715-752 Hz against 394-708 at +10). The loop on the rig runs SCHED_FIFO, above any nice
+#: level, so the writer's share is taken from other ordinary work, never from the loop.
+WRITER_NICE = 0
+#: Scheduling policy of the writer process (``os.SCHED_*`` name): SCHED_BATCH, so the writer
+#: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
+#: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
+WRITER_POLICY = "SCHED_BATCH"
+#: Nice increment of a writer process while it starts (its interpreter and imports, ~0.3 s of
+#: CPU idle, more under load) and waits as a spare: the factory starts the next run's spare as
+#: a run starts, and at nice 0 that burst competed with the simulator and the loop at the
+#: moment a run begins (tests/system/test_daemon_stops.py tripped on a drive heartbeat lost
+#: within 0.7 s of the run's start, 3 of 11 runs on the loaded machine, 0 of 4 on main). Once
+#: it has a run it goes to WRITER_NICE, which needs the right to raise a priority (root,
+#: CAP_SYS_NICE, or RLIMIT_NICE, systemd ``LimitNICE=``); without it it stays here and says so.
+SPARE_NICE = 10
+#: The writer process's first statements: off real time and at SPARE_NICE before its imports,
+#: then :func:`cdcr_ctl.runlog.writer.child.main` (which sets ``run_nice`` once it has a run).
+_BOOT = (
+    "import os, signal, sys\n"
+    "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+    "signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+    "try:\n    os.sched_setscheduler(0, os.{policy}, os.sched_param(0))\n"
+    "except (OSError, AttributeError):\n    pass\n"
+    "base = os.getpriority(os.PRIO_PROCESS, 0)\n"
+    "try:\n    os.nice({spare_nice})\n"
+    "except OSError:\n    pass\n"
+    "from cdcr_ctl.runlog.writer.child import main\n"
+    "sys.exit(main(run_nice=base + {nice}))\n"
+)
+
+
+def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
+    """A writer process that imports what it needs and then waits for its settings on stdin.
+    Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
+    exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
+    until it has its settings). One that never gets settings exits when its stdin closes."""
+    boot = _BOOT.format(nice=WRITER_NICE, spare_nice=SPARE_NICE, policy=WRITER_POLICY)
+    cmd = [sys.executable, "-c", boot]
+    fds = () if ring_fd is None else (ring_fd,)
+    return subprocess.Popen(
+        cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, pass_fds=fds, close_fds=True
+    )
+
+
+class RingCanTap(can.Listener):
+    """A python-can listener putting frames into the ring's CAN records for ``/can``. Any thread
+    may call it (a lock orders the producers); a full ring counts the frame as dropped."""
+
+    def __init__(self, ring: SharedRing) -> None:
+        self._ring = ring
+        self._lock = threading.Lock()
+        self.dropped = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        flags = (
+            msg.is_extended_id | msg.is_rx << 1 | msg.is_error_frame << 2 | msg.is_remote_frame << 3
+        )
+        with self._lock:
+            ring = self._ring
+            if ring is None or not ring.put_frame(
+                msg.timestamp, msg.arbitration_id, flags, msg.dlc, bytes(msg.data)
+            ):
+                self.dropped += 1
+                if ring is not None:
+                    ring.hq[CAN_DROPPED] = self.dropped
+
+    def detach(self) -> None:
+        with self._lock:
+            self._ring = None
+
+    def stop(self) -> None:  # python-can API; nothing to release
+        pass
