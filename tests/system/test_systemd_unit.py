@@ -54,3 +54,25 @@ def test_security_exposure_is_low(tmp_path):
     m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", res.stdout)
     assert m, res.stdout[-500:] + res.stderr[-500:]
     assert float(m.group(1)) < 3.0
+
+
+#: The scheduling calls the daemon's processes make: the loop (SCHED_FIFO), its memory lock, the
+#: run-log writer (SCHED_BATCH, nice) and the intake worker (nice).
+SCHEDULING_CALLS = ("sched_setscheduler", "sched_setparam", "mlockall", "setrlimit", "setpriority")
+
+
+def test_scheduling_calls_survive_the_syscall_filter():
+    """A call in a denied group (``~@resources``) kills the process with SIGSYS unless a later
+    ``SystemCallFilter=`` line allows it by name (systemd.exec(5))."""
+    res = subprocess.run(
+        ["systemd-analyze", "syscall-filter", "@resources"], capture_output=True, text=True
+    )
+    resources = {w for w in res.stdout.split() if w.isidentifier()}
+    assert "setpriority" in resources, res.stdout  # the group this test is about
+    lines = re.findall(r"^SystemCallFilter=(.*)$", UNIT.read_text(), re.M)
+    denied = [i for i, v in enumerate(lines) if v.startswith("~") and "@resources" in v]
+    assert denied, lines
+    allowed = {w for v in lines[denied[-1] + 1 :] if not v.startswith("~") for w in v.split()}
+    for call in SCHEDULING_CALLS:
+        assert call not in resources or call in allowed, (call, lines)
+    assert re.search(r"^LimitNICE=\+0$", UNIT.read_text(), re.M)
