@@ -9,7 +9,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket
+from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.daemon.client import ControlClient
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -32,7 +32,8 @@ def session(tmp_path: Path):
 
 
 def start_sim(sim: Path, log: Path):
-    return running(_cli("sim", str(sim)), log, ready='"ready"')
+    """The simulated rig as a process at :data:`~cdcr_ctl.cli.demo.SIM_NICE` (stand-in hardware)."""
+    return running(_cli("sim", str(sim)), log, ready='"ready"', nice=SIM_NICE)
 
 
 def start_daemon(rig: Path, log: Path):

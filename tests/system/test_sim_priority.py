@@ -1,0 +1,19 @@
+"""The simulated rig, started beside the daemon, runs at SIM_NICE (stand-in hardware)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import pytest
+
+from cdcr_ctl.cli.demo import SIM_NICE, running
+
+
+def test_running_sets_the_nice_level(tmp_path):
+    if os.geteuid() != 0:
+        pytest.skip("a nice level below 0 needs root (or CAP_SYS_NICE, not probed here)")
+    cmd = [sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(30)"]
+    with running(cmd, tmp_path / "p.log", ready="ready", nice=SIM_NICE) as proc:
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == SIM_NICE
+    assert SIM_NICE < 0
