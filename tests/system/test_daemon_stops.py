@@ -54,15 +54,12 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
             # SIGKILL hits the unit's cgroup); the front alone: tests/system/test_rig_process.py.
             os.killpg(d.pid, signal.SIGKILL)
             d.wait(10)
-        # SIGKILL: the run log's writer process outlives the daemon, drains the rows handed
-        # over and closes the run as aborted (killed too, the log would hold everything up to
-        # its last fsync: tests/runlog/test_runlog_process.py).
-        end = time.monotonic() + 30
-        while load_run(res["log_dir"]).ended is None and time.monotonic() < end:
-            time.sleep(0.1)
+        # SIGKILL of the whole tree (front, rig process, the run log's writer process): the log
+        # holds everything up to the writer's last fsync (0.5 s), readable, with no end record.
+        # (A rig process killed alone leaves the writer to drain and close the run as aborted:
+        # tests/runlog/test_runlog_process.py.)
         run = load_run(res["log_dir"])
-        assert run.ended["outcome"] == "aborted" and len(run) >= n_before > 50
-        assert run.ended["rows"]["lost"] == 0 and not run.warnings
+        assert run.ended is None and len(run) >= n_before > 50
         t = run.t_s
         assert all(b > a for a, b in itertools.pairwise(t))
 
