@@ -46,16 +46,24 @@ def _window(c, log: bool, seconds: float) -> dict:
     with contextlib.suppress(Exception):
         c.call("enable")
     traj = tj.go_and_return(theta_max_rad=0.3, rate_rad_s=0.3 / 5)
-    before = c.call("status")["loop"]
+    st0 = c.call("status")
+    before, before_cpu = st0["loop"], st0.get("rig_threads_cpu_s", {})
     c.call("trajectory", name="cost", samples=traj.rows(), compensation="model", log=log)
     time.sleep(seconds)
-    after = c.call("status")["loop"]
+    st = c.call("status")
+    after = st["loop"]
     c.call("stop", mode="halt")
     hb, ha = before["timing"]["lateness_histogram"], after["timing"]["lateness_histogram"]
     return {
         "long": after["long_cycles"] - before["long_cycles"],
         "missed": after["missed_cycles"] - before["missed_cycles"],
         "hist": {k: ha[k] - hb.get(k, 0) for k in ha if ha[k] - hb.get(k, 0)},
+        "max_us": after["timing"]["lateness_max_us"],
+        "gc": st.get("rig_gc"),
+        "cpu": {
+            k: round(v - before_cpu.get(k, 0.0), 2)
+            for k, v in st.get("rig_threads_cpu_s", {}).items()
+        },
     }
 
 
@@ -88,6 +96,10 @@ def main() -> None:
                             f" missed deadlines {w['missed']:4d}, lateness {w['hist']}",
                             flush=True,
                         )
+                        if w["gc"]:
+                            print(f"  rig process gc so far: {w['gc']}", flush=True)
+                        if w["cpu"]:
+                            print(f"  rig threads' CPU in the run (s): {w['cpu']}", flush=True)
                         time.sleep(1.0)
             print(f"load {os.getloadavg()[0]:.1f}")
 

@@ -43,6 +43,25 @@ def realtime_thread() -> bool:
         return False
 
 
+def percentiles(values: np.ndarray, qs: tuple[float, ...]) -> list[float]:
+    """``numpy.percentile(values, qs)`` (its default, linear interpolation between the two
+    nearest ranks) by one ``numpy.partition``, which releases the interpreter lock while it
+    works; ``numpy.percentile`` spends part of its time in Python-level steps holding the lock
+    (issue #21: ``status`` computed it on 65536 samples from a command thread of the rig process
+    while the loop waited). ``values`` 1-D, non-empty, no NaN."""
+    n = len(values)
+    pos = [q / 100.0 * (n - 1) for q in qs]
+    ranks = sorted({min(int(p) + k, n - 1) for p in pos for k in (0, 1)})
+    part = np.partition(values, ranks)
+    out = []
+    for p in pos:
+        lo = int(p)
+        hi = min(lo + 1, n - 1)
+        a, b = float(part[lo]), float(part[hi])
+        out.append(a + (b - a) * (p - lo))
+    return out
+
+
 @dataclass
 class LatenessStats:
     """Streaming lateness statistics: histogram plus a bounded reservoir for percentiles."""
@@ -68,8 +87,7 @@ class LatenessStats:
         n = min(self._n_recent, len(self._recent))
         if n == 0:
             return {f"p{q:g}": float("nan") for q in qs}
-        vals = np.percentile(self._recent[:n], qs)
-        return {f"p{q:g}": float(v) for q, v in zip(qs, vals, strict=True)}
+        return {f"p{q:g}": v for q, v in zip(qs, percentiles(self._recent[:n], qs), strict=True)}
 
     def summary(self) -> dict[str, object]:
         edges = LATENESS_EDGES_US

@@ -47,6 +47,7 @@ from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.timing import try_realtime
 from cdcr_ctl.daemon import recovery
 from cdcr_ctl.daemon.commands_drive import stop_reaction
+from cdcr_ctl.daemon.gcwatch import GcWatch, thread_cpu_s
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.protocol import ProtocolError
@@ -106,6 +107,7 @@ class RigCommandServer:
 
     def __init__(self, daemon: Any, conn: Any, shared: Any) -> None:
         self.d, self.conn, self.shared = daemon, conn, shared
+        self.gc_watch = GcWatch(1.0 / daemon.cfg.control.rate_hz).install()
         self._send_lock = threading.Lock()
         self._quick: queue.Queue[Any] = queue.Queue()
         self._slow: queue.Queue[Any] = queue.Queue()
@@ -154,7 +156,10 @@ class RigCommandServer:
                 d, reaction, extra["seq"], extra["cycle"], extra["arrived_wall_s"]
             )
             return d.stopped(req.args.mode, acted)
-        return self.d.handle(req)
+        out = self.d.handle(req)
+        if req.cmd == "status" and isinstance(out, dict):
+            out = {**out, "rig_gc": self.gc_watch.summary(), "rig_threads_cpu_s": thread_cpu_s()}
+        return out
 
     def _beat(self) -> None:
         while not self._closed.wait(HEARTBEAT_PERIOD_S):
@@ -164,6 +169,7 @@ class RigCommandServer:
     def close(self, reason: str) -> None:
         """Tell the front why this process ends, and stop serving."""
         self._closed.set()
+        self.gc_watch.remove()
         self.send((0, ("exited", reason)))
         self._quick.put(None)
         self._slow.put(None)

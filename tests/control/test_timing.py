@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from cdcr_ctl.control.timing import LatenessStats, Ticker
+from cdcr_ctl.control.timing import LatenessStats, Ticker, percentiles
 
 
 def test_deadlines_are_absolute_and_do_not_drift():
@@ -69,3 +69,18 @@ def test_reset_stats_starts_afresh_and_keeps_the_schedule():
     old = t.reset_stats()
     assert old.cycles == 5 and t.stats.cycles == 0 and t.stats.overruns == 0
     assert t.next_deadline == deadline
+
+
+def test_percentiles_equal_numpy_percentile_linear():
+    # The partition-based percentiles (status's lateness p50/p99/p99.9) against numpy's own, on
+    # sizes from one sample to the full reservoir, with ties. Both interpolate linearly between
+    # the same two order statistics; they may differ only in the last bits of that lerp, so the
+    # tolerance is a few ulps of the largest value.
+    rng = np.random.default_rng(7)
+    qs = (0.0, 50.0, 99.0, 99.9, 100.0)
+    for n in (1, 2, 3, 10, 999, 65536):
+        for a in (rng.exponential(50.0, n), np.round(rng.exponential(50.0, n))):
+            got = np.array(percentiles(a, qs))
+            want = np.percentile(a, qs)
+            tol = 8 * np.spacing(max(float(np.abs(a).max()), 1.0))
+            assert np.all(np.abs(got - want) <= tol), (n, got, want)
