@@ -59,6 +59,10 @@ def _window(c, log: bool, seconds: float) -> dict:
         "missed": after["missed_cycles"] - before["missed_cycles"],
         "hist": {k: ha[k] - hb.get(k, 0) for k in ha if ha[k] - hb.get(k, 0)},
         "max_us": after["timing"]["lateness_max_us"],
+        "long_ms": {
+            k: round(v - before.get("long_cycles_ms", {}).get(k, 0.0), 1)
+            for k, v in after.get("long_cycles_ms", {}).items()
+        },
         "gc": st.get("rig_gc"),
         "cpu": {
             k: round(v - before_cpu.get(k, 0.0), 2)
@@ -96,6 +100,8 @@ def main() -> None:
                             f" missed deadlines {w['missed']:4d}, lateness {w['hist']}",
                             flush=True,
                         )
+                        if w["long_ms"]:
+                            print(f"  long cycles' time (ms): {w['long_ms']}", flush=True)
                         if w["gc"]:
                             print(f"  rig process gc so far: {w['gc']}", flush=True)
                         if w["cpu"]:

@@ -13,6 +13,7 @@ import contextlib
 import ctypes
 import ctypes.util
 import logging
+import math
 import os
 import time
 from collections.abc import Callable
@@ -168,6 +169,40 @@ class Ticker:
             if missed > 0:
                 self.stats.skipped += missed
                 self._n += missed
+
+
+#: :class:`BetweenCycles` ends this long before the loop's sleep ends (s): room for another
+#: thread's unit of work (one CAN frame formatted for the traffic log, 30-60 us measured on this
+#: machine, README) to finish before the loop wants the interpreter lock back.
+QUIET_GUARD_S = 150e-6
+#: A loop that has not ended a cycle for this long (s) is not running: between cycles.
+QUIET_STALE_S = 0.1
+
+
+class BetweenCycles:
+    """Whether the control loop is between its cycles (issue #21): after a cycle's work ended
+    and until :data:`QUIET_GUARD_S` before the loop's next wake-up (the deadline less the
+    ticker's spin margin), on ``time.monotonic``. A thread of the loop's process whose work can
+    wait (the CAN traffic log's writer) calls it to take the interpreter lock only then. True
+    before the loop's first cycle, after its last, and when it ended no cycle for
+    :data:`QUIET_STALE_S`."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._until = -math.inf
+        self._clock = clock
+
+    def mark(self, next_deadline_s: float, spin_margin_s: float) -> None:
+        """(The loop thread, after a cycle's work.) Quiet until its next wake-up less the guard."""
+        self._until = next_deadline_s - spin_margin_s - QUIET_GUARD_S
+
+    def clear(self) -> None:
+        """(The loop thread, when it stops.) Quiet from now on."""
+        self._until = -math.inf
+
+    def __call__(self) -> bool:
+        until = self._until
+        now = self._clock()
+        return now < until or now > until + QUIET_STALE_S
 
 
 def timer_floor(period_s: float, until: Callable[[], bool], max_cycles: int) -> np.ndarray:

@@ -100,6 +100,10 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
             on_trip=self._on_trip,
             clock=clock,
         )
+        group = getattr(io.drives, "group", None)
+        if group is not None and hasattr(group, "traffic_quiet"):
+            # The traffic log's writer formats frames only between the loop's cycles.
+            group.traffic_quiet = self.loop.between_cycles
         self.enabled = False
         self.homed = False
         self._manual_sink: Any = None

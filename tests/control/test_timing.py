@@ -6,7 +6,14 @@ import time
 
 import numpy as np
 
-from cdcr_ctl.control.timing import LatenessStats, Ticker, percentiles
+from cdcr_ctl.control.timing import (
+    QUIET_GUARD_S,
+    QUIET_STALE_S,
+    BetweenCycles,
+    LatenessStats,
+    Ticker,
+    percentiles,
+)
 
 
 def test_deadlines_are_absolute_and_do_not_drift():
@@ -84,3 +91,21 @@ def test_percentiles_equal_numpy_percentile_linear():
             want = np.percentile(a, qs)
             tol = 8 * np.spacing(max(float(np.abs(a).max()), 1.0))
             assert np.all(np.abs(got - want) <= tol), (n, got, want)
+
+
+def test_between_cycles_until_the_guard_before_the_wake_up_and_when_stale():
+    now = [100.0]
+    b = BetweenCycles(clock=lambda: now[0])
+    assert b()  # before the loop's first cycle
+    b.mark(101.0, 0.5)  # next wake-up at 100.5 s: quiet until 100.5 s less the guard
+    assert b()
+    now[0] = 100.5 - QUIET_GUARD_S  # from there until the loop's next cycle ends: not quiet
+    assert not b()
+    now[0] = 100.5 - QUIET_GUARD_S + QUIET_STALE_S / 2
+    assert not b()
+    now[0] = 100.5 - QUIET_GUARD_S + 2 * QUIET_STALE_S  # no cycle ended for too long
+    assert b()
+    b.mark(now[0] + 1.0, 0.0)
+    assert b()
+    b.clear()
+    assert b()

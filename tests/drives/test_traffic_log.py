@@ -3,9 +3,12 @@ every frame reaches the file in order, and a write error stops the log without r
 
 from __future__ import annotations
 
+import threading
+import time
+
 import can
 
-from cdcr_ctl.drives.group.traffic import DeferredTrafficLog
+from cdcr_ctl.drives.group.traffic import BACKLOG_FRAMES, DRAIN_PERIOD_S, DeferredTrafficLog
 
 
 class _Collect(can.Listener):
@@ -51,3 +54,48 @@ def test_a_write_error_stops_the_log_and_is_reported_once():
     log.on_message_received(_msg(0x080, b""))  # after the failure: dropped, no error raised
     log.stop()
     assert len(sink.frames) == 3 and sink.stopped == 1 and len(failures) == 1
+
+
+def test_the_writer_waits_for_quiet_and_writes_when_it_holds():
+    # ``quiet`` false: the writer thread keeps the frames queued (it polls, writes nothing);
+    # once true, they arrive in order without stop(). Waits are bounded by events, not timed
+    # margins: "nothing written" is checked after the thread provably ran its drain (it asked
+    # quiet() at least twice).
+    sink = _Collect()
+    asked = threading.Event()
+    calls = [0]
+    is_quiet = [False]
+
+    def quiet() -> bool:
+        calls[0] += 1
+        if calls[0] >= 2:
+            asked.set()
+        return is_quiet[0]
+
+    log = DeferredTrafficLog(sink, on_failure=lambda text: None, quiet=quiet)
+    for i in range(20):
+        log.on_message_received(_msg(0x180 + i, b"\x01"))
+    assert asked.wait(10.0)
+    assert sink.frames == []
+    is_quiet[0] = True
+    end = time.monotonic() + 10.0
+    while len(sink.frames) < 20 and time.monotonic() < end:
+        time.sleep(DRAIN_PERIOD_S)
+    assert sink.frames == [(0x180 + i, b"\x01") for i in range(20)]
+    log.stop()
+    assert sink.stopped == 1
+
+
+def test_a_backlog_is_written_even_when_never_quiet_and_stop_writes_the_rest():
+    sink = _Collect()
+    log = DeferredTrafficLog(sink, on_failure=lambda text: None, quiet=lambda: False)
+    n = BACKLOG_FRAMES + 100
+    for i in range(n):
+        log.on_message_received(_msg(0x200 + i % 16, b""))
+    end = time.monotonic() + 10.0
+    while len(sink.frames) < 101 and time.monotonic() < end:
+        time.sleep(DRAIN_PERIOD_S)
+    # The thread wrote down to the backlog limit (not below: never quiet).
+    assert len(sink.frames) == 101
+    log.stop()  # writes everything left, quiet or not
+    assert len(sink.frames) == n and sink.stopped == 1

@@ -164,6 +164,11 @@ class LoopCommands:
             "timing": self.ticker.stats.summary(),
             "cycle_time_max_us": round(self.counters.max_cycle_us, 1),
             "long_cycles": self.counters.long_cycles,
+            "long_cycles_ms": {
+                "wall": round(self.counters.long_wall_s * 1e3, 3),
+                "cpu": round(self.counters.long_cpu_s * 1e3, 3),
+                **{k: round(v * 1e3, 3) for k, v in self.counters.long_stage_s.items()},
+            },
             "missed_cycles": self.counters.missed_cycles,
             "flag_stops": self.counters.flag_stops,
             "rows_logged": self.counters.rows_logged,

@@ -43,7 +43,7 @@ from cdcr_ctl.control.ports import (
 )
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
-from cdcr_ctl.control.timing import raise_loop_priority
+from cdcr_ctl.control.timing import BetweenCycles, Ticker, raise_loop_priority
 from cdcr_ctl.errors import ModelError
 
 # The logger keeps the name it had when the loop was one module.
@@ -94,6 +94,9 @@ class ControlLoop(LoopCommands):
         self.stop_flag = StopFlag()
         self._flag_seen = 0
         self._missed_now = 0
+        #: True while this loop is between cycles (wall clock only): the CAN traffic log's
+        #: writer takes the interpreter lock only then (issue #21).
+        self.between_cycles = BetweenCycles()
         #: The previous cycle's work when it ran past the period (us), else 0: its row cannot
         #: know (it is written during the cycle), so the next row says so.
         self._long_prev_us = 0.0
@@ -165,7 +168,8 @@ class ControlLoop(LoopCommands):
             except Exception as exc:  # a bug must not leave the drives running unattended
                 log.exception("control loop cycle failed")
                 self._cycle_failed(exc, deadline - t_start)
-            self.counters.work_cpu_s += time.thread_time() - c0
+            cpu_s = time.thread_time() - c0
+            self.counters.work_cpu_s += cpu_s
             dt_us = (time.perf_counter() - t0) * 1e6
             self.counters.last_cycle_us = dt_us
             self.counters.max_cycle_us = max(self.counters.max_cycle_us, dt_us)
@@ -175,6 +179,7 @@ class ControlLoop(LoopCommands):
             long_cycle = self._clock is None and dt_us > self.cfg.period_s * 1e6
             if long_cycle:
                 self.counters.long_cycles += 1
+                self.counters._long(dt_us * 1e-6, cpu_s)
             self._long_prev_us = dt_us if long_cycle else 0.0
             skipped = self.ticker.stats.skipped
             self.ticker.done()
@@ -182,6 +187,10 @@ class ControlLoop(LoopCommands):
             # from the first missed deadline) and so do the counters.
             self._missed_now = self.ticker.stats.skipped - skipped
             self.counters.missed_cycles += self._missed_now
+            ticker = self.ticker
+            if isinstance(ticker, Ticker):  # the wall clock (a simulated one never sleeps)
+                self.between_cycles.mark(ticker.next_deadline, ticker.spin_margin_s)
+        self.between_cycles.clear()
         self.counters.cpu_s = time.thread_time() - cpu0
         self._finish_run("stopped", "loop stopped")
 

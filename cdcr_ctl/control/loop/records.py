@@ -112,7 +112,14 @@ class LoopCounters:
     work_cpu_s: float = 0.0
     stage_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
     stage_max_us: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    #: Over the long cycles only (issue #21: where their time went): wall time per stage, and
+    #: the loop thread's CPU time in them (the rest it waited: for the interpreter lock, a
+    #: higher-priority thread, a page, a system call).
+    long_stage_s: dict[str, float] = field(default_factory=lambda: dict.fromkeys(STAGES, 0.0))
+    long_wall_s: float = 0.0
+    long_cpu_s: float = 0.0
     _timed_from: int = 0
+    _marks: Sequence[float] = ()
 
     def stage_mean_us(self) -> dict[str, float]:
         """Mean wall time per cycle of each stage (us) since the last :meth:`reset_timing`."""
@@ -134,12 +141,22 @@ class LoopCounters:
 
     def _stages(self, marks: Sequence[float]) -> None:
         """Add one cycle's stage times from its ``len(STAGES) + 1`` perf_counter marks."""
+        self._marks = marks
         total, worst = self.stage_s, self.stage_max_us
         for name, t0, t1 in zip(STAGES, marks, marks[1:], strict=False):
             dt = t1 - t0
             total[name] += dt
             if dt * 1e6 > worst[name]:
                 worst[name] = dt * 1e6
+
+    def _long(self, wall_s: float, cpu_s: float) -> None:
+        """Add one long cycle: its wall and CPU time, and its stages (its marks, as given to
+        :meth:`_stages`)."""
+        self.long_wall_s += wall_s
+        self.long_cpu_s += cpu_s
+        marks = self._marks
+        for name, t0, t1 in zip(STAGES, marks, marks[1:], strict=False):
+            self.long_stage_s[name] += t1 - t0
 
 
 class TipHistory:

@@ -110,6 +110,9 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
             maxlen=FRAME_RING
         )
         self._traffic: DeferredTrafficLog | None = None
+        #: When the traffic log's writer may take the interpreter lock (the daemon gives it the
+        #: control loop's "between cycles"); None: whenever it has frames. Read when a log starts.
+        self.traffic_quiet: Callable[[], bool] | None = None
         self._traffic_lock = threading.Lock()
         #: Why the traffic log stopped on its own (a write error), or None.
         self.traffic_failure: str | None = None

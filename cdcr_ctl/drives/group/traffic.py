@@ -8,6 +8,14 @@ cycle, and it did that on the control loop's thread (sent frames) and the bus li
 cycles 5-8x as many. Here the hot paths only append the frame to a queue (``deque.append``:
 atomic, no lock); a thread of its own writes the queue to the listener every
 :data:`DRAIN_PERIOD_S`, in arrival order.
+
+That thread still takes the interpreter lock for its formatting, and every time the loop lets
+the lock go inside its cycle (each frame written to the adapter) it waited to get it back (a
+second pass of issue #21 measured the traffic log's thread at 5% of a core and the loop's long
+cycles 15 -> 40 per 8 s with it on). Given ``quiet`` (a predicate, the control loop's "between
+my cycles"), the thread writes only while it holds, a frame at a time, and otherwise waits
+:data:`QUIET_POLL_S`; past :data:`BACKLOG_FRAMES` queued frames it writes regardless, so the log
+never falls behind without bound.
 """
 
 from __future__ import annotations
@@ -15,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 
@@ -25,6 +34,10 @@ log = logging.getLogger("cdcr_ctl.drives.group")
 #: How often the writer thread drains the queue (s): the traffic log lags the bus by at most
 #: this (plus one drain's work).
 DRAIN_PERIOD_S = 0.02
+#: While ``quiet`` says no, look again this often (s): a fraction of a 1 kHz loop's period.
+QUIET_POLL_S = 0.0002
+#: Queued frames past which the writer ignores ``quiet`` (about 0.6 s of a 1 kHz group's traffic).
+BACKLOG_FRAMES = 4096
 
 
 class DeferredTrafficLog(can.Listener):
@@ -32,12 +45,19 @@ class DeferredTrafficLog(can.Listener):
 
     A write error (``OSError``/``ValueError``: disk full, file gone) stops the log and is passed
     to ``on_failure(text)``; it never reaches the sender. :meth:`stop` writes what is queued,
-    then stops the listener.
+    then stops the listener. ``quiet``: when the thread may take the interpreter lock (see the
+    module docstring); None: whenever it has frames.
     """
 
-    def __init__(self, listener: can.Listener, on_failure: Callable[[str], None]) -> None:
+    def __init__(
+        self,
+        listener: can.Listener,
+        on_failure: Callable[[str], None],
+        quiet: Callable[[], bool] | None = None,
+    ) -> None:
         self.listener = listener
         self._on_failure = on_failure
+        self._quiet = quiet
         self._queue: deque[can.Message] = deque()
         self._write_lock = threading.Lock()
         self._stopped = threading.Event()
@@ -56,14 +76,21 @@ class DeferredTrafficLog(can.Listener):
 
     def _run(self) -> None:
         while not self._stopped.wait(DRAIN_PERIOD_S):
-            self.drain()
+            self.drain(self._quiet)
 
-    def drain(self) -> None:
-        """Write every queued frame (the writer thread; :meth:`stop`)."""
+    def drain(self, quiet: Callable[[], bool] | None = None) -> None:
+        """Write every queued frame (the writer thread; :meth:`stop`), while ``quiet()`` holds
+        or more than :data:`BACKLOG_FRAMES` wait; the thread returns early once stopped
+        (:meth:`stop` writes the rest)."""
         with self._write_lock:
             q = self._queue
             try:
                 while q and not self._failed:
+                    if quiet is not None and len(q) < BACKLOG_FRAMES and not quiet():
+                        if self._stopped.is_set():
+                            return
+                        time.sleep(QUIET_POLL_S)
+                        continue
                     self.listener.on_message_received(q.popleft())
             except (OSError, ValueError) as exc:
                 self._failed = True
@@ -82,4 +109,4 @@ class DeferredTrafficLog(can.Listener):
             self.listener.stop()
 
 
-__all__ = ["DRAIN_PERIOD_S", "DeferredTrafficLog"]
+__all__ = ["BACKLOG_FRAMES", "DRAIN_PERIOD_S", "QUIET_POLL_S", "DeferredTrafficLog"]

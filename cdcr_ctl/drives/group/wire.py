@@ -279,7 +279,8 @@ class _Wire:
                 Path(path).parent.mkdir(parents=True, exist_ok=True)
                 logger = can.Logger(str(path))
                 listener = logger if tap is None else _Tee(logger, tap)
-                self._traffic = DeferredTrafficLog(listener, self._traffic_failed)
+                quiet = getattr(self, "traffic_quiet", None)
+                self._traffic = DeferredTrafficLog(listener, self._traffic_failed, quiet)
                 self.traffic_failure = None
 
     def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:
