@@ -108,6 +108,8 @@ class RigCommandServer:
     def __init__(self, daemon: Any, conn: Any, shared: Any) -> None:
         self.d, self.conn, self.shared = daemon, conn, shared
         self.gc_watch = GcWatch(1.0 / daemon.cfg.control.rate_hz).install()
+        #: Per command name: (count, longest wall ms, longest CPU ms) of its handling here.
+        self.command_ms: dict[str, tuple[int, float, float]] = {}
         self._send_lock = threading.Lock()
         self._quick: queue.Queue[Any] = queue.Queue()
         self._slow: queue.Queue[Any] = queue.Queue()
@@ -146,7 +148,17 @@ class RigCommandServer:
             if item is None:
                 return
             tag, req, extra = item
-            self.send((tag, encode_outcome(self._handle, req, extra)))
+            c0, t0 = time.thread_time(), time.perf_counter()
+            out = encode_outcome(self._handle, req, extra)
+            self._timed(req.cmd, time.perf_counter() - t0, time.thread_time() - c0)
+            self.send((tag, out))
+
+    def _timed(self, cmd: str, wall_s: float, cpu_s: float) -> None:
+        # Per command: count, longest wall and CPU time (ms) of its handling in this process
+        # (status ``rig_commands``): a command thread's CPU is interpreter lock the loop waited
+        # for unless the work released it.
+        n, wall, cpu = self.command_ms.get(cmd, (0, 0.0, 0.0))
+        self.command_ms[cmd] = (n + 1, max(wall, wall_s * 1e3), max(cpu, cpu_s * 1e3))
 
     def _handle(self, req: Any, extra: dict[str, Any]) -> Any:
         if req.cmd == "stop" and "seq" in extra:
@@ -158,7 +170,15 @@ class RigCommandServer:
             return d.stopped(req.args.mode, acted)
         out = self.d.handle(req)
         if req.cmd == "status" and isinstance(out, dict):
-            out = {**out, "rig_gc": self.gc_watch.summary(), "rig_threads_cpu_s": thread_cpu_s()}
+            out = {
+                **out,
+                "rig_gc": self.gc_watch.summary(),
+                "rig_threads_cpu_s": thread_cpu_s(),
+                "rig_commands": {
+                    k: {"n": n, "wall_max_ms": round(w, 3), "cpu_max_ms": round(c, 3)}
+                    for k, (n, w, c) in self.command_ms.items()
+                },
+            }
         return out
 
     def _beat(self) -> None:
