@@ -107,6 +107,9 @@ def main() -> None:
                         if w["cpu"]:
                             print(f"  rig threads' CPU in the run (s): {w['cpu']}", flush=True)
                         time.sleep(1.0)
+                cmds = c.call("status").get("rig_commands")
+                if cmds:
+                    print(f"rig process commands, longest handling: {cmds}")
             print(f"load {os.getloadavg()[0]:.1f}")
 
 
