@@ -193,24 +193,27 @@ def test_live_client_and_the_mcap_file(rig_session):
 
 
 def test_sigkill_of_the_daemon_keeps_the_mcap_up_to_its_last_flush(rig_session):
-    """The run log is written by a writer process (``logging.writer: process``): it outlives the
-    SIGKILLed daemon, drains the rows the daemon handed over and closes both files whole, so
-    nothing of ``fsync_every_s`` is missing at all. (The writer process killed as well leaves
-    ``run.mcap`` readable to its last flush: tests/runlog/test_runlog_process.py.)"""
+    """SIGKILL of the daemon's whole process tree (front, rig process and the run log's writer
+    process, as systemd's final SIGKILL hits the unit's cgroup): ``run.mcap`` reads back to its
+    last flush. (The rig process killed alone leaves the writer process to drain and close both
+    files whole: tests/runlog/test_runlog_process.py.)"""
     work, d = rig_session["work"], rig_session["daemon"]
     res = start_run(work, 20.0, "killed")
     time.sleep(3.0)
-    os.killpg(d.pid, signal.SIGKILL)  # front and rig process
+    os.killpg(d.pid, signal.SIGKILL)
     d.wait(10)
     run_dir = Path(res["log_dir"])
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and load_run(run_dir).ended is None:
-        time.sleep(0.1)
-    csv_run = load_run(run_dir)
+    csv_run = load_run(run_dir)  # the CSV: flushed every drain (50 ms), the reference here
     mcap_run = load_run(run_dir / "run.mcap")
-    assert csv_run.ended is not None, "the writer process did not close the run"
-    assert csv_run.ended["outcome"] == "aborted" and len(csv_run) > 100
-    assert csv_run.ended["rows"]["lost"] == 0
-    assert len(mcap_run) == len(csv_run) and not mcap_run.warnings
-    assert np.array_equal(mcap_run.t_s, csv_run.t_s)
-    assert np.array_equal(mcap_run.q_cmd(), csv_run.q_cmd())
+    assert csv_run.ended is None and len(csv_run) > 100
+    rate = float(csv_run.metadata["rate_hz"])
+    fsync_s = float(csv_run.metadata["fsync_every_s"])
+    missing = len(csv_run) - len(mcap_run)
+    # The MCAP chunk is closed and flushed every fsync_every_s; the CSV every drain interval.
+    # So at most one flush period of rows (plus one drain batch the CSV may hold beyond it).
+    assert 0 <= missing <= math.ceil((fsync_s + 0.05) * rate) + 1, (missing, rate, fsync_s)
+    assert mcap_run.warnings and "last flush" in mcap_run.warnings[0]
+    n = len(mcap_run)
+    assert n > 0
+    assert np.array_equal(mcap_run.t_s, csv_run.t_s[:n])
+    assert np.array_equal(mcap_run.q_cmd(), csv_run.q_cmd()[:n])
