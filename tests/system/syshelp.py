@@ -56,7 +56,7 @@ def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
     raise AssertionError(f"status never matched; last: {st}")
 
 
-def restart_and_enable(rig: Path, work: Path, log: Path) -> None:
+def relaunch(rig: Path, work: Path, log: Path) -> None:
     """A new daemon starts after a killed one, finds the drives disabled (their heartbeat
     consumers noticed the master's death), and enables them."""
     with start_daemon(rig, log) as d:
@@ -72,7 +72,7 @@ def restart_and_enable(rig: Path, work: Path, log: Path) -> None:
 __all__ = [
     "client",
     "os",
-    "restart_and_enable",
+    "relaunch",
     "session",
     "start_daemon",
     "start_sim",

@@ -10,15 +10,7 @@ import signal
 import time
 
 import pytest
-from syshelp import (
-    client,
-    restart_and_enable,
-    session,
-    start_daemon,
-    start_sim,
-    wait_for_socket,
-    wait_status,
-)
+from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run
@@ -72,7 +64,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
         assert all(b > a for a, b in itertools.pairwise(t))
 
         # The drives' heartbeat consumers noticed the master's death and disabled them.
-        restart_and_enable(rig, work, tmp_path / "d3.log")
+        relaunch(rig, work, tmp_path / "d3.log")
 
 
 def test_killed_simulator_mid_trajectory_quick_stops_and_keeps_the_log(tmp_path):

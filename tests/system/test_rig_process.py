@@ -10,15 +10,7 @@ import signal
 import time
 
 import pytest
-from syshelp import (
-    client,
-    restart_and_enable,
-    session,
-    start_daemon,
-    start_sim,
-    wait_for_socket,
-    wait_status,
-)
+from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.front import EXIT_RIG_DIED, RIG_EXIT_REPORT_S, RIG_STOP_TIMEOUT_S
@@ -91,4 +83,4 @@ def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(
         assert "front process is gone" in log
 
         # Nothing left over: the next daemon starts, finds the drives disabled, and runs.
-        restart_and_enable(rig, work, tmp_path / "d3.log")
+        relaunch(rig, work, tmp_path / "d3.log")
