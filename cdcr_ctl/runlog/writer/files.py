@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Self
 
 from cdcr_ctl import __version__
 from cdcr_ctl.errors import RigError
@@ -179,3 +179,27 @@ def _overwrite_in_place(path: Path, text: str) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+class WriterBase:
+    """What the thread and the process run-log writers share: the CAN log's path in the run
+    directory, and the context manager (leaving the block closes the run: ``closed``, or
+    outcome ``error`` naming the exception that left it)."""
+
+    run_dir: Path
+
+    def can_log_path(self, fmt: str = "asc") -> Path:
+        """Path reserved for the raw CAN traffic of this run."""
+        return can_log_path(self.run_dir, fmt)
+
+    def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc is None:
+            self.close("closed")
+        else:
+            self.close(f"{type(exc).__name__}: {exc}", outcome="error")
