@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import logging
 import os
 import re
 from collections.abc import Mapping
@@ -17,6 +18,9 @@ from typing import IO, Any, Self
 
 from cdcr_ctl import __version__
 from cdcr_ctl.errors import RigError
+
+# The writers log under the name they had when they were one module.
+_log = logging.getLogger("cdcr_ctl.runlog.writer")
 
 SAMPLES_CSV = "samples.csv"
 CONFIG_YAML = "config.yaml"
@@ -187,6 +191,29 @@ class WriterBase:
     outcome ``error`` naming the exception that left it)."""
 
     run_dir: Path
+    samples_path: Path
+    metadata: RunMetadata
+    _overflow: str | None
+
+    def _trip_full(self, store: str, rows: int, behind: str) -> bool:
+        """``on_full="trip"`` with the rows' ``store`` (``queue``, ``ring``) full at ``rows``:
+        record :attr:`overflow` (once) naming the writer that fell ``behind``. False: the row
+        is refused."""
+        if self._overflow is None:
+            rate = self.metadata.rate_hz
+            span = f" = {rows / rate:.3g} s at {rate:g} Hz" if rate else ""
+            self._overflow = (
+                f"{self.samples_path}: run-log {store} full ({rows} rows{span}): the {behind} "
+                "fell behind the loop; rows from here on are not logged"
+            )
+            _log.error("run log: %s", self._overflow)
+        return False
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its queue (or ring) once a row was refused because it
+        was full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
 
     def can_log_path(self, fmt: str = "asc") -> Path:
         """Path reserved for the raw CAN traffic of this run."""

@@ -306,16 +306,7 @@ class ProcessRunLogWriter(WriterBase):
         until the writer process has taken rows (True), or until it failed or ended (False).
         ``on_full="trip"`` (real time): never wait; record :attr:`overflow` (False)."""
         if self.on_full != "wait":
-            if self._overflow is None:
-                cap = self._cap
-                rate = self.metadata.rate_hz
-                span = f" = {cap / rate:.3g} s at {rate:g} Hz" if rate else ""
-                self._overflow = (
-                    f"{self.samples_path}: run-log ring full ({cap} rows{span}): the writer "
-                    "process fell behind the loop; rows from here on are not logged"
-                )
-                log.error("run log: %s", self._overflow)
-            return False
+            return self._trip_full("ring", self._cap, "writer process")
         ring = self._ring
         ring.hq[ROW_WAITS] += 1
         waited = 0
@@ -330,12 +321,6 @@ class ProcessRunLogWriter(WriterBase):
             time.sleep(WAIT_POLL_S)
             self._tail = ring.hq[ROW_TAIL]
         return True
-
-    @property
-    def overflow(self) -> str | None:
-        """Text naming the run log and its ring once a row was refused because the ring was
-        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
-        return self._overflow
 
     @property
     def high_water(self) -> int:

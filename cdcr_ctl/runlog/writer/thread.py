@@ -298,27 +298,13 @@ class RunLogWriter(RunFileFormats, WriterBase):
         writer thread has taken rows (True) or failed or ended (False). ``on_full="trip"``
         (real time): never wait; record :attr:`overflow` (False)."""
         if self.on_full != "wait":
-            if self._overflow is None:
-                n, rate = self.max_queued_rows, self.metadata.rate_hz
-                span = f" = {n / rate:.3g} s at {rate:g} Hz" if rate else ""
-                self._overflow = (
-                    f"{self.samples_path}: run-log queue full ({n} rows{span}): the writer "
-                    "thread fell behind the loop; rows from here on are not logged"
-                )
-                log.error("run log: %s", self._overflow)
-            return False
+            return self._trip_full("queue", self.max_queued_rows, "writer thread")
         self._waits += 1
         while len(self._queue) >= self.max_queued_rows:
             if self._failure is not None or self._done_evt.is_set():
                 return False
             time.sleep(WAIT_POLL_S)
         return True
-
-    @property
-    def overflow(self) -> str | None:
-        """Text naming the run log and its queue once a row was refused because the queue was
-        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
-        return self._overflow
 
     @property
     def waits(self) -> int:
