@@ -44,6 +44,7 @@ from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed
 from cdcr_ctl.daemon.recovery import STOP_ACK_TIMEOUT_S
 from cdcr_ctl.daemon.rigproc import HEARTBEAT, SHARED_SLOTS, outcome, rig_main
 from cdcr_ctl.daemon.server import ControlServer
+from cdcr_ctl.daemon.serving import open_control_server, stop_signals
 from cdcr_ctl.errors import RigError
 
 log = logging.getLogger(__name__)
@@ -216,14 +217,7 @@ class FrontDaemon:
             self.proc.join(10)
             raise RigError(f"rig process failed to start: {detail}")
         threading.Thread(target=self._read, name="front-pipe", daemon=True).start()
-        self.intake.start()
-        self.server = ControlServer(
-            self.cfg.daemon.socket_path,
-            self.handle,
-            mode=self.cfg.daemon.socket_mode,
-            spooler=self.intake.parse_spooled,
-            spool_dir=self.intake.dir,
-        ).start()
+        self.server = open_control_server(self.cfg, self.handle, self.intake)
         self.state = "ready"
         self.notifier.ready(f"ready: {self.cfg.name}, drives disabled (rig pid {self.proc.pid})")
         log.info("daemon ready on %s (rig process %d)", self.cfg.daemon.socket_path, self.proc.pid)
@@ -232,13 +226,7 @@ class FrontDaemon:
     def serve(self, install_signals: bool = True) -> tuple[str, int]:
         """Run until SIGTERM/SIGINT, ``shutdown`` or the rig process's end; shut down in order
         and return (reason, exit status)."""
-        previous: dict[int, Any] = {}
-        if install_signals:
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                previous[sig] = signal.signal(sig, self._signal)
-            # A file-size limit must fail a spool write (EFBIG), not kill the front.
-            previous[signal.SIGXFSZ] = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        try:
+        with stop_signals(install_signals, self._signal):
             period = min(self.notifier.watchdog_period_s() or 1.0, 1.0)
             beat = self.shared[HEARTBEAT]
             while not self._stop.wait(period):
@@ -249,9 +237,6 @@ class FrontDaemon:
                     self.notifier.status(self._status_line())
                 beat = now
             self.shutdown(self._stop_reason or "stopped")
-        finally:
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
         return self._stop_reason, self._exit_status
 
     def _signal(self, signum: int, frame: object) -> None:

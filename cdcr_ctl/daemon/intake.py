@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.daemon.outcome import encode_outcome, outcome
 from cdcr_ctl.daemon.protocol import (
     COMMANDS,
     MAX_TRAJECTORY_SAMPLES,
@@ -36,7 +37,7 @@ from cdcr_ctl.daemon.protocol import (
     Request,
     parse_request,
 )
-from cdcr_ctl.errors import ConfigError, RigError
+from cdcr_ctl.errors import RigError
 
 #: Longest wait for the worker on one request (s): a 10^6-row CSV takes ~10 s on a busy PC.
 INTAKE_TIMEOUT_S = 120.0
@@ -105,32 +106,15 @@ def _fast_csv(file: str, n_segments: int, bend_rad: float) -> Any:
     return _fast(arr, n_segments, bend_rad, Path(file).stem, file)
 
 
+def _intake_bug(exc: Exception) -> tuple[Any, ...]:
+    """A bug: say what, in the reply."""
+    return ("rig", f"intake: {type(exc).__name__}: {exc}")
+
+
 def _portable(fn: Any, *args: Any) -> tuple[Any, ...]:
     """(in the worker) Run ``fn``; an error comes back as a plain tuple (the project's errors
-    do not survive pickling) that :func:`_unwrap` raises again in the daemon."""
-    try:
-        return ("ok", fn(*args))
-    except ConfigError as exc:
-        return ("config", exc.file, exc.key, exc.detail)
-    except ProtocolError as exc:
-        return ("protocol", str(exc), exc.field)
-    except RigError as exc:
-        return ("rig", str(exc))
-    except Exception as exc:  # a bug: say what, in the reply
-        return ("rig", f"intake: {type(exc).__name__}: {exc}")
-
-
-def _unwrap(out: tuple[Any, ...]) -> Any:
-    kind = out[0]
-    if kind == "ok":
-        return out[1]
-    if kind == "config":
-        raise ConfigError(out[1], out[2], out[3])
-    if kind == "protocol":
-        exc = ProtocolError("", out[2])
-        exc.args = (out[1],)
-        raise exc
-    raise RigError(out[1])
+    do not survive pickling) that :func:`outcome` raises again in the daemon."""
+    return encode_outcome(fn, *args, on_bug=_intake_bug)
 
 
 def _worker_parse(path: str, n_segments: int, bend_rad: float) -> tuple[int, str, dict[str, Any]]:
@@ -207,7 +191,7 @@ class Intake:
             raise RigError(
                 f"intake: no answer within INTAKE_TIMEOUT_S = {INTAKE_TIMEOUT_S:g} s"
             ) from exc
-        return _unwrap(out)
+        return outcome(out)
 
     def parse_spooled(self, path: Path) -> Request:
         """The request spooled at ``path``, parsed and validated in the worker; the spool is

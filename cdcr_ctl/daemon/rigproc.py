@@ -29,7 +29,6 @@ bus and updates its state (:func:`cdcr_ctl.daemon.recovery.await_stop`).
 
 from __future__ import annotations
 
-import builtins
 import contextlib
 import logging
 import queue
@@ -50,9 +49,9 @@ from cdcr_ctl.daemon.commands_drive import stop_reaction
 from cdcr_ctl.daemon.gcwatch import GcWatch, thread_cpu_s
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
-from cdcr_ctl.daemon.protocol import ProtocolError
+from cdcr_ctl.daemon.outcome import encode_outcome as _encode
+from cdcr_ctl.daemon.outcome import outcome
 from cdcr_ctl.daemon.service import Daemon
-from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.runlog.writer import RunLogFactory
 
 log = logging.getLogger(__name__)
@@ -67,39 +66,16 @@ HEARTBEAT_PERIOD_S = 0.2
 QUICK_COMMANDS = ("status", "stop", "shutdown")
 
 
+def _handler_bug(exc: Exception) -> tuple[Any, ...]:
+    """A handler bug: its type and text, as the one-process daemon."""
+    log.exception("rig process: handler failed")
+    return ("internal", type(exc).__name__, str(exc))
+
+
 def encode_outcome(fn: Any, *args: Any) -> tuple[Any, ...]:
     """Run ``fn(*args)``; ``("ok", result)`` or the error as a plain tuple :func:`outcome`
     raises again on the other side."""
-    try:
-        return ("ok", fn(*args))
-    except ConfigError as exc:
-        return ("config", exc.file, exc.key, exc.detail)
-    except ProtocolError as exc:
-        return ("protocol", str(exc), exc.field)
-    except RigError as exc:
-        return ("rig", str(exc))
-    except Exception as exc:  # a handler bug: its type and text, as the one-process daemon
-        log.exception("rig process: handler failed")
-        return ("internal", type(exc).__name__, str(exc))
-
-
-def outcome(out: tuple[Any, ...]) -> Any:
-    """The result of an :func:`encode_outcome` tuple, or its error raised."""
-    kind = out[0]
-    if kind == "ok":
-        return out[1]
-    if kind == "config":
-        raise ConfigError(out[1], out[2], out[3])
-    if kind == "protocol":
-        exc = ProtocolError("", out[2])
-        exc.args = (out[1],)
-        raise exc
-    if kind == "internal":
-        cls = getattr(builtins, out[1], None)
-        if not (isinstance(cls, type) and issubclass(cls, Exception)):
-            cls = RuntimeError
-        raise cls(out[2])
-    raise RigError(out[1])
+    return _encode(fn, *args, on_bug=_handler_bug)
 
 
 class RigCommandServer:

@@ -33,6 +33,7 @@ from cdcr_ctl.daemon.joystick import JoystickSession
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.protocol import Request
 from cdcr_ctl.daemon.server import ControlServer
+from cdcr_ctl.daemon.serving import open_control_server, stop_signals
 from cdcr_ctl.daemon.status import StatusCommands, _trip_dict
 from cdcr_ctl.runlog.annotate import annotate_when_ended
 from cdcr_ctl.runlog.live import LiveView, live_view_for
@@ -144,28 +145,14 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
             daemon=True,
         ).start()
         if serve_socket:
-            self.intake.start()
-            self.server = ControlServer(
-                self.cfg.daemon.socket_path,
-                self.handle,
-                mode=self.cfg.daemon.socket_mode,
-                spooler=self.intake.parse_spooled,
-                spool_dir=self.intake.dir,
-            ).start()
+            self.server = open_control_server(self.cfg, self.handle, self.intake)
         self.state = "ready"
         self.notifier.ready(f"ready: {self.cfg.name}, drives disabled")
         log.info("daemon ready on %s", self.cfg.daemon.socket_path)
 
     def serve(self, install_signals: bool = True) -> str:
         """Run until SIGTERM/SIGINT or a ``shutdown`` request; return the stop reason."""
-        previous: dict[int, Any] = {}
-        if install_signals:
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                previous[sig] = signal.signal(sig, self._signal)
-            # A file-size limit (RLIMIT_FSIZE) must fail the write (EFBIG, handled like a full
-            # disk by the run log) rather than kill the controller with the drives enabled.
-            previous[signal.SIGXFSZ] = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        try:
+        with stop_signals(install_signals, self._signal):
             period = self.notifier.watchdog_period_s() or 1.0
             while not self._stop.wait(min(period, 1.0)):
                 if self.loop.running:
@@ -178,10 +165,6 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
                     self._stop_reason = "control loop died"
                     break
             self.shutdown(self._stop_reason or "stopped")
-        finally:
-            # The process's handlers as they were (a daemon embedded in a larger program).
-            for sig, handler in previous.items():
-                signal.signal(sig, handler)
         return self._stop_reason
 
     def _signal(self, signum: int, frame: object) -> None:

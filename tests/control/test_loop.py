@@ -125,6 +125,24 @@ def make_loop(tension=None, model=None, compensation="model", home_counts=(100, 
     return loop, drives, ten, sup
 
 
+def clocked_loop(clock, config=None, model=None):
+    """A loop on fake drives on ``clock`` (None: the wall clock); ``config`` by default 500 Hz,
+    compensation ``model``, no velocity limit of its own. A simulated clock runs while the loop
+    is busy."""
+    loop = ControlLoop(
+        config or LoopConfig(period_s=0.002, counts_per_mm=CPM, compensation="model"),
+        model or FakeModel(),
+        FakeDrives(),
+        FakeTension(),
+        NoTip(),
+        Supervisor(LIM, use_tension=True),
+        clock=clock,
+    )
+    if clock is not None:
+        clock.busy = lambda: loop.busy
+    return loop
+
+
 def wait_until(pred, timeout=10.0):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

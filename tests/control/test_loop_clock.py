@@ -7,28 +7,14 @@ import time
 
 import numpy as np
 import pytest
-from test_loop import CPM, LIM, FakeDrives, FakeModel, FakeTension, ListSink, Ramp, wait_until
+from test_loop import CPM, FakeModel, ListSink, Ramp, clocked_loop, wait_until
 
 from cdcr_ctl.control.clock import wall_clock
-from cdcr_ctl.control.loop import COMMAND_STEP_FRACTION, ControlLoop, LoopConfig
-from cdcr_ctl.control.ports import NoTip
-from cdcr_ctl.control.supervisor import Supervisor
+from cdcr_ctl.control.loop import COMMAND_STEP_FRACTION, LoopConfig
 from cdcr_ctl.control.timing import Ticker
 from cdcr_ctl.sim.lockstep.clock import SimClock
 
 PERIOD = 0.002
-
-
-def _loop(clock):
-    return ControlLoop(
-        LoopConfig(period_s=PERIOD, counts_per_mm=CPM, compensation="model"),
-        FakeModel(),
-        FakeDrives(),
-        FakeTension(),
-        NoTip(),
-        Supervisor(LIM, use_tension=True),
-        clock=clock,
-    )
 
 
 def test_sim_clock_time_is_the_cycle_count_and_the_world_advances_between_cycles():
@@ -47,8 +33,7 @@ def test_sim_clock_time_is_the_cycle_count_and_the_world_advances_between_cycles
 def test_the_loop_runs_on_the_injected_clock_and_only_while_it_has_work():
     advanced = []
     clock = SimClock(PERIOD, advance=lambda t0, t1: advanced.append(t1))
-    loop = _loop(clock)
-    clock.busy = lambda: loop.busy
+    loop = clocked_loop(clock)
     loop.start()
     try:
         time.sleep(0.05)  # idle: no run, nothing posted -> the simulated clock stands still
@@ -72,7 +57,7 @@ def test_the_loop_runs_on_the_injected_clock_and_only_while_it_has_work():
 
 
 def test_the_default_clock_is_the_wall_clock():
-    loop = _loop(None)
+    loop = clocked_loop(None)
     assert isinstance(loop.ticker, Ticker) and isinstance(wall_clock(0.01), Ticker)
     assert abs(loop.ticker.now() - time.monotonic()) < 1.0
 
@@ -105,16 +90,11 @@ def test_an_offset_ramp_and_a_self_ramping_model_stay_within_the_velocity_limit_
     v = 100.0  # mm/s, LoopConfig's cable_velocity_mm_s below
     v_dt = v * PERIOD
     clock = SimClock(PERIOD, advance=lambda t0, t1: None)
-    loop = ControlLoop(
+    loop = clocked_loop(
+        clock,
         LoopConfig(period_s=PERIOD, counts_per_mm=CPM, compensation="off", cable_velocity_mm_s=v),
         SelfRampingModel(v_dt),
-        FakeDrives(),
-        FakeTension(),
-        NoTip(),
-        Supervisor(LIM, use_tension=True),
-        clock=clock,
     )
-    clock.busy = lambda: loop.busy
     loop.start()
     try:
         sink = ListSink()

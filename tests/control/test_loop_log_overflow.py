@@ -14,11 +14,10 @@ import signal
 
 import pytest
 import yaml
-from test_loop import CPM, LIM, FakeDrives, FakeModel, FakeTension, Ramp, make_loop, wait_until
+from test_loop import Ramp, clocked_loop, make_loop, wait_until
 
-from cdcr_ctl.control.loop import ControlLoop, LoopConfig
-from cdcr_ctl.control.ports import NoTip
-from cdcr_ctl.control.supervisor import Reaction, Supervisor
+from cdcr_ctl.control.loop import ControlLoop
+from cdcr_ctl.control.supervisor import Reaction
 from cdcr_ctl.runlog import LOOP_EXTRA_COLUMNS, RunMetadata, load_run, sample_columns
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
 from cdcr_ctl.sim.lockstep.clock import SimClock
@@ -64,16 +63,7 @@ def test_a_full_ring_in_real_time_trips_log_overflow_and_keeps_the_log(tmp_path)
 
 def _lockstep_loop() -> tuple[ControlLoop, SimClock]:
     clock = SimClock(0.002, advance=lambda t0, t1: None)
-    loop = ControlLoop(
-        LoopConfig(period_s=0.002, counts_per_mm=CPM, compensation="model"),
-        FakeModel(),
-        FakeDrives(),
-        FakeTension(),
-        NoTip(),
-        Supervisor(LIM, use_tension=True),
-        clock=clock,
-    )
-    clock.busy = lambda: loop.busy
+    loop = clocked_loop(clock)
     return loop, clock
 
 

@@ -11,11 +11,11 @@ import math
 import os
 import signal
 import threading
-import time
 from pathlib import Path
 
 import pytest
 import yaml
+from waits import wait_for
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.errors import ConfigError, ConfigErrors
@@ -27,10 +27,7 @@ WAIT_S = 30.0  # generous: the machine may be loaded; nothing here measures time
 
 
 def _wait(pred, timeout_s: float = WAIT_S) -> bool:
-    end = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < end:
-        time.sleep(0.005)
-    return bool(pred())
+    return wait_for(pred, timeout_s, 0.005)
 
 
 class _GatedFile:

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import can
@@ -20,6 +19,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
+from waits import wait_for
 
 from cdcr_ctl.control.loop.rows import CycleRow, RowLayout
 from cdcr_ctl.runlog import LOOP_EXTRA_COLUMNS, RunLogWriter, RunMetadata, load_run, sample_columns
@@ -33,10 +33,7 @@ WAIT_S = 30.0  # generous: the machine may be loaded; nothing here measures time
 
 
 def _wait(pred, timeout_s: float = WAIT_S) -> bool:
-    end = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < end:
-        time.sleep(0.01)
-    return bool(pred())
+    return wait_for(pred, timeout_s, 0.01)
 
 
 def _rows(n: int) -> list:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from waits import wait_for
 
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, load_run, sample_columns
 from cdcr_ctl.runlog import writer as writer_mod
@@ -47,10 +48,7 @@ def _feed_until(w: RunLogWriter, pred, timeout_s: float = WAIT_S) -> int:
 
 
 def _wait(pred, timeout_s: float = WAIT_S) -> bool:
-    end = time.monotonic() + timeout_s
-    while not pred() and time.monotonic() < end:
-        time.sleep(0.002)
-    return bool(pred())
+    return wait_for(pred, timeout_s, 0.002)
 
 
 def _fsyncs_between(w: RunLogWriter, before: int) -> int:

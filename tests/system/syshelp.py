@@ -56,4 +56,26 @@ def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
     raise AssertionError(f"status never matched; last: {st}")
 
 
-__all__ = ["client", "os", "session", "start_daemon", "start_sim", "wait_for_socket", "wait_status"]
+def relaunch(rig: Path, work: Path, log: Path) -> None:
+    """A new daemon starts after a killed one, finds the drives disabled (their heartbeat
+    consumers noticed the master's death), and enables them."""
+    with start_daemon(rig, log) as d:
+        wait_for_socket(work / "control.sock", d, log)
+        st = wait_status(work, lambda s: all(x["state"] != "UNKNOWN" for x in s["drives"]))
+        assert all(x["state"] != "OPERATION ENABLED" for x in st["drives"])
+        with client(work) as c:
+            c.call("reset_fault", confirm=True)
+            c.call("enable")
+            assert c.call("status")["enabled"]
+
+
+__all__ = [
+    "client",
+    "os",
+    "relaunch",
+    "session",
+    "start_daemon",
+    "start_sim",
+    "wait_for_socket",
+    "wait_status",
+]

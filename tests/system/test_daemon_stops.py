@@ -10,7 +10,7 @@ import signal
 import time
 
 import pytest
-from syshelp import client, session, start_daemon, start_sim, wait_for_socket, wait_status
+from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run
@@ -64,14 +64,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
         assert all(b > a for a, b in itertools.pairwise(t))
 
         # The drives' heartbeat consumers noticed the master's death and disabled them.
-        with start_daemon(rig, tmp_path / "d3.log") as d:
-            wait_for_socket(work / "control.sock", d, tmp_path / "d3.log")
-            st = wait_status(work, lambda s: all(x["state"] != "UNKNOWN" for x in s["drives"]))
-            assert all(x["state"] != "OPERATION ENABLED" for x in st["drives"])
-            with client(work) as c:
-                c.call("reset_fault", confirm=True)
-                c.call("enable")
-                assert c.call("status")["enabled"]
+        relaunch(rig, work, tmp_path / "d3.log")
 
 
 def test_killed_simulator_mid_trajectory_quick_stops_and_keeps_the_log(tmp_path):

@@ -39,14 +39,10 @@ from cdcr_ctl.runlog.writer.ring import (
     ROW_HEAD,
     ROW_TAIL,
     SLOT_HEAD,
-    W_BYTES,
-    W_DROPPED,
-    W_FSYNCS,
     W_HIGH,
-    W_LOST,
     W_START,
-    W_WRITTEN,
     SharedRing,
+    publish_writer_counts,
 )
 from cdcr_ctl.runlog.writer.thread import RunLogWriter
 
@@ -119,13 +115,7 @@ class RingDrain:
 
     def publish(self) -> None:
         s, hdr = self.writer.stats, self.ring.hdr
-        hdr[W_WRITTEN], hdr[W_LOST], hdr[W_FSYNCS], hdr[W_BYTES] = (
-            s.written,
-            s.lost,
-            s.fsyncs,
-            s.bytes,
-        )
-        hdr[W_DROPPED] = s.dropped - self.upstream
+        publish_writer_counts(hdr, s, s.dropped - self.upstream)
         if self.writer.failure is not None and not hdr[FAILED]:
             self.ring.set_failure(self.writer.failure)
 

@@ -7,16 +7,20 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import logging
 import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Self
 
 from cdcr_ctl import __version__
 from cdcr_ctl.errors import RigError
+
+# The writers log under the name they had when they were one module.
+_log = logging.getLogger("cdcr_ctl.runlog.writer")
 
 SAMPLES_CSV = "samples.csv"
 CONFIG_YAML = "config.yaml"
@@ -179,3 +183,50 @@ def _overwrite_in_place(path: Path, text: str) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
+
+
+class WriterBase:
+    """What the thread and the process run-log writers share: the CAN log's path in the run
+    directory, and the context manager (leaving the block closes the run: ``closed``, or
+    outcome ``error`` naming the exception that left it)."""
+
+    run_dir: Path
+    samples_path: Path
+    metadata: RunMetadata
+    _overflow: str | None
+
+    def _trip_full(self, store: str, rows: int, behind: str) -> bool:
+        """``on_full="trip"`` with the rows' ``store`` (``queue``, ``ring``) full at ``rows``:
+        record :attr:`overflow` (once) naming the writer that fell ``behind``. False: the row
+        is refused."""
+        if self._overflow is None:
+            rate = self.metadata.rate_hz
+            span = f" = {rows / rate:.3g} s at {rate:g} Hz" if rate else ""
+            self._overflow = (
+                f"{self.samples_path}: run-log {store} full ({rows} rows{span}): the {behind} "
+                "fell behind the loop; rows from here on are not logged"
+            )
+            _log.error("run log: %s", self._overflow)
+        return False
+
+    @property
+    def overflow(self) -> str | None:
+        """Text naming the run log and its queue (or ring) once a row was refused because it
+        was full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
+        return self._overflow
+
+    def can_log_path(self, fmt: str = "asc") -> Path:
+        """Path reserved for the raw CAN traffic of this run."""
+        return can_log_path(self.run_dir, fmt)
+
+    def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc is None:
+            self.close("closed")
+        else:
+            self.close(f"{type(exc).__name__}: {exc}", outcome="error")

@@ -42,7 +42,12 @@ from typing import Any
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
-from cdcr_ctl.runlog.writer.files import LogStats, RunMetadata, can_log_path, utc_now_iso
+from cdcr_ctl.runlog.writer.files import (
+    LogStats,
+    RunMetadata,
+    WriterBase,
+    utc_now_iso,
+)
 from cdcr_ctl.runlog.writer.ring import (
     CLOSE,
     DONE,
@@ -55,15 +60,11 @@ from cdcr_ctl.runlog.writer.ring import (
     ROW_WAITS,
     ROWS_OFFSET,
     SLOT_HEAD,
-    W_BYTES,
-    W_DROPPED,
-    W_FSYNCS,
     W_HIGH,
-    W_LOST,
     W_START,
-    W_WRITTEN,
     RingLayout,
     SharedRing,
+    writer_counts,
 )
 from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process
 from cdcr_ctl.runlog.writer.thread import (
@@ -71,6 +72,7 @@ from cdcr_ctl.runlog.writer.thread import (
     DEFAULT_QUEUE_ROWS,
     DRAIN_INTERVAL_S,
     RunLogWriter,
+    check_settings,
 )
 
 log = logging.getLogger("cdcr_ctl.runlog.writer")
@@ -103,7 +105,7 @@ def _close_open() -> None:
         writer.close("process exit with the log still open", outcome="aborted")
 
 
-class ProcessRunLogWriter:
+class ProcessRunLogWriter(WriterBase):
     """Writes one run directory through a writer process. Use as a context manager or call
     :meth:`close`.
 
@@ -136,16 +138,11 @@ class ProcessRunLogWriter:
         process: subprocess.Popen | None = None,
         on_full: str = "trip",
     ) -> None:
-        if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
-            raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
-        if on_full not in ON_FULL:
-            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        cols = check_settings(columns, fsync_every_s, max_queued_rows, drain_interval_s, on_full)
         self.on_full = on_full
         self._overflow: str | None = None
         self.run_dir = Path(run_dir)
-        self.columns = list(columns)
-        if len(set(self.columns)) != len(self.columns) or not self.columns:
-            raise ValueError("columns must be a non-empty list of distinct names")
+        self.columns = cols
         self.metadata = metadata
         self.samples_path = self.run_dir / "samples.csv"
         self.fsync_every_s = float(fsync_every_s)
@@ -309,16 +306,7 @@ class ProcessRunLogWriter:
         until the writer process has taken rows (True), or until it failed or ended (False).
         ``on_full="trip"`` (real time): never wait; record :attr:`overflow` (False)."""
         if self.on_full != "wait":
-            if self._overflow is None:
-                cap = self._cap
-                rate = self.metadata.rate_hz
-                span = f" = {cap / rate:.3g} s at {rate:g} Hz" if rate else ""
-                self._overflow = (
-                    f"{self.samples_path}: run-log ring full ({cap} rows{span}): the writer "
-                    "process fell behind the loop; rows from here on are not logged"
-                )
-                log.error("run log: %s", self._overflow)
-            return False
+            return self._trip_full("ring", self._cap, "writer process")
         ring = self._ring
         ring.hq[ROW_WAITS] += 1
         waited = 0
@@ -333,12 +321,6 @@ class ProcessRunLogWriter:
             time.sleep(WAIT_POLL_S)
             self._tail = ring.hq[ROW_TAIL]
         return True
-
-    @property
-    def overflow(self) -> str | None:
-        """Text naming the run log and its ring once a row was refused because the ring was
-        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
-        return self._overflow
 
     @property
     def high_water(self) -> int:
@@ -438,18 +420,15 @@ class ProcessRunLogWriter:
     @property
     def stats(self) -> LogStats:
         h = self._ring.hdr if self._ring is not None else self._final
+        written, dropped, lost, fsyncs, nbytes = writer_counts(h)
         return LogStats(
             self._queued,
-            int(h[W_WRITTEN]),
-            self._dropped + int(h[W_DROPPED]),
-            int(h[W_LOST]) + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
-            int(h[W_FSYNCS]),
-            int(h[W_BYTES]),
+            written,
+            self._dropped + dropped,
+            lost + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
+            fsyncs,
+            nbytes,
         )
-
-    def can_log_path(self, fmt: str = "asc") -> Path:
-        """Path reserved for the raw CAN traffic of this run."""
-        return can_log_path(self.run_dir, fmt)
 
     def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
         """End the run log: the writer process drains the ring, fsyncs and records
@@ -490,15 +469,6 @@ class ProcessRunLogWriter:
             )
             log.error("run log: %s", self._failure)
         self.failure  # noqa: B018 - picks up a failure the writer published last
-
-    def __enter__(self) -> ProcessRunLogWriter:
-        return self
-
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc is None:
-            self.close("closed")
-        else:
-            self.close(f"{type(exc).__name__}: {exc}", outcome="error")
 
 
 # A closed writer answers ``failure`` without its ring.

@@ -33,6 +33,7 @@ import mmap
 import os
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -80,6 +81,30 @@ SLOT_HEAD = 2
 #: Order of a slot's values: the numeric columns in column order / the names area's order.
 ORDER_COLUMNS = 0.0
 ORDER_NAMES = 1.0
+
+
+def publish_writer_counts(hdr: Any, stats: Any, dropped: int) -> None:
+    """Writer: its writer's counters (a :class:`~cdcr_ctl.runlog.writer.files.LogStats`) into
+    the header ``hdr``, ``dropped`` as the rows dropped; read back by :func:`writer_counts`."""
+    hdr[W_WRITTEN], hdr[W_LOST], hdr[W_FSYNCS], hdr[W_BYTES] = (
+        stats.written,
+        stats.lost,
+        stats.fsyncs,
+        stats.bytes,
+    )
+    hdr[W_DROPPED] = dropped
+
+
+def writer_counts(hdr: Any) -> tuple[int, int, int, int, int]:
+    """Producer: the writer's counters in the header ``hdr`` (or a copy of it): rows written,
+    dropped, lost, fsyncs, bytes."""
+    return (
+        int(hdr[W_WRITTEN]),
+        int(hdr[W_DROPPED]),
+        int(hdr[W_LOST]),
+        int(hdr[W_FSYNCS]),
+        int(hdr[W_BYTES]),
+    )
 
 
 @dataclass(frozen=True)

@@ -28,12 +28,12 @@ from cdcr_ctl.runlog.writer.files import (
     SAMPLES_CSV,
     LogStats,
     RunMetadata,
+    WriterBase,
     _default_opener,
     _file_id,
     _padded,
     _write_atomic,
     _write_atomic_bytes,
-    can_log_path,
     new_run_dir,
     utc_now_iso,
 )
@@ -75,7 +75,26 @@ def _close_open_writers() -> None:
         writer.close("process exit with the log still open", outcome="aborted")
 
 
-class RunLogWriter(RunFileFormats):
+def check_settings(
+    columns: Sequence[str],
+    fsync_every_s: float,
+    max_queued_rows: int,
+    drain_interval_s: float,
+    on_full: str,
+) -> list[str]:
+    """A writer's settings checked (ValueError naming the one that is off); the columns as a
+    list."""
+    if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
+        raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
+    if on_full not in ON_FULL:
+        raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+    cols = list(columns)
+    if len(set(cols)) != len(cols) or not cols:
+        raise ValueError("columns must be a non-empty list of distinct names")
+    return cols
+
+
+class RunLogWriter(RunFileFormats, WriterBase):
     """Writes one run directory. Use as a context manager or call :meth:`close`.
 
     ``run_dir`` must not exist yet or be empty (see :meth:`create` for a fresh one).
@@ -111,27 +130,16 @@ class RunLogWriter(RunFileFormats):
         on_full: str = "trip",
         files_made: bool = False,
     ) -> None:
-        if fsync_every_s <= 0 or max_queued_rows < 1 or drain_interval_s <= 0:
-            raise ValueError("fsync_every_s, max_queued_rows and drain_interval_s must be > 0")
-        if on_full not in ON_FULL:
-            raise ValueError(f"on_full {on_full!r}: use one of {ON_FULL}")
+        cols = check_settings(columns, fsync_every_s, max_queued_rows, drain_interval_s, on_full)
         self.on_full = on_full
         self._overflow: str | None = None
         self._waits = 0
-        self.run_dir = Path(run_dir)
-        self.columns = list(columns)
-        if len(set(self.columns)) != len(self.columns) or not self.columns:
-            raise ValueError("columns must be a non-empty list of distinct names")
-        self.metadata = metadata
-        self.samples_path = self.run_dir / SAMPLES_CSV
+        self._set_start(run_dir, cols, metadata, config_text, config_source, extra_files)
         self.fsync_every_s = float(fsync_every_s)
         self.max_queued_rows = int(max_queued_rows)
         self._drain_s = float(drain_interval_s)
         self._on_failure = on_failure
         self._colset = frozenset(self.columns)
-        self._config_source = config_source
-        self._files = [CONFIG_YAML] if config_text is not None else []
-        self._files += list(extra_files or {})
 
         # Counters: ``_queued``/``_dropped`` only by the writing thread, the rest by the writer
         # thread, so none needs a lock.
@@ -180,6 +188,24 @@ class RunLogWriter(RunFileFormats):
         _OPEN_WRITERS.add(self)
 
     # ------------------------------------------------------------------ construction helpers
+    def _set_start(
+        self,
+        run_dir: str | Path,
+        columns: list[str],
+        metadata: RunMetadata,
+        config_text: str | None,
+        config_source: str,
+        extra_files: Mapping[str, str] | None,
+    ) -> None:
+        """The run's directory, columns and metadata, and the files it starts with."""
+        self.run_dir = Path(run_dir)
+        self.columns = columns
+        self.metadata = metadata
+        self.samples_path = self.run_dir / SAMPLES_CSV
+        self._config_source = config_source
+        self._files = [CONFIG_YAML] if config_text is not None else []
+        self._files += list(extra_files or {})
+
     def _make_start_files(
         self,
         config_text: str | None,
@@ -213,19 +239,17 @@ class RunLogWriter(RunFileFormats):
         columns: Sequence[str],
         metadata: RunMetadata,
         *,
-        config_text: str | None = None,
-        config_source: str = "",
-        extra_files: Mapping[str, str] | None = None,
-        fsync_every_s: float = 0.5,
+        config_text: str | None,
+        config_source: str,
+        extra_files: Mapping[str, str] | None,
+        fsync_every_s: float,
     ) -> None:
         """What the constructor writes first, without a writer thread (the loop's process
-        before a writer process takes the run over with ``files_made=True``). Raises OSError."""
+        before a writer process takes the run over with ``files_made=True``), from the
+        constructor's arguments of the same names. Raises OSError."""
         w = cls.__new__(cls)
-        w.run_dir, w.columns, w.metadata = Path(run_dir), list(columns), metadata
-        w.samples_path = w.run_dir / SAMPLES_CSV
-        w.fsync_every_s, w._config_source = float(fsync_every_s), config_source
-        w._files = [CONFIG_YAML] if config_text is not None else []
-        w._files += list(extra_files or {})
+        w._set_start(run_dir, list(columns), metadata, config_text, config_source, extra_files)
+        w.fsync_every_s = float(fsync_every_s)
         w._ended, w._bytes, w._fsyncs, w._file = None, 0, 0, None
         try:
             w._make_start_files(config_text, extra_files)
@@ -274,27 +298,13 @@ class RunLogWriter(RunFileFormats):
         writer thread has taken rows (True) or failed or ended (False). ``on_full="trip"``
         (real time): never wait; record :attr:`overflow` (False)."""
         if self.on_full != "wait":
-            if self._overflow is None:
-                n, rate = self.max_queued_rows, self.metadata.rate_hz
-                span = f" = {n / rate:.3g} s at {rate:g} Hz" if rate else ""
-                self._overflow = (
-                    f"{self.samples_path}: run-log queue full ({n} rows{span}): the writer "
-                    "thread fell behind the loop; rows from here on are not logged"
-                )
-                log.error("run log: %s", self._overflow)
-            return False
+            return self._trip_full("queue", self.max_queued_rows, "writer thread")
         self._waits += 1
         while len(self._queue) >= self.max_queued_rows:
             if self._failure is not None or self._done_evt.is_set():
                 return False
             time.sleep(WAIT_POLL_S)
         return True
-
-    @property
-    def overflow(self) -> str | None:
-        """Text naming the run log and its queue once a row was refused because the queue was
-        full (``on_full="trip"``: the loop trips ``log_overflow``), else None."""
-        return self._overflow
 
     @property
     def waits(self) -> int:
@@ -327,10 +337,6 @@ class RunLogWriter(RunFileFormats):
         """A python-can listener feeding the second sink's CAN channel, or None."""
         return getattr(self._second, "can_tap", None)
 
-    def can_log_path(self, fmt: str = "asc") -> Path:
-        """Path reserved for the raw CAN traffic of this run."""
-        return can_log_path(self.run_dir, fmt)
-
     def close(self, reason: str, outcome: str | None = None, wait: bool = True) -> None:
         """End the run log: drain the queue, fsync, record ``outcome``/``reason`` in run.yaml.
 
@@ -353,15 +359,6 @@ class RunLogWriter(RunFileFormats):
     def wait_closed(self, timeout_s: float | None = None) -> bool:
         """Wait until the writer thread has finished after :meth:`close`; False on timeout."""
         return self._done_evt.wait(timeout_s)
-
-    def __enter__(self) -> RunLogWriter:
-        return self
-
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc is None:
-            self.close("closed")
-        else:
-            self.close(f"{type(exc).__name__}: {exc}", outcome="error")
 
     # ------------------------------------------------------------------ writer thread
     def _run(self) -> None:

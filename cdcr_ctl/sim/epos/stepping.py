@@ -55,14 +55,7 @@ class _Stepping:
         if self.load_fn is None and motor.p.hard_stops_counts is None:
             return self._csp_substeps_inline(h, n)
         prof, load_fn = self.profile, self.load_fn
-        period = self._step_period_s
-        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
-        unbounded = window == 0xFFFFFFFF
-        lo, hi = self._limits()
-        lo1, hi1 = lo - 1, hi + 1
-        offset = self.offset
-        switches = motor.p.limit_switches_counts
-        sw_lo, sw_hi = switches if switches is not None else (-math.inf, math.inf)
+        period, window, unbounded, lo1, hi1, offset, sw_lo, sw_hi = self._csp_bounds()
         tau = self.load_torque_Nm
         done = 0
         while done < n:
@@ -101,14 +94,7 @@ class _Stepping:
         visc = p.viscous_Nm_s_rad
         tau_gear = self.load_torque_Nm / p.gear_ratio
         copysign = math.copysign
-        period = self._step_period_s
-        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
-        unbounded = window == 0xFFFFFFFF
-        lo, hi = self._limits()
-        lo1, hi1 = lo - 1, hi + 1
-        offset = self.offset
-        switches = p.limit_switches_counts
-        sw_lo, sw_hi = switches if switches is not None else (-math.inf, math.inf)
+        period, window, unbounded, lo1, hi1, offset, sw_lo, sw_hi = self._csp_bounds()
         x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
         px, pv, pa = prof.x, prof.v, prof.a
         csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
@@ -142,14 +128,8 @@ class _Stepping:
                     max_err = err
                 clear = True
                 continue
-            motor.x, motor.v, motor._integral, motor.i = x, v, integral, i
-            prof.x, prof.v, prof.a = px, pv, pa
-            self._csp_t = csp_t
-            self.max_following_error_counts = max_err
-            if clear:
-                self.following_error = False
-                self._ferr_s = 0.0
-                clear = False
+            self._write_back(x, v, integral, i, px, pv, pa, csp_t, max_err, clear)
+            clear = False
             self._supervise(h)
             x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
             px, pv, pa = prof.x, prof.v, prof.a
@@ -157,6 +137,44 @@ class _Stepping:
             max_err = self.max_following_error_counts
             if self.state is not State.OPERATION_ENABLED:
                 return done
+        self._write_back(x, v, integral, i, px, pv, pa, csp_t, max_err, clear)
+        return done
+
+    def _csp_bounds(self) -> tuple[float, float, bool, float, float, float, float, float]:
+        """What the CSP fast paths check each sub-step against, looked up once per step:
+        ``(period, window, unbounded, lo - 1, hi + 1, offset, switch_lo, switch_hi)``."""
+        window = self._value(epos.FOLLOWING_ERROR_WINDOW)
+        lo, hi = self._limits()
+        switches = self.motor.p.limit_switches_counts
+        sw_lo, sw_hi = switches if switches is not None else (-math.inf, math.inf)
+        return (
+            self._step_period_s,
+            window,
+            window == 0xFFFFFFFF,
+            lo - 1,
+            hi + 1,
+            self.offset,
+            sw_lo,
+            sw_hi,
+        )
+
+    def _write_back(
+        self,
+        x: float,
+        v: float,
+        integral: float,
+        i: float,
+        px: float,
+        pv: float,
+        pa: float,
+        csp_t: float,
+        max_err: float,
+        clear: bool,
+    ) -> None:
+        """:meth:`_csp_substeps_inline`'s local state back to the motor, the profile and this
+        node (before a sub-step that needs :meth:`_supervise`, and at the end); ``clear``: a
+        sub-step within every limit since the last write-back."""
+        motor, prof = self.motor, self.profile
         motor.x, motor.v, motor._integral, motor.i = x, v, integral, i
         prof.x, prof.v, prof.a = px, pv, pa
         self._csp_t = csp_t
@@ -164,7 +182,6 @@ class _Stepping:
         if clear:
             self.following_error = False
             self._ferr_s = 0.0
-        return done
 
     def _rpm(self, index: int, sub: int = 0) -> float:
         """A velocity/acceleration object in rpm (or rpm/s) as counts/s (or counts/s²)."""

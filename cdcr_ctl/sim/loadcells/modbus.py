@@ -188,13 +188,7 @@ class ModbusLoadCellSim(PtySim):
                 # (pymodbus's framer and decoder are pure; a read request is not mutated below)
                 dev_id, request = known
                 del self._buf[:]
-                self.stats.requests += 1
-                reply = self.respond(request)
-                if reply is None:
-                    self.stats.dropped += 1
-                    continue
-                reply.dev_id = dev_id
-                out.append((self._framer.buildFrame(reply), len(buf)))
+                self._answer(request, dev_id, len(buf), out)
                 continue
             try:
                 used, dev_id, _tid, pdu_bytes = self._framer.decode(buf)
@@ -226,14 +220,21 @@ class ModbusLoadCellSim(PtySim):
             cacheable = used == request_len and request.function_code in (3, 4)
             if cacheable and len(self._reads) < MAX_CACHED_READS:
                 self._reads[buf] = (dev_id, request)
-            self.stats.requests += 1
-            reply = self.respond(request)
-            if reply is None:
-                self.stats.dropped += 1
-                continue
-            reply.dev_id = dev_id
-            out.append((self._framer.buildFrame(reply), request_len))
+            self._answer(request, dev_id, request_len, out)
         return out
+
+    def _answer(
+        self, request: ModbusPDU, dev_id: int, used: int, out: list[tuple[bytes, int]]
+    ) -> None:
+        """Answer one request of ``used`` bytes: its reply frame appended to ``out`` (none if
+        :meth:`respond` drops it)."""
+        self.stats.requests += 1
+        reply = self.respond(request)
+        if reply is None:
+            self.stats.dropped += 1
+            return
+        reply.dev_id = dev_id
+        out.append((self._framer.buildFrame(reply), used))
 
     def serve(self) -> None:
         while not self._stop.is_set() and not self.pty.closed:
