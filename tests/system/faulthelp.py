@@ -19,7 +19,7 @@ import numpy as np
 
 from cdcr_ctl.cli.demo import SIM_NICE, _cli, running
 from cdcr_ctl.control import trajectory as tj
-from cdcr_ctl.daemon.client import ControlClient
+from cdcr_ctl.daemon.client import ControlClient, DaemonError
 from cdcr_ctl.runlog import load_run
 from cdcr_ctl.sim.faults import SAFE_STATES, FaultClient
 
@@ -58,6 +58,18 @@ def wait_for(pred, timeout_s: float, what: str, poll_s: float = 0.02):
     raise AssertionError(f"timed out waiting for {what} (last: {last!r})")
 
 
+def _enable_or_reset(work: Path) -> bool:
+    """``enable``; True when accepted. A drive still in FAULT gets another ``reset_fault``."""
+    try:
+        call(work, "enable")
+    except DaemonError as exc:
+        if "reset_faults() first" not in str(exc):
+            raise
+        call(work, "reset_fault", confirm=True)
+        return False
+    return True
+
+
 def make_ready(work: Path) -> None:
     """Clear any trip (fault reset) and enable the drives."""
     st = status(work)
@@ -65,7 +77,10 @@ def make_ready(work: Path) -> None:
         # A drive just back on the bus needs its feedback flowing before a reset can be
         # confirmed: retry for a while.
         wait_for(lambda: call(work, "reset_fault", confirm=True), 5, "fault reset", poll_s=0.3)
-    call(work, "enable")
+    # A drive back from bus off may still report FAULT to the enable that follows a confirmed
+    # reset (seen once under stress-ng: "node 2: 0x0000 in FAULT (no EMCY): reset_faults()
+    # first"): reset again and retry, for a while, as an operator would.
+    wait_for(lambda: _enable_or_reset(work), 5, "enable", poll_s=0.3)
     wait_for(
         lambda: all(d["state"] == "OPERATION ENABLED" for d in status(work)["drives"]),
         10,
