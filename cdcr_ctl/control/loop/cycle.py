@@ -159,6 +159,8 @@ class ControlLoop(LoopCommands):
         if self._clock is None:
             self.ticker = wall_clock(self.cfg.period_s)
         t_start = self.ticker.now()
+        # The wall clock's ticker marks the time between cycles; a simulated one never sleeps.
+        wall_ticker = self.ticker if isinstance(self.ticker, Ticker) else None
         while not self._stop_evt.is_set():
             deadline, lateness = self.ticker.wait()
             t0 = time.perf_counter()
@@ -187,9 +189,8 @@ class ControlLoop(LoopCommands):
             # from the first missed deadline) and so do the counters.
             self._missed_now = self.ticker.stats.skipped - skipped
             self.counters.missed_cycles += self._missed_now
-            ticker = self.ticker
-            if isinstance(ticker, Ticker):  # the wall clock (a simulated one never sleeps)
-                self.between_cycles.mark(ticker.next_deadline, ticker.spin_margin_s)
+            if wall_ticker is not None:
+                self.between_cycles.mark(wall_ticker.next_deadline, wall_ticker.spin_margin_s)
         self.between_cycles.clear()
         self.counters.cpu_s = time.thread_time() - cpu0
         self._finish_run("stopped", "loop stopped")
