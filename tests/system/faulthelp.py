@@ -46,12 +46,16 @@ def status(work: Path) -> dict:
 
 
 def wait_for(pred, timeout_s: float, what: str, poll_s: float = 0.02):
-    """Poll ``pred()`` until it returns something truthy; AssertionError naming ``what``."""
+    """Poll ``pred()`` until it returns something truthy; AssertionError naming ``what`` and the
+    last value or exception ``pred`` gave."""
     end = time.monotonic() + timeout_s
     last: Any = None
     while time.monotonic() < end:
-        with contextlib.suppress(Exception):
+        try:
             last = pred()
+        except Exception as exc:  # retried; the last one is reported
+            last = exc
+        else:
             if last:
                 return last
         time.sleep(poll_s)
