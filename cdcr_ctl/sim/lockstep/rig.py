@@ -17,8 +17,9 @@ logs byte for byte whatever the machine load.
 Set-up (boot, SDO configuration, enable, homing) uses the drive layer's own SYNCs and timeouts
 on the wall clock, with the simulated world standing still (the truth and the sensors move only
 with the loop's clock); it changes no state a run depends on. The attitude sensors (vertebra arm)
-run on the simulated clock (:mod:`.attitude`); a live joystick session is not simulated (its
-stick moves on the wall clock): :meth:`LockstepRig.open_joystick` refuses it.
+and the network joystick (a ``joystick`` session's stick script) run on the simulated clock
+(:mod:`.attitude`, :mod:`.joystick`; the daemon's joystick opener is
+:meth:`LockstepRig.open_joystick`).
 
 Build with :meth:`LockstepRig.open`; hand :attr:`clock`, :attr:`drives`, :attr:`tensions` and
 :attr:`tip` to the loop (the daemon's ``RigIO``); set :attr:`SimClock.busy` to the loop's
@@ -59,6 +60,7 @@ from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
 from cdcr_ctl.sim.lockstep.attitude import AttitudeSchedule, open_lockstep_attitude
 from cdcr_ctl.sim.lockstep.canlink import CanLink, no_cpu_clock
 from cdcr_ctl.sim.lockstep.clock import SimClock
+from cdcr_ctl.sim.lockstep.joystick import JoystickSchedule
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
@@ -143,6 +145,8 @@ class LockstepRig:
         self.tip: Any = NoTip()
         #: The controller's attitude port (vertebra arm), or None.
         self.attitude: AttitudeAngles | None = None
+        #: The simulated network joystick (vertebra arm), or None.
+        self.joystick: JoystickSchedule | None = None
 
     @classmethod
     def open(
@@ -275,6 +279,9 @@ class LockstepRig:
                 att, orientation, sim.attitude, sim.seed, self.clock.now
             )
             self._closers.append(self.attitude.close)
+        if ctl.sensors.joystick is not None and self.loaded.rig.sensors.joystick is not None:
+            self.joystick = JoystickSchedule(self.loaded, self.clock.now)
+            self._closers.append(self.joystick.close)
         self._prime()
 
     def _prime(self) -> None:
@@ -325,6 +332,8 @@ class LockstepRig:
             self.tracker.advance(t0, t1)
         if self.attitude_schedule is not None:
             self.attitude_schedule.advance(t0, t1)
+        if self.joystick is not None:
+            self.joystick.advance(t0, t1)
 
     def measure_cpu(self, on: bool = True) -> None:
         """Count the CPU time of the simulated parts (:meth:`cpu_breakdown_s`) from now on, or
@@ -351,12 +360,20 @@ class LockstepRig:
         }
 
     def open_joystick(self, cfg: Any) -> Any:
-        """The daemon's joystick opener in lock-step: a live stick session is not simulated on
-        simulated time (its stick would move on the wall clock), so a ``joystick`` command is
-        refused naming the key; timed trajectories of a rig with a joystick run as usual."""
-        raise ConfigError(
-            self.ctl_file, "sensors.joystick", "a live joystick session needs real time"
-        )
+        """The daemon's joystick opener: the production network-joystick reader, its stick
+        script played on simulated time (:mod:`.joystick`)."""
+        if self.joystick is None:
+            raise ConfigError(
+                self.ctl_file, "sensors.joystick", "the simulated rig has no network joystick"
+            )
+        if cfg.tcp_address is None:
+            raise ConfigError(
+                self.ctl_file,
+                "sensors.joystick.device",
+                "lock-step simulates a network joystick (tcp://HOST:PORT) only",
+                cfg.device,
+            )
+        return self.joystick.open(cfg)
 
     # ------------------------------------------------------------------ life cycle
     def _stop_nodes(self) -> None:
