@@ -3,12 +3,13 @@
 A ``joystick`` session opens the stick with the production
 :func:`~cdcr_ctl.sensors.joystick.network.open_tcp_joystick` over one end of a TCP connection on
 127.0.0.1 (its reader thread not started); the other end is the simulated sender. The simulator
-config's stick script (:func:`cdcr_ctl.sim.rig.stick_script`, times from the connection) is
-played on simulated time: each keyframe's ``struct input_event`` records (built by the same
-encoder as the real-time simulator's :class:`~cdcr_ctl.sim.joystick.ScriptedJoystick`) are written when the keyframe is
-due and read at once by the reader's own parser (:meth:`JoystickSchedule.advance` polls it once
-per record, so it never waits on the wall clock). A ``disconnect_after_s`` closes the sender's
-end at that time: the reader's next poll finds the connection closed and fails, as in real time.
+config's stick script (:func:`cdcr_ctl.sim.rig.stick_script`, times from the connection) is played
+on simulated time: each keyframe's ``struct input_event`` records (built by the same encoder as the
+real-time simulator's :class:`~cdcr_ctl.sim.joystick.ScriptedJoystick`) are written when the
+keyframe is due and read at once by the reader's own parser (:meth:`JoystickSchedule.advance` polls
+it once per record, so it never waits on the wall clock). A ``disconnect_after_s`` closes the
+sender's end at that time: the reader's next poll finds the connection closed and fails, as in real
+time.
 """
 
 from __future__ import annotations
