@@ -124,6 +124,7 @@ class LockstepSession:
         self.rig.clock.close()
         self.loop.stop()
         self.rig.close()
+        self.sinks.close_spare()
 
     def __enter__(self) -> LockstepSession:
         return self
