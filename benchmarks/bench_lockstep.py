@@ -78,7 +78,12 @@ def main() -> None:
                 p = {k: v - parts0[k] for k, v in rig.cpu_breakdown_s().items()}
                 work = loop.counters.work_cpu_s - work0
                 sent = send_cpu[0] - send0
-                world_here = p["truth"] + p["loadcells_modbus"] + p["tracker_natnet"]
+                world_here = (
+                    p["truth"]
+                    + p["loadcells_modbus"]
+                    + p["tracker_natnet"]
+                    + p["attitude_witmotion"]
+                )
                 total = cpu + p["truth_worker"]
                 us = 1e6 / max(n, 1)
                 print(f"run {run.name}: {run.state}, {n} cycles = {sim_s:.2f} s simulated")
@@ -97,6 +102,7 @@ def main() -> None:
                     ("sim drives (nodes at RPDO/SYNC)", p["sim_drives"]),
                     ("sensors: Modbus RTU both ends", p["loadcells_modbus"]),
                     ("sensors: NatNet both ends", p["tracker_natnet"]),
+                    ("sensors: WitMotion attitude both ends", p["attitude_witmotion"]),
                     ("truth (statics solves)", p["truth"] + p["truth_worker"]),
                     ("rest of the loop's process (writer, threads)", cpu - work - world_here),
                     ("total", total),

@@ -41,8 +41,20 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
     sinks = RunLogFactory.from_config(cfg, path, on_full="wait")
     rig = LockstepRig.open(loaded, cfg, str(path))
     assert rig.drives is not None
-    io = RigIO(drives=rig.drives, tensions=rig.tensions, tip=rig.tip, close=rig.close)
-    d = Daemon(cfg, path, io, model, sinks, trajectory, clock=rig.clock)
+    io = RigIO(rig.drives, rig.tensions, rig.tip, close=rig.close, attitude=rig.attitude)
+    attach = getattr(model, "attach_attitude", None)
+    if attach is not None and io.attitude is not None:
+        attach(io.attitude)
+    d = Daemon(
+        cfg,
+        path,
+        io,
+        model,
+        sinks,
+        trajectory,
+        joystick_opener=rig.open_joystick,
+        clock=rig.clock,
+    )
     rig.clock.busy = lambda: d.loop.busy
     try:
         d.start()

@@ -26,7 +26,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable, Sequence
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 
@@ -56,8 +56,9 @@ def rotvec_from_rotation(R: np.ndarray) -> np.ndarray:
     return w * (angle / (2.0 * math.sin(angle)))
 
 
-class SimWitMotion:
-    """A simulated WitMotion JY901/WT901 on a fresh pty.
+class WitMotionFrames:
+    """The frames of a simulated WitMotion JY901/WT901 (no port: :class:`SimWitMotion` writes
+    them to a pty, the lock-step rig hands them to the reader on simulated time).
 
     ``truth()``: the sensor's orientation now, ``R_world_sensor`` (3x3, world z up).
     ``rate_hz``: output rate. ``noise_deg``: standard deviation of Gaussian noise on each angle
@@ -89,22 +90,7 @@ class SimWitMotion:
         self.packets = tuple(p for p in PACKETS if p in packets)
         self.aux = aux
         self.rng = np.random.default_rng(seed)
-        self.master_fd, self.slave_fd = os.openpty()
-        tty.setraw(self.slave_fd)
-        tty.setraw(self.master_fd)
-        flags = fcntl.fcntl(self.master_fd, fcntl.F_GETFL)
-        fcntl.fcntl(self.master_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
-        self.path = os.ttyname(self.slave_fd)
-        self.cycles = 0
-        self.overruns = 0
-        self.truth_errors = 0
         self._prev: tuple[float, np.ndarray] | None = None
-        self._queue: collections.deque[tuple[float, bytes]] = collections.deque()
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._paused = threading.Event()
-        self._hung_up = False
-        self._thread: threading.Thread | None = None
 
     # -- frames -----------------------------------------------------------------------------
 
@@ -134,6 +120,29 @@ class SimWitMotion:
             x, y, z, w = quaternion_from_rotation(R)
             out += pack_quaternion((w, x, y, z))
         return out
+
+
+class SimWitMotion(WitMotionFrames):
+    """A simulated WitMotion JY901/WT901 on a fresh pty, sending :class:`WitMotionFrames`'
+    frames (same arguments) at ``rate_hz`` from a thread of its own."""
+
+    def __init__(self, truth: Callable[[], np.ndarray], **settings: Any) -> None:
+        super().__init__(truth, **settings)
+        self.master_fd, self.slave_fd = os.openpty()
+        tty.setraw(self.slave_fd)
+        tty.setraw(self.master_fd)
+        flags = fcntl.fcntl(self.master_fd, fcntl.F_GETFL)
+        fcntl.fcntl(self.master_fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self.path = os.ttyname(self.slave_fd)
+        self.cycles = 0
+        self.overruns = 0
+        self.truth_errors = 0
+        self._queue: collections.deque[tuple[float, bytes]] = collections.deque()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._paused = threading.Event()
+        self._hung_up = False
+        self._thread: threading.Thread | None = None
 
     # -- fault hooks ------------------------------------------------------------------------
 

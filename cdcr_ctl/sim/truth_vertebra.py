@@ -62,8 +62,20 @@ class VertebraTruth(DesignTruth):
         self._x_kin = np.zeros((arm.n_joints, 2))
         self._dx: np.ndarray | None = None
         self._phi = np.zeros(arm.n_joints)
-        self._R_ends: list[np.ndarray] = [np.eye(3)] * arm.n_joints
+        #: The joint-end orientations of the state they were computed from (see
+        #: :meth:`sensor_orientation`).
+        self._ends: tuple[object, list[np.ndarray]] = (None, [])
         self._start()
+
+    def _end_rotations(self, psi: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        """Orientation of each joint's end frame in the base frame, and the tip transform
+        (4x4), for the joint angles ``psi`` (N, 2; rad): the chain of eq. 1's joint transforms."""
+        T = np.eye(4)
+        ends = []
+        for i, j in enumerate(self.arm.joints):
+            T = T @ vt.joint_transform(psi[i, 0], psi[i, 1], j)
+            ends.append(T[:3, :3].copy())
+        return ends, T
 
     def _solve(self, q_act_mm: np.ndarray) -> DesignTruthState:
         x_kin = vt.joints_from_displacements(self.arm, q_act_mm, self._x_kin)
@@ -73,13 +85,7 @@ class VertebraTruth(DesignTruth):
             self._dx = x - x_kin
         self._x_kin = x_kin
         psi = vt.psi_from_xs(x, self._phi)
-        T = np.eye(4)
-        ends = []
-        for i, j in enumerate(self.arm.joints):
-            T = T @ vt.joint_transform(psi[i, 0], psi[i, 1], j)
-            ends.append(T[:3, :3].copy())
-        with self._lock:
-            self._R_ends = ends
+        _ends, T = self._end_rotations(psi)
         self._x, self._phi = x, psi[:, 1].copy()
         return DesignTruthState(
             q_act_mm=q_act_mm.copy(),
@@ -91,7 +97,14 @@ class VertebraTruth(DesignTruth):
 
     def sensor_orientation(self, joint: int) -> np.ndarray:
         """R_world_sensor (3x3) of the attitude sensor on joint ``joint``'s end (0-based): the
-        world orientation of the joint-end frame times the sensor's mount (sensor -> joint end)."""
+        world orientation of the joint-end frame times the sensor's mount (sensor -> joint end).
+
+        From the published state's joint angles (the same chain :meth:`_solve` computes), so a
+        state solved elsewhere (the lock-step rig's truth worker) gives the same orientations."""
+        state = self.state
         with self._lock:
-            R_end = self._R_ends[joint]
-        return self.R_world_base @ R_end @ self.mounts[joint]
+            of, ends = self._ends
+            if of is not state:
+                ends, _T = self._end_rotations(state.psi)
+                self._ends = (state, ends)
+        return self.R_world_base @ ends[joint] @ self.mounts[joint]

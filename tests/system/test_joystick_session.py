@@ -1,8 +1,14 @@
-"""System: a live joystick end-following session on the simulated vertebra rig, as the lab runs
-it: `cdcr-ctl sim` (EPOS nodes behind an slcan pty, attitude sensors on ptys, tracker and the
-network joystick on loopback) and `cdcr-ctl daemon` as processes, the session started and
-stopped through the control socket. The simulator's joystick plays the paper's Fig. 12 stick
-session (bend moves halved: ``scale: 0.5``) as ``struct input_event`` records over TCP.
+"""System: a live joystick end-following session on the simulated vertebra rig, the session
+started and stopped through the control socket. The simulator's joystick plays the paper's
+Fig. 12 stick session (bend moves halved: ``scale: 0.5``) as ``struct input_event`` records.
+
+The session test runs in lock-step (`cdcr-ctl sim --lockstep`: the production daemon, drive
+layer, WitMotion and NatNet parsers and network-joystick reader on simulated time, the stick
+script played on that clock; its subject is what the session does, not its timing: issue 22).
+The unplug test runs as the lab does: `cdcr-ctl sim` (EPOS nodes behind an slcan pty, attitude
+sensors on ptys, tracker and the network joystick on loopback) and `cdcr-ctl daemon` as
+processes; its subject includes the arm held still on the wall clock after the trip (in
+lock-step an idle rig's world stands still, which would make that check empty).
 
 What is asserted, from the run's log (samples.csv) and the daemon's status:
 
@@ -31,7 +37,7 @@ import pytest
 import yaml
 from syshelp import client, start_daemon, start_sim, wait_status
 
-from cdcr_ctl.cli.demo import ROOT_CONFIG, make_session, wait_for_socket
+from cdcr_ctl.cli.demo import ROOT_CONFIG, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.designs import plan_follow_offline, vertebra_arm
 from cdcr_ctl.model.vertebra import joints_from_displacements, x_from_psi
@@ -49,7 +55,7 @@ REACH_TOL_RAD = 0.01
 
 
 @contextlib.contextmanager
-def vertebra_session(tmp_path: Path, **joystick):
+def vertebra_session(tmp_path: Path, lockstep: bool = False, **joystick):
     work = Path(tempfile.mkdtemp(prefix="cdcr-j-", dir="/tmp"))
     runs = tmp_path / "runs"
     runs.mkdir()
@@ -58,11 +64,16 @@ def vertebra_session(tmp_path: Path, **joystick):
     doc["joystick"] = {"script": "paper", "scale": SCALE, **joystick}
     sim.write_text(yaml.safe_dump(doc, sort_keys=False))
     try:
-        with (
-            start_sim(sim, tmp_path / "sim.log"),
-            start_daemon(rig, tmp_path / "daemon.log") as d,
-        ):
-            wait_for_socket(work / "control.sock", d, tmp_path / "daemon.log")
+        with contextlib.ExitStack() as procs:
+            if lockstep:
+                log = tmp_path / "lockstep.log"
+                cmd = _cli("--config", str(rig), "sim", str(sim), "--lockstep")
+                d = procs.enter_context(running(cmd, log, ready='"ready"'))
+            else:
+                log = tmp_path / "daemon.log"
+                procs.enter_context(start_sim(sim, tmp_path / "sim.log"))
+                d = procs.enter_context(start_daemon(rig, log))
+            wait_for_socket(work / "control.sock", d, log)
             with client(work) as c:
                 c.call("enable")
                 c.call("home")
@@ -83,7 +94,7 @@ def _cables(run, what: str) -> np.ndarray:
 @pytest.mark.timeout(120)
 def test_live_session_follows_the_stick_and_stop_ends_it(tmp_path):
     script = paper_session(scale=SCALE)
-    with vertebra_session(tmp_path) as (work, cfg):
+    with vertebra_session(tmp_path, lockstep=True) as (work, cfg):
         with client(work) as c:
             res = c.call("joystick", compensation="off")
         # Script over and the planner at rest: the last follow move has finished.

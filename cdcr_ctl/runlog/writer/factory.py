@@ -4,7 +4,9 @@ rig's metadata, config copies and (``run.mcap``) second sink; the daemon's ``run
 
 from __future__ import annotations
 
+import contextlib
 import math
+import subprocess
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -98,6 +100,7 @@ class RunLogFactory:
         #: A writer process started ahead, imports done, for the next run (a run then starts
         #: without waiting for an interpreter: ~0.5 s idle, seconds on a loaded machine).
         self._spare = start_writer_process() if writer == "process" else None
+        self._spare_closed = False
 
     @classmethod
     def from_config(
@@ -175,11 +178,29 @@ class RunLogFactory:
             on_full=self.on_full,
             **kw,
         )
-        if self.writer == "process":
+        if self.writer == "process" and not self._spare_closed:
             self._spare = start_writer_process()
         self._made = [w for w in self._made if not (w.closed and w.wait_closed(0))]
         self._made.append(writer)
         return writer
+
+    def close_spare(self, timeout_s: float = 5.0) -> None:
+        """End the spare writer process started ahead (it exits when its stdin closes; killed
+        after ``timeout_s``). Idempotent; writers already made are not touched, and a writer
+        made later starts a process of its own. For owners done making runs (a session
+        closing, a test), so spares do not outlive them."""
+        self._spare_closed = True
+        spare, self._spare = self._spare, None
+        if spare is None:
+            return
+        with contextlib.suppress(OSError):
+            if spare.stdin is not None:
+                spare.stdin.close()
+        try:
+            spare.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            spare.kill()
+            spare.wait()
 
     def close_all(self, reason: str, timeout_s: float = CLOSE_TIMEOUT_S) -> bool:
         """Close every writer this factory made that is still open (outcome ``aborted``) and

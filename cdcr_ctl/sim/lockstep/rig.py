@@ -16,8 +16,10 @@ logs byte for byte whatever the machine load.
 
 Set-up (boot, SDO configuration, enable, homing) uses the drive layer's own SYNCs and timeouts
 on the wall clock, with the simulated world standing still (the truth and the sensors move only
-with the loop's clock); it changes no state a run depends on. Not simulated in lock-step: the
-attitude sensors (vertebra arm) and the network joystick; a rig config with them is refused.
+with the loop's clock); it changes no state a run depends on. The attitude sensors (vertebra arm)
+and the network joystick (a ``joystick`` session's stick script) run on the simulated clock
+(:mod:`.attitude`, :mod:`.joystick`; the daemon's joystick opener is
+:meth:`LockstepRig.open_joystick`).
 
 Build with :meth:`LockstepRig.open`; hand :attr:`clock`, :attr:`drives`, :attr:`tensions` and
 :attr:`tip` to the loop (the daemon's ``RigIO``); set :attr:`SimClock.busy` to the loop's
@@ -36,7 +38,13 @@ from typing import Any
 import numpy as np
 
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.control.io import DriveGroupPort, LoadCellTension, TrackerTip, cell_order
+from cdcr_ctl.control.io import (
+    AttitudeAngles,
+    DriveGroupPort,
+    LoadCellTension,
+    TrackerTip,
+    cell_order,
+)
 from cdcr_ctl.control.ports import NoTension, NoTip
 from cdcr_ctl.drives.group import DriveGroup
 from cdcr_ctl.errors import ConfigError
@@ -49,8 +57,10 @@ from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.epos.node import SimEpos
 from cdcr_ctl.sim.epos.plant import MotorParams
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
+from cdcr_ctl.sim.lockstep.attitude import AttitudeSchedule, open_lockstep_attitude
 from cdcr_ctl.sim.lockstep.canlink import CanLink, no_cpu_clock
 from cdcr_ctl.sim.lockstep.clock import SimClock
+from cdcr_ctl.sim.lockstep.joystick import JoystickSchedule
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
@@ -82,12 +92,10 @@ class LockstepRig:
         truth_process: bool = True,
     ) -> None:
         rig = loaded.rig
-        for key, present in (
-            ("sensors.attitude", ctl.sensors.attitude is not None),
-            ("sensors.joystick", ctl.sensors.joystick is not None),
-        ):
-            if present:
-                raise ConfigError(ctl_file, key, "not simulated in lock-step (run real time)")
+        if ctl.sensors.attitude is not None and rig.sensors.attitude is None:
+            raise ConfigError(
+                ctl_file, "sensors.attitude", "the simulated rig has no attitude sensors"
+            )
         if ctl.sensors.tracker is not None and ctl.sensors.tracker.kind != "natnet":
             raise ConfigError(
                 ctl_file,
@@ -104,6 +112,7 @@ class LockstepRig:
             )
         self.loaded = loaded
         self.ctl = ctl
+        self.ctl_file = ctl_file
         self.clock = SimClock(1.0 / ctl.control.rate_hz, advance=self.advance, t0_s=PRIME_S)
         self.truth = make_truth(loaded)
         self.physics_period_s = 1.0 / loaded.sim.physics_rate_hz
@@ -130,9 +139,14 @@ class LockstepRig:
         ]
         self.loadcells: LoadCellSchedule | None = None
         self.tracker: TrackerSchedule | None = None
+        self.attitude_schedule: AttitudeSchedule | None = None
         self.drives: DriveGroupPort | None = None
         self.tensions: Any = NoTension(len(ctl.robot.cables))
         self.tip: Any = NoTip()
+        #: The controller's attitude port (vertebra arm), or None.
+        self.attitude: AttitudeAngles | None = None
+        #: The simulated network joystick (vertebra arm), or None.
+        self.joystick: JoystickSchedule | None = None
 
     @classmethod
     def open(
@@ -254,6 +268,20 @@ class LockstepRig:
             )
             self.tracker = TrackerSchedule(server, reader)
             self.tip = TrackerTip(reader)
+        att = ctl.sensors.attitude
+        if att is not None:
+            orientation = getattr(self.truth, "sensor_orientation", None)
+            if orientation is None:
+                raise ConfigError(
+                    ctl_file, "sensors.attitude", f"design {ctl.design} has no joint attitudes"
+                )
+            self.attitude_schedule, self.attitude = open_lockstep_attitude(
+                att, orientation, sim.attitude, sim.seed, self.clock.now
+            )
+            self._closers.append(self.attitude.close)
+        if ctl.sensors.joystick is not None and self.loaded.rig.sensors.joystick is not None:
+            self.joystick = JoystickSchedule(self.loaded, self.clock.now)
+            self._closers.append(self.joystick.close)
         self._prime()
 
     def _prime(self) -> None:
@@ -267,7 +295,7 @@ class LockstepRig:
             self._closers.append(self.truth_proc.close)
             self.truth_proc.submit(self._solved_counts)  # the worker's truth starts alike
             self.truth_proc.collect()
-        for sched in (self.loadcells, self.tracker):
+        for sched in (self.loadcells, self.tracker, self.attitude_schedule):
             if sched is not None:
                 sched.advance(0.0, PRIME_S)
         self._physics_next_s = PRIME_S + self.physics_period_s
@@ -302,6 +330,10 @@ class LockstepRig:
             self.loadcells.advance(t0, t1)
         if self.tracker is not None:
             self.tracker.advance(t0, t1)
+        if self.attitude_schedule is not None:
+            self.attitude_schedule.advance(t0, t1)
+        if self.joystick is not None:
+            self.joystick.advance(t0, t1)
 
     def measure_cpu(self, on: bool = True) -> None:
         """Count the CPU time of the simulated parts (:meth:`cpu_breakdown_s`) from now on, or
@@ -309,7 +341,7 @@ class LockstepRig:
         frame, poll and solve."""
         clock = time.thread_time if on else no_cpu_clock
         self.cpu_clock = self.can.cpu_clock = clock
-        for part in (self.loadcells, self.tracker):
+        for part in (self.loadcells, self.tracker, self.attitude_schedule):
             if part is not None:
                 part.cpu_clock = clock
 
@@ -324,7 +356,24 @@ class LockstepRig:
             "tpdo_decode": self.can.decode_time_s,
             "loadcells_modbus": self.loadcells.cpu_s if self.loadcells else 0.0,
             "tracker_natnet": self.tracker.cpu_s if self.tracker else 0.0,
+            "attitude_witmotion": (self.attitude_schedule.cpu_s if self.attitude_schedule else 0.0),
         }
+
+    def open_joystick(self, cfg: Any) -> Any:
+        """The daemon's joystick opener: the production network-joystick reader, its stick
+        script played on simulated time (:mod:`.joystick`)."""
+        if self.joystick is None:
+            raise ConfigError(
+                self.ctl_file, "sensors.joystick", "the simulated rig has no network joystick"
+            )
+        if cfg.tcp_address is None:
+            raise ConfigError(
+                self.ctl_file,
+                "sensors.joystick.device",
+                "lock-step simulates a network joystick (tcp://HOST:PORT) only",
+                cfg.device,
+            )
+        return self.joystick.open(cfg)
 
     # ------------------------------------------------------------------ life cycle
     def _stop_nodes(self) -> None:

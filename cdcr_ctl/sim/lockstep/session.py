@@ -50,6 +50,9 @@ class LockstepSession:
         self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process)
         assert self.rig.drives is not None
         self.drives = self.rig.drives
+        attach = getattr(self.model, "attach_attitude", None)
+        if attach is not None and self.rig.attitude is not None:
+            attach(self.rig.attitude)
         by_cable = {d.cable: d for d in ctl.drives}
         self.supervisor = Supervisor(
             ctl.limits,
@@ -121,6 +124,7 @@ class LockstepSession:
         self.rig.clock.close()
         self.loop.stop()
         self.rig.close()
+        self.sinks.close_spare()
 
     def __enter__(self) -> LockstepSession:
         return self
