@@ -149,6 +149,13 @@ def main() -> None:
                     f" {'yes' if counters_agree(rec) else 'NO':>8s} {rec['verdict']:>6s}"
                     f"  {rec['reply'][:50]!r}"
                 )
+                for ev in rec.get("late_events", []):
+                    print(
+                        f"    late cycle at {ev['at_s']:.3f} s of the floor's span"
+                        f"{'' if ev['in_floor_span'] else ' (outside it)'}:"
+                        f" {ev['late_us']:.0f} us, floor within 10 ms: {ev['floor_near_us']} us,"
+                        f" rig commands: {', '.join(ev['commands']) or '-'}; row: {ev['event']!r}"
+                    )
                 for trip in rec["trips"]:
                     print(f"    trip in the window: {trip}")
                 if not counters_agree(rec):
