@@ -164,6 +164,11 @@ class RigCommandServer:
                     for k, (n, w, c) in self.command_ms.items()
                 },
                 "rig_command_log": list(self.command_log),
+                # Lead-ins and jogs planned in the planner's worker, and those planned here
+                # because it could not (None: this process plans them itself).
+                "rig_planner": None
+                if self.d.planner is None
+                else {"plans": self.d.planner.plans, "failures": self.d.planner.failures},
             }
         return out
 

@@ -404,16 +404,26 @@ def late_events(
     """The loop's cycles later than :data:`LATE_EVENT_PERIODS` periods inside the floor's span,
     each with its time from the floor's start (s), the floor's worst lateness within
     ``around_s`` of it (us: the same stall seen by a process doing nothing is the machine's),
-    and the rig process's commands whose handling overlapped the stall (``commands``: status
-    ``rig_command_log``, (name, start, end, CPU ms) on the same clock)."""
+    whether a floor stall explains it (``machine``, see below) and the rig process's commands
+    whose handling overlapped the stall (``commands``: status ``rig_command_log``, (name,
+    start, end, CPU ms) on the same clock).
+
+    ``machine``: some floor cycle was at least as late as this one less one period (the
+    acceptance's allowance) and its stall overlapped this one's. A row's stall lies within its
+    lateness before or after its deadline (a row after skipped deadlines counts from the first
+    one; both the loop's rows and the floor's count so), so two stalls overlap when their
+    deadlines are less than the sum of both latenesses and one period apart."""
     out: list[dict[str, Any]] = []
     if not len(floor_due_s):
         return out
     lo, hi = floor_due_s[0], floor_due_s[-1]
-    for i in np.flatnonzero(loop_late_us > LATE_EVENT_PERIODS * period_s * 1e6):
+    period_us = period_s * 1e6
+    for i in np.flatnonzero(loop_late_us > LATE_EVENT_PERIODS * period_us):
         due = float(loop_due_s[i])
         late_s = loop_late_us[i] * 1e-6
         near = np.abs(floor_due_s - due) <= around_s + late_s
+        overlap = np.abs(floor_due_s - due) <= late_s + floor_late_us * 1e-6 + period_s
+        machine = bool(np.any(overlap & (floor_late_us >= loop_late_us[i] - period_us)))
         out.append(
             {
                 "at_s": round(due - lo, 4),
@@ -421,6 +431,7 @@ def late_events(
                 "event": str(loop_events[i]),
                 "late_us": round(float(loop_late_us[i]), 1),
                 "floor_near_us": round(float(floor_late_us[near].max()), 1) if near.any() else None,
+                "machine": machine,
                 "commands": [
                     f"{c[0]} ({(c[2] - c[1]) * 1e3:.1f} ms, cpu {c[3]:.1f} ms)"
                     for c in commands
