@@ -25,6 +25,8 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -55,11 +57,25 @@ class PlannerUnavailable(RigError):
     """The worker could not plan (it died, or did not answer in time): plan in this process."""
 
 
-def _init(config_path: str) -> None:
-    """(in the worker) Off real time, then the rig's model from its config file."""
+#: How often the worker checks that the process that started it still runs (s).
+PARENT_CHECK_S = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """(in the worker, a thread) End the worker once its parent is gone: a rig process killed
+    (SIGKILL) cannot shut its pool down, and the worker would live on as an orphan."""
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(0)
+
+
+def _init(config_path: str, parent_pid: int) -> None:
+    """(in the worker) Off real time, a watch on the parent, then the rig's model from its
+    config file."""
     global _MODEL
     with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
     path = Path(config_path)
     _MODEL = build_model(load_rig_config(path), source=str(path))
 
@@ -88,7 +104,10 @@ class Planner:
         if self._pool is None:
             ctx = multiprocessing.get_context("spawn")
             self._pool = ProcessPoolExecutor(
-                max_workers=1, mp_context=ctx, initializer=_init, initargs=(self.config_path,)
+                max_workers=1,
+                mp_context=ctx,
+                initializer=_init,
+                initargs=(self.config_path, os.getpid()),
             )
         return self._pool
 

@@ -9,6 +9,9 @@ orders above float64 rounding of poses of order 1 rad and far below any physical
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +20,7 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory as tj
-from cdcr_ctl.daemon.planner import Planner, PlannerUnavailable, check_move
+from cdcr_ctl.daemon.planner import PARENT_CHECK_S, Planner, PlannerUnavailable, check_move
 from cdcr_ctl.daemon.planning import plan_jog, plan_lead
 from cdcr_ctl.errors import RigError
 
@@ -105,3 +108,39 @@ def test_a_dead_worker_is_reported_then_replaced(rig):
         assert planner.failures == 1
     finally:
         planner.close()
+
+
+def test_the_worker_ends_when_its_parent_is_killed(tmp_path):
+    """A rig process killed with SIGKILL cannot shut its planner down: the worker notices its
+    parent is gone (within PARENT_CHECK_S) and exits instead of living on as an orphan."""
+    code = (
+        "import sys, time\n"
+        "from cdcr_ctl.daemon.planner import Planner\n"
+        "if __name__ == '__main__':\n"
+        "    p = Planner(sys.argv[1]).start()\n"
+        "    print(*[w.pid for w in p._pool._processes.values()], flush=True)\n"
+        "    time.sleep(600)\n"
+    )
+    script = tmp_path / "parent.py"
+    script.write_text(code)
+    parent = subprocess.Popen(
+        [sys.executable, str(script), str(CONFIG)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        worker = int(parent.stdout.readline().split()[0])
+        parent.kill()
+        parent.wait(10)
+        end = time.monotonic() + 30 * PARENT_CHECK_S
+        while _alive(worker) and time.monotonic() < end:
+            time.sleep(0.1)
+        assert not _alive(worker)
+    finally:
+        parent.kill()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
