@@ -25,8 +25,6 @@ import contextlib
 import logging
 import multiprocessing
 import os
-import threading
-import time
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
@@ -38,6 +36,7 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.planning import LeadMove, plan_jog, plan_lead
+from cdcr_ctl.daemon.workers import watch_parent
 from cdcr_ctl.errors import RigError
 
 log = logging.getLogger(__name__)
@@ -57,25 +56,13 @@ class PlannerUnavailable(RigError):
     """The worker could not plan (it died, or did not answer in time): plan in this process."""
 
 
-#: How often the worker checks that the process that started it still runs (s).
-PARENT_CHECK_S = 1.0
-
-
-def _exit_with_parent(parent_pid: int) -> None:
-    """(in the worker, a thread) End the worker once its parent is gone: a rig process killed
-    (SIGKILL) cannot shut its pool down, and the worker would live on as an orphan."""
-    while os.getppid() == parent_pid:
-        time.sleep(PARENT_CHECK_S)
-    os._exit(0)
-
-
 def _init(config_path: str, parent_pid: int) -> None:
     """(in the worker) Off real time, a watch on the parent, then the rig's model from its
     config file."""
     global _MODEL
     with contextlib.suppress(OSError, AttributeError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+    watch_parent(parent_pid)
     path = Path(config_path)
     _MODEL = build_model(load_rig_config(path), source=str(path))
 

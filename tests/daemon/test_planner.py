@@ -20,8 +20,9 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory as tj
-from cdcr_ctl.daemon.planner import PARENT_CHECK_S, Planner, PlannerUnavailable, check_move
+from cdcr_ctl.daemon.planner import Planner, PlannerUnavailable, check_move
 from cdcr_ctl.daemon.planning import plan_jog, plan_lead
+from cdcr_ctl.daemon.workers import PARENT_CHECK_S
 from cdcr_ctl.errors import RigError
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "qi2023-sim.yaml"
