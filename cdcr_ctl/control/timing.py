@@ -205,20 +205,29 @@ class BetweenCycles:
         return now < until or now > until + QUIET_STALE_S
 
 
-def timer_floor(period_s: float, until: Callable[[], bool], max_cycles: int) -> np.ndarray:
+def timer_floor(
+    period_s: float,
+    until: Callable[[], bool],
+    max_cycles: int,
+    deadlines_out: np.ndarray | None = None,
+) -> np.ndarray:
     """The machine's floor (issue #21): a bare loop on a :class:`Ticker` of ``period_s`` (the
     control loop's clock, sleep and spin method) doing no work, until ``until()`` is true or
     ``max_cycles`` ran. Returns each cycle's lateness (s) counted as the control loop's rows
     count it: from its deadline, plus one period per deadline skipped before it. Run it in a
     process of its own (scheduled as the daemon is) while the loop runs: whatever lateness it
-    shows, the machine (its load, its timer, the scheduler) causes, not the control plane."""
+    shows, the machine (its load, its timer, the scheduler) causes, not the control plane.
+    ``deadlines_out`` (optional, at least ``max_cycles`` long): each cycle's deadline
+    (``time.monotonic``, s) is stored there, to line the floor's late cycles up with the loop's."""
     ticker = Ticker(period_s)
     out = np.empty(max_cycles)
     skipped_before = 0
     n = 0
     while n < max_cycles and not until():
-        _deadline, lateness = ticker.wait()
+        deadline, lateness = ticker.wait()
         out[n] = lateness + skipped_before * period_s
+        if deadlines_out is not None:
+            deadlines_out[n] = deadline
         n += 1
         skipped = ticker.stats.skipped
         ticker.done()

@@ -15,7 +15,8 @@ import numpy as np
 
 from cdcr_ctl.control.loop import RunInfo
 from cdcr_ctl.daemon.joystick import JoystickSession
-from cdcr_ctl.daemon.planning import LEAD_IN_CABLE_FRACTION, peak_cable_speed, plan_lead_in
+from cdcr_ctl.daemon.planner import PlannerUnavailable
+from cdcr_ctl.daemon.planning import attach_lead, plan_jog, plan_lead
 from cdcr_ctl.daemon.protocol import ProtocolError, check_jog_speed
 from cdcr_ctl.errors import RigError
 
@@ -67,32 +68,46 @@ class RunCommands:
 
     def _jog_move(self, start: np.ndarray, goal: np.ndarray, speed: float) -> Any:
         """A jog move at ``speed`` (rad/s), slowed so its fastest cable (in the mode in force)
-        stays within ``LEAD_IN_CABLE_FRACTION`` of the velocity limit."""
-        tj = self.new_trajectory
-        traj = tj.move(start, goal, speed_rad_s=speed)
-        v_allowed = LEAD_IN_CABLE_FRACTION * self.cfg.limits.cable_velocity_mm_s
-        peak = peak_cable_speed(self.model, traj, self.loop.cfg.compensation)
-        if peak > v_allowed:
-            speed *= 0.98 * v_allowed / peak
-            log.info("jog slowed to %.4f rad/s (cables %.1f mm/s at the speed asked)", speed, peak)
-            traj = tj.move(start, goal, speed_rad_s=speed)
+        stays within ``LEAD_IN_CABLE_FRACTION`` of the velocity limit
+        (:func:`.planning.plan_jog`; in the planner's worker when the daemon has one)."""
+        mode, v_max = self.loop.cfg.compensation, self.cfg.limits.cable_velocity_mm_s
+        bend = self.cfg.limits.bend_rad
+        planned = None
+        if self.planner is not None:
+            try:
+                planned = self.planner.jog(start, goal, speed, mode, v_max, bend)
+            except PlannerUnavailable as exc:
+                log.warning("%s; planning the jog here", exc)
+        traj, used, peak = planned or plan_jog(self.model, start, goal, speed, mode, v_max)
+        if used != speed:
+            log.info("jog slowed to %.4f rad/s (cables %.1f mm/s at the speed asked)", used, peak)
         return traj
 
     def _with_lead_in(self, traj: Any, mode: str | None = None) -> Any:
         """``traj`` after a hold for a compensation switch and a lead-in move from the commanded
-        pose, each within the cable velocity limit (:func:`.planning.plan_lead_in`)."""
+        pose, each within the cable velocity limit (:func:`.planning.plan_lead_in`). The model
+        work runs in the planner's worker when the daemon has one (:mod:`.planner`); here
+        only the inputs are gathered and the lead put in front of ``traj``."""
         mode = mode or self.loop.cfg.compensation
         force_N, _ = self.io.tensions.latest()
-        plan = plan_lead_in(
-            self.model,
+        args = (
             np.array(self.loop.psi_cmd, dtype=float),
             self.loop.q_cmd if self.loop.counters.cycles else None,
-            traj,
+            np.array(traj.psi[0], dtype=float),
             mode,
             self.cfg.limits.cable_velocity_mm_s,
-            measured_N=force_N if np.isfinite(force_N).all() else None,
-            state=self.loop.model_state(),
         )
+        measured = force_N if np.isfinite(force_N).all() else None
+        state = self.loop.model_state()
+        move = None
+        if self.planner is not None:
+            try:
+                move = self.planner.lead(*args, self.cfg.limits.bend_rad, measured, state)
+            except PlannerUnavailable as exc:
+                log.warning("%s; planning the lead-in here", exc)
+        if move is None:
+            move = plan_lead(self.model, *args, measured_N=measured, state=state)
+        plan = attach_lead(move, traj)
         if plan.hold_s or plan.speed_rad_s != self.new_trajectory.LEAD_IN_SPEED_RAD_S:
             log.info(
                 "lead-in: hold %.2f s for the mode switch, move at %.4f rad/s (cables %.1f mm/s)",

@@ -37,6 +37,7 @@ from cdcr_ctl.daemon.protocol import (
     Request,
     parse_request,
 )
+from cdcr_ctl.daemon.workers import nice_and_watch_parent
 from cdcr_ctl.errors import RigError
 
 #: Longest wait for the worker on one request (s): a 10^6-row CSV takes ~10 s on a busy PC.
@@ -167,7 +168,10 @@ class Intake:
             ctx = multiprocessing.get_context("spawn")
             # Niced: on a small machine the worker must not take the loop's core.
             self._pool = ProcessPoolExecutor(
-                max_workers=1, mp_context=ctx, initializer=os.nice, initargs=(WORKER_NICE,)
+                max_workers=1,
+                mp_context=ctx,
+                initializer=nice_and_watch_parent,
+                initargs=(WORKER_NICE, os.getpid()),
             )
         return self._pool
 

@@ -119,6 +119,73 @@ def switch_hold_s(step_mm: np.ndarray, cable_velocity_mm_s: float) -> float:
     return worst / (OFFSET_RAMP_FRACTION * cable_velocity_mm_s) + SWITCH_MARGIN_S
 
 
+@dataclass(frozen=True)
+class LeadMove:
+    """What :func:`plan_lead` decided, before the trajectory is put after it: ``lead`` holds
+    ``hold_s`` at the commanded pose (a mode switch's ramp) and then moves to the trajectory's
+    first pose at ``speed_rad_s`` (its fastest cable ``peak_mm_s`` in the run's mode); one
+    sample when neither is needed."""
+
+    lead: tj.Trajectory
+    hold_s: float
+    speed_rad_s: float
+    peak_mm_s: float
+
+
+def plan_lead(
+    model: RobotModelPort,
+    psi_now: np.ndarray,
+    q_cmd_now_mm: np.ndarray | None,
+    first_psi: np.ndarray,
+    mode: str,
+    cable_velocity_mm_s: float,
+    measured_N: np.ndarray | None = None,
+    state: Any = None,
+) -> LeadMove:
+    """The hold and lead-in move from ``psi_now`` (S, 2) to ``first_psi`` (S, 2), each within
+    the velocity limit: the model work of :func:`plan_lead_in` (the command path of up to
+    :data:`CHECK_SAMPLES` poses in ``mode``), done apart from the trajectory so that it can run
+    in another process (:mod:`cdcr_ctl.daemon.planner`). Arguments as :func:`plan_lead_in`."""
+    psi_now = np.asarray(psi_now, dtype=float).reshape(-1, 2)
+    first_psi = np.asarray(first_psi, dtype=float).reshape(-1, 2)
+    hold_s = 0.0
+    if q_cmd_now_mm is not None:
+        q_new = command_path(model, psi_now[None], mode, measured_N, state)[0]
+        hold_s = switch_hold_s(np.asarray(q_cmd_now_mm) - q_new, cable_velocity_mm_s)
+    v_allowed = LEAD_IN_CABLE_FRACTION * cable_velocity_mm_s
+    speed = tj.LEAD_IN_SPEED_RAD_S
+    # The move alone (the trajectory's first sample as its goal): the long trajectory itself is
+    # never copied here.
+    head = tj.Trajectory([0.0], first_psi[None])
+    lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
+    peak = 0.0
+    if lead is not head:
+        for _ in range(3):
+            m = tj.move(psi_now, first_psi, speed)
+            peak = peak_cable_speed(model, m, mode, measured_N, state)
+            if peak <= v_allowed:
+                break
+            speed *= 0.98 * v_allowed / peak
+        lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
+    if hold_s > 0.0:
+        lead = _hold_first(lead, psi_now, hold_s)
+    return LeadMove(lead, hold_s, speed, peak)
+
+
+def attach_lead(move: LeadMove, traj: Any) -> LeadInPlan:
+    """``traj`` after ``move``'s lead (which ends on ``traj``'s first pose): concatenated, or
+    chained in front of a long trajectory (:class:`Chain`: never copied). No model work."""
+    lead, hold_s, speed, peak = move.lead, move.hold_s, move.speed_rad_s, move.peak_mm_s
+    if lead.n_samples == 1:  # neither a hold nor a move
+        return LeadInPlan(traj, hold_s, speed, peak)
+    if traj.n_samples > tj.LIST_SAMPLES:
+        # The lead ends on the trajectory's first sample; the trajectory starts there.
+        return LeadInPlan(Chain(lead, traj), hold_s, speed, peak)
+    t = np.concatenate((lead.t_s[:-1], traj.t_s + lead.t_s[-1]))
+    psi = np.concatenate((lead.psi[:-1], traj.psi))
+    return LeadInPlan(tj.Trajectory(t, psi, traj.name, traj.source), hold_s, speed, peak)
+
+
 def plan_lead_in(
     model: RobotModelPort,
     psi_now: np.ndarray,
@@ -130,7 +197,7 @@ def plan_lead_in(
     state: Any = None,
 ) -> LeadInPlan:
     """``traj`` preceded by a hold (for a mode switch's ramp) and a lead-in move, each within the
-    velocity limit.
+    velocity limit (:func:`plan_lead`, then :func:`attach_lead`).
 
     ``q_cmd_now_mm``: the loop's last command (its offset included); the step the loop will ramp
     out is its difference from ``mode``'s command at ``psi_now``. The lead-in move's speed is
@@ -139,36 +206,38 @@ def plan_lead_in(
     move's speed: one rescale, then checked again). ``state``: the loop's friction memory (see
     :func:`command_path`); None plans from a fresh one.
     """
-    psi_now = np.asarray(psi_now, dtype=float).reshape(-1, 2)
-    hold_s = 0.0
-    if q_cmd_now_mm is not None:
-        q_new = command_path(model, psi_now[None], mode, measured_N, state)[0]
-        hold_s = switch_hold_s(np.asarray(q_cmd_now_mm) - q_new, cable_velocity_mm_s)
+    move = plan_lead(
+        model,
+        psi_now,
+        q_cmd_now_mm,
+        traj.psi[0],
+        mode,
+        cable_velocity_mm_s,
+        measured_N,
+        state,
+    )
+    return attach_lead(move, traj)
+
+
+def plan_jog(
+    model: RobotModelPort,
+    start: np.ndarray,
+    goal: np.ndarray,
+    speed_rad_s: float,
+    mode: str,
+    cable_velocity_mm_s: float,
+) -> tuple[tj.Trajectory, float, float]:
+    """A jog move from ``start`` to ``goal`` (S, 2) at ``speed_rad_s``, slowed so its fastest
+    cable commanded in ``mode`` stays within ``LEAD_IN_CABLE_FRACTION`` of the velocity limit;
+    returns (move, speed used, fastest cable at the speed asked, mm/s)."""
+    traj = tj.move(start, goal, speed_rad_s=speed_rad_s)
     v_allowed = LEAD_IN_CABLE_FRACTION * cable_velocity_mm_s
-    speed = tj.LEAD_IN_SPEED_RAD_S
-    # The move alone (the trajectory's first sample as its goal): the long trajectory itself is
-    # never copied here.
-    head = tj.Trajectory([0.0], traj.psi[:1], traj.name, traj.source)
-    lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
-    peak = 0.0
-    if lead is not head:
-        for _ in range(3):
-            m = tj.move(psi_now, traj.psi[0], speed)
-            peak = peak_cable_speed(model, m, mode, measured_N, state)
-            if peak <= v_allowed:
-                break
-            speed *= 0.98 * v_allowed / peak
-        lead = tj.with_lead_in(psi_now, head, speed_rad_s=speed)
-    if hold_s > 0.0:
-        lead = _hold_first(lead, psi_now, hold_s)
-    if lead.n_samples == 1:  # neither a hold nor a move
-        return LeadInPlan(traj, hold_s, speed, peak)
-    if traj.n_samples > tj.LIST_SAMPLES:
-        # The lead ends on the trajectory's first sample; the trajectory starts there.
-        return LeadInPlan(Chain(lead, traj), hold_s, speed, peak)
-    t = np.concatenate((lead.t_s[:-1], traj.t_s + lead.t_s[-1]))
-    psi = np.concatenate((lead.psi[:-1], traj.psi))
-    return LeadInPlan(tj.Trajectory(t, psi, traj.name, traj.source), hold_s, speed, peak)
+    peak = peak_cable_speed(model, traj, mode)
+    speed = speed_rad_s
+    if peak > v_allowed:
+        speed *= 0.98 * v_allowed / peak
+        traj = tj.move(start, goal, speed_rad_s=speed)
+    return traj, speed, peak
 
 
 def _hold_first(traj: tj.Trajectory, psi_now: np.ndarray, hold_s: float) -> tj.Trajectory:
@@ -216,9 +285,13 @@ def estimate_pose(
 __all__ = [
     "LEAD_IN_CABLE_FRACTION",
     "LeadInPlan",
+    "LeadMove",
+    "attach_lead",
     "command_path",
     "estimate_pose",
     "peak_cable_speed",
+    "plan_jog",
+    "plan_lead",
     "plan_lead_in",
     "switch_hold_s",
 ]

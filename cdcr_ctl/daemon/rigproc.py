@@ -35,6 +35,7 @@ import queue
 import sys
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +52,7 @@ from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.outcome import encode_outcome as _encode
 from cdcr_ctl.daemon.outcome import outcome
+from cdcr_ctl.daemon.planner import Planner
 from cdcr_ctl.daemon.service import Daemon
 from cdcr_ctl.runlog.writer import RunLogFactory
 
@@ -62,6 +64,8 @@ HEARTBEAT = StopFlag.SLOTS
 SHARED_SLOTS = StopFlag.SLOTS + 1
 #: How often the rig process's heartbeat counts (s).
 HEARTBEAT_PERIOD_S = 0.2
+#: Command handlings remembered for ``status`` ``rig_command_log`` (the last ones).
+COMMAND_LOG_LEN = 256
 #: Commands served on the quick thread (never behind loading, planning or homing).
 QUICK_COMMANDS = ("status", "stop", "shutdown")
 
@@ -86,6 +90,9 @@ class RigCommandServer:
         self.gc_watch = GcWatch(1.0 / daemon.cfg.control.rate_hz).install()
         #: Per command name: (count, longest wall ms, longest CPU ms) of its handling here.
         self.command_ms: dict[str, tuple[int, float, float]] = {}
+        #: The last handlings: (command, start, end (``time.monotonic``, s), CPU ms), to line
+        #: the loop's late cycles up with what this process was doing (benchmarks).
+        self.command_log: deque[tuple[str, float, float, float]] = deque(maxlen=COMMAND_LOG_LEN)
         self._send_lock = threading.Lock()
         self._quick: queue.Queue[Any] = queue.Queue()
         self._slow: queue.Queue[Any] = queue.Queue()
@@ -124,9 +131,11 @@ class RigCommandServer:
             if item is None:
                 return
             tag, req, extra = item
-            c0, t0 = time.thread_time(), time.perf_counter()
+            c0, t0 = time.thread_time(), time.monotonic()
             out = encode_outcome(self._handle, req, extra)
-            self._timed(req.cmd, time.perf_counter() - t0, time.thread_time() - c0)
+            t1, cpu_s = time.monotonic(), time.thread_time() - c0
+            self._timed(req.cmd, t1 - t0, cpu_s)
+            self.command_log.append((req.cmd, t0, t1, round(cpu_s * 1e3, 3)))
             self.send((tag, out))
 
     def _timed(self, cmd: str, wall_s: float, cpu_s: float) -> None:
@@ -154,6 +163,12 @@ class RigCommandServer:
                     k: {"n": n, "wall_max_ms": round(w, 3), "cpu_max_ms": round(c, 3)}
                     for k, (n, w, c) in self.command_ms.items()
                 },
+                "rig_command_log": list(self.command_log),
+                # Lead-ins and jogs planned in the planner's worker, and those planned here
+                # because it could not (None: this process plans them itself).
+                "rig_planner": None
+                if self.d.planner is None
+                else {"plans": self.d.planner.plans, "failures": self.d.planner.failures},
             }
         return out
 
@@ -185,6 +200,12 @@ def build_daemon(config_path: str, socket_path: str | None, intake_dir: str) -> 
     sinks = RunLogFactory.from_config(
         cfg, path, tip_from_psi=build_model(cfg, source=str(path)).tip
     )
+    # Lead-ins and jog moves are planned in a worker of this process's (started before the
+    # priority is raised, so it runs at the ordinary policy), unless the model reads a live
+    # sensor of this process (attitude), which a worker would not have.
+    planner = None
+    if getattr(model, "attach_attitude", None) is None or cfg.sensors.attitude is None:
+        planner = Planner(path).start()
     # Before any thread of this process exists: every thread inherits the policy.
     try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
     io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
@@ -201,6 +222,7 @@ def build_daemon(config_path: str, socket_path: str | None, intake_dir: str) -> 
         trajectory,
         notifier=SystemdNotifier(address=""),
         intake=intake,
+        planner=planner,
     )
 
 

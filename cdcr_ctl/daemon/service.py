@@ -31,6 +31,7 @@ from cdcr_ctl.daemon.commands_run import RUN_PICKUP_TIMEOUT_S, RunCommands
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.joystick import JoystickSession
 from cdcr_ctl.daemon.notify import SystemdNotifier
+from cdcr_ctl.daemon.planner import Planner
 from cdcr_ctl.daemon.protocol import Request
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
@@ -61,12 +62,15 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         joystick_opener: Callable[..., Any] | None = None,
         clock: LoopClock | None = None,
         intake: Intake | None = None,
+        planner: Planner | None = None,
     ) -> None:
         """``joystick_opener(JoystickConfig)`` opens the rig's joystick for a ``joystick``
         session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`). ``clock``: the
         loop's clock (default the wall clock; the lock-step simulator passes its own).
         ``intake``: where trajectory files are prepared (default a worker of this daemon's; the
-        rig process passes its front process's, whose prepared files it maps)."""
+        rig process passes its front process's, whose prepared files it maps). ``planner``:
+        plans lead-ins and jog moves in a worker process (:mod:`.planner`); None plans them in
+        this process (the one-process daemon, lock-step)."""
         self.cfg = cfg
         self.config_path = config_path
         self.io = io
@@ -118,6 +122,7 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         self.live: LiveView | None = None
         #: Big requests and trajectory files are parsed in this worker process, not here.
         self.intake = intake or Intake(model.n_segments, cfg.limits.bend_rad)
+        self.planner = planner
         #: Times ``stop`` on the CAN traffic a run logs (first quick-stop frame after a request).
         self.bus_tap = StopBusTap()
 
@@ -192,6 +197,7 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
             ("close socket", lambda: self.server.close() if self.server else None),
             ("live view", lambda: self.live.stop() if self.live else None),
             ("intake", self.intake.close),
+            ("planner", lambda: self.planner.close() if self.planner else None),
             ("close io", self.io.close),
         ]
         for name, step in steps:

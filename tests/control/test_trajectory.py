@@ -480,3 +480,24 @@ def test_rows_are_the_daemon_request_form():
     traj = tr.planar_bend(2, theta_max_rad=[1.0, 0.5])
     again = tr.from_samples(traj.rows(), n_segments=2)
     assert np.array_equal(again.psi, traj.psi) and np.array_equal(again.t_s, traj.t_s)
+
+
+def test_sample_is_the_same_on_the_list_path_and_the_array_path(monkeypatch):
+    """A trajectory up to LIST_SAMPLES samples keeps flat Python lists for the loop's sample()
+    (made a slice at a time, issue #21); a longer one samples its arrays. Both paths do the same
+    float64 operations in the same order, so they agree to rounding (1e-12 rad is far above
+    float64 rounding of angles of order 1 and far below any pose change that matters)."""
+    core = tr.core
+
+    rng = np.random.default_rng(3)
+    n = 3 * core.TOLIST_SLICE + 7  # several slices and a partial one
+    t = np.cumsum(rng.uniform(0.001, 0.01, n))
+    psi = np.stack((rng.uniform(0, 1.2, (n, 2)), rng.uniform(-3, 3, (n, 2))), axis=-1)
+    psi[5, 1, 0] = 0.0  # a straight sample
+    listed = Trajectory(t, psi)
+    monkeypatch.setattr(core, "LIST_SAMPLES", 10)
+    arrays = Trajectory(t, psi)
+    assert isinstance(listed._xl, list) and not isinstance(arrays._xl, list)
+    assert listed._xl == arrays._x.reshape(-1).tolist()
+    for q in np.concatenate((rng.uniform(t[0] - 1, t[-1] + 1, 500), t[:20], [t[5] + 1e-4])):
+        np.testing.assert_allclose(listed.sample(q), arrays.sample(q), rtol=0, atol=1e-12)

@@ -174,40 +174,82 @@ def start_run(work: Path, seconds: float = 30.0) -> dict:
 
 class Floor:
     """``timer_floor.py`` in its own process for a window: ``with Floor(period) as f: ...``, then
-    ``f.lateness_us`` (one value per cycle it ran)."""
+    ``f.lateness_us`` (one value per cycle it ran) and ``f.deadlines_s`` (each cycle's deadline,
+    ``time.monotonic``). ``cpu``: keep the process on that CPU."""
 
-    def __init__(self, period_s: float, tmp: Path, priority: int = FLOOR_PRIORITY) -> None:
-        self.period_s, self.priority = period_s, priority
-        self.out = tmp / f"floor-{os.getpid()}-{time.monotonic_ns()}.npy"
+    def __init__(
+        self, period_s: float, tmp: Path, priority: int = FLOOR_PRIORITY, cpu: int | None = None
+    ) -> None:
+        self.period_s, self.priority, self.cpu = period_s, priority, cpu
+        self.out = tmp / f"floor-{os.getpid()}-{cpu}-{time.monotonic_ns()}.npy"
         self.lateness_us = np.zeros(0)
+        self.deadlines_s = np.zeros(0)
 
     def __enter__(self) -> Floor:
-        self.proc = subprocess.Popen(
-            [
-                sys.executable,
-                str(FLOOR_SCRIPT),
-                repr(self.period_s),
-                str(self.out),
-                str(self.priority),
-            ],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
+        self.spawn()
+        self.wait_ready()
+        return self
+
+    def spawn(self) -> None:
+        args = [sys.executable, str(FLOOR_SCRIPT), repr(self.period_s), str(self.out)]
+        args += [str(self.priority)] + ([] if self.cpu is None else [str(self.cpu)])
+        self.proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+    def wait_ready(self) -> None:
         assert self.proc.stdout is not None
         line = self.proc.stdout.readline()
         if line.strip() != "ready":
             self.proc.kill()
             raise RuntimeError(f"timer floor did not start: {line!r}")
-        return self
 
     def __exit__(self, *exc: object) -> None:
         assert self.proc.stdin is not None
         self.proc.stdin.close()  # ends the floor loop
         self.proc.wait(60)
         if self.out.exists():
-            self.lateness_us = np.load(self.out)
+            arr = np.load(self.out).reshape(-1, 2)
+            self.lateness_us, self.deadlines_s = arr[:, 0], arr[:, 1]
             self.out.unlink()
+
+
+class MachineFloor:
+    """The machine's floor through a window: one :class:`Floor` on each CPU the daemon may run
+    on (this process's affinity, which the daemon inherits). The loop's thread moves between
+    CPUs, and a stall of one CPU (on this virtual machine, about one wake-up in several seconds
+    comes 2-7 ms late on one CPU and not on the other) reaches only what runs there at that
+    moment; one floor process would see its own CPU's stalls only. ``lateness_us`` and
+    ``deadlines_s`` hold every floor's cycles; :attr:`span_s` is the time all of them ran."""
+
+    def __init__(self, period_s: float, tmp: Path, priority: int = FLOOR_PRIORITY) -> None:
+        cpus = sorted(os.sched_getaffinity(0))
+        self.floors = [Floor(period_s, tmp, priority, cpu) for cpu in cpus]
+        self.lateness_us = np.zeros(0)
+        self.deadlines_s = np.zeros(0)
+        self.span_s = (np.nan, np.nan)
+
+    def __enter__(self) -> MachineFloor:
+        for f in self.floors:
+            f.spawn()
+        for f in self.floors:
+            f.wait_ready()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for f in self.floors:
+            f.__exit__(*exc)
+        ran = [f for f in self.floors if len(f.deadlines_s)]
+        if ran:
+            self.lateness_us = np.concatenate([f.lateness_us for f in ran])
+            self.deadlines_s = np.concatenate([f.deadlines_s for f in ran])
+            self.span_s = (
+                max(f.deadlines_s[0] for f in ran),
+                min(f.deadlines_s[-1] for f in ran),
+            )
+
+    def in_span_us(self) -> np.ndarray:
+        """The floors' lateness (us) of the cycles due within :attr:`span_s`."""
+        lo, hi = self.span_s
+        return self.lateness_us[(self.deadlines_s >= lo) & (self.deadlines_s <= hi)]
 
 
 def quantiles_us(values: np.ndarray) -> dict[str, float]:
@@ -253,15 +295,19 @@ def run_one(
     tmp: Path,
     floor_priority: int = FLOOR_PRIORITY,
 ) -> dict:
-    """A trajectory, ``stressor`` in a thread, ``stop`` after ``stop_after_s``; the record."""
-    started = start_run(work)
+    """A trajectory, ``stressor`` in a thread, ``stop`` after ``stop_after_s``; the record.
+
+    The machine's floor (:class:`MachineFloor`) runs from before the run starts until the
+    stressor ended; the loop's rows are compared with it over the same span (the run's start
+    included)."""
     lead_s = 0.5
-    time.sleep(lead_s)
+    result: dict[str, Any] = {}
     with client(work) as c:
         before = c.call("status")
     t_before = time.monotonic()
-    result: dict[str, Any] = {}
-    with Floor(period_s, tmp, floor_priority) as floor:
+    with MachineFloor(period_s, tmp, floor_priority) as floor:
+        started = start_run(work)
+        time.sleep(lead_s)
         th = threading.Thread(target=lambda: result.update(reply=stressor(work)), daemon=True)
         th.start()
         time.sleep(stop_after_s)
@@ -270,7 +316,7 @@ def run_one(
             sent_wall = time.time()
             stop = c.call("stop")
             stop_s = time.monotonic() - t0
-    th.join(180)
+        th.join(180)
     with client(work) as c:
         after = c.call("status")
     window_s = time.monotonic() - t_before
@@ -296,8 +342,9 @@ def run_one(
             if t not in before["trips"] and t["cause"] != "operator_stop"
         ],
         "fault": after["fault"],
-        "floor_us": quantiles_us(floor.lateness_us),
-        "floor_cycles": len(floor.lateness_us),
+        "floor_us": quantiles_us(floor.in_span_us()),
+        "floor_cycles": len(floor.in_span_us()),
+        "floor_cpus": len(floor.floors),
         "run_counters": run_info,
         "front": _front_delta(before.get("front"), after.get("front")),
     }
@@ -308,9 +355,25 @@ def run_one(
     if started.get("log_dir"):
         run = _rows_of(started["log_dir"])
         t = run.t_s
-        window = t >= t[0] + lead_s if len(t) else np.zeros(0, bool)
         lateness = run.column("lateness_us")
+        t0 = after["loop"].get("t0_clock_s")
+        lo, hi = floor.span_s
+        if t0 is not None and np.isfinite(lo):
+            # The rows due while every floor ran: the same span for both.
+            window = (t0 + t >= lo) & (t0 + t <= hi)
+            rec["late_events"] = late_events(
+                t0 + t[window],
+                lateness[window],
+                run.column("event")[window],
+                floor.deadlines_s,
+                floor.lateness_us,
+                after.get("rig_command_log", []),
+                period_s,
+            )
+        else:
+            window = t >= t[0] + lead_s if len(t) else np.zeros(0, bool)
         rec["loop_us"] = quantiles_us(lateness[window])
+        rec["loop_rows_compared"] = int(window.sum())
         missed, long_ = _flagged(run.column("event"))
         cyc = run.column("cycle")
         rec["rows"] = {
@@ -322,6 +385,61 @@ def run_one(
             "last_cycle": int(cyc[-1]) if len(cyc) else None,
         }
     return rec
+
+
+#: A loop cycle this much later than its deadline (in periods) is listed by :func:`late_events`.
+LATE_EVENT_PERIODS = 1.0
+
+
+def late_events(
+    loop_due_s: np.ndarray,
+    loop_late_us: np.ndarray,
+    loop_events: np.ndarray,
+    floor_due_s: np.ndarray,
+    floor_late_us: np.ndarray,
+    commands: list,
+    period_s: float,
+    around_s: float = 0.01,
+) -> list[dict[str, Any]]:
+    """The loop's cycles later than :data:`LATE_EVENT_PERIODS` periods inside the floor's span,
+    each with its time from the floor's start (s), the floor's worst lateness within
+    ``around_s`` of it (us: the same stall seen by a process doing nothing is the machine's),
+    whether a floor stall explains it (``machine``, see below) and the rig process's commands
+    whose handling overlapped the stall (``commands``: status ``rig_command_log``, (name,
+    start, end, CPU ms) on the same clock).
+
+    ``machine``: some floor cycle was at least as late as this one less one period (the
+    acceptance's allowance) and its stall overlapped this one's. A row's stall lies within its
+    lateness before or after its deadline (a row after skipped deadlines counts from the first
+    one; both the loop's rows and the floor's count so), so two stalls overlap when their
+    deadlines are less than the sum of both latenesses and one period apart."""
+    out: list[dict[str, Any]] = []
+    if not len(floor_due_s):
+        return out
+    lo, hi = floor_due_s[0], floor_due_s[-1]
+    period_us = period_s * 1e6
+    for i in np.flatnonzero(loop_late_us > LATE_EVENT_PERIODS * period_us):
+        due = float(loop_due_s[i])
+        late_s = loop_late_us[i] * 1e-6
+        near = np.abs(floor_due_s - due) <= around_s + late_s
+        overlap = np.abs(floor_due_s - due) <= late_s + floor_late_us * 1e-6 + period_s
+        machine = bool(np.any(overlap & (floor_late_us >= loop_late_us[i] - period_us)))
+        out.append(
+            {
+                "at_s": round(due - lo, 4),
+                "in_floor_span": bool(lo <= due <= hi),
+                "event": str(loop_events[i]),
+                "late_us": round(float(loop_late_us[i]), 1),
+                "floor_near_us": round(float(floor_late_us[near].max()), 1) if near.any() else None,
+                "machine": machine,
+                "commands": [
+                    f"{c[0]} ({(c[2] - c[1]) * 1e3:.1f} ms, cpu {c[3]:.1f} ms)"
+                    for c in commands
+                    if c[1] <= due + late_s and c[2] >= due - around_s
+                ],
+            }
+        )
+    return out
 
 
 def _front_delta(before: dict | None, after: dict | None) -> dict | None:

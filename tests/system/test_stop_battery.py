@@ -22,7 +22,7 @@ from battery import (
     slow_client,
     tiny_jog,
 )
-from syshelp import session, start_daemon, start_sim, wait_for_socket
+from syshelp import client, session, start_daemon, start_sim, wait_for_socket
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -62,5 +62,10 @@ def test_stop_acts_within_two_cycles_under_every_stressor(tmp_path):
                 assert limit in rec["reply"], rec
             recover(work)
         assert records[2]["reply"] == "50/50 answered"
+        # The lead-ins of the runs after the first were planned in the rig process's planner
+        # worker, not under its interpreter lock.
+        with client(work) as c:
+            planner = c.call("status")["rig_planner"]
+        assert planner["plans"] >= 1 and planner["failures"] == 0, planner
         # The bus measurement is not vacuous: most stops were timed on the bus.
         assert sum(r["bus"] is not None for r in records) >= 3, records

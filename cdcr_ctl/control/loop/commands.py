@@ -161,6 +161,9 @@ class LoopCommands:
         run = self._run
         return {
             "cycles": self.counters.cycles,
+            # The clock's time (``time.monotonic`` on the wall clock) of the loop's start: a
+            # row's ``t_s`` plus this is when its cycle was due (to line rows up with a probe).
+            "t0_clock_s": self.t_start_s,
             "timing": self.ticker.stats.summary(),
             "cycle_time_max_us": round(self.counters.max_cycle_us, 1),
             "long_cycles": self.counters.long_cycles,

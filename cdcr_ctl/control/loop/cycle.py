@@ -133,6 +133,8 @@ class ControlLoop(LoopCommands):
         self._manual_sink: Any = None
         self._end_after_cycle: tuple[str, str] | None = None
         self._t_last_cmd = -math.inf
+        #: The clock's time when the loop started (None before): a row's ``t_s`` is from it.
+        self.t_start_s: float | None = None
         # The compensation mode of the last run stays in force while holding, so a run's end does
         # not step the command; the ``compensation`` command changes it.
         self._mode = cfg.compensation
@@ -158,7 +160,7 @@ class ControlLoop(LoopCommands):
         cpu0 = time.thread_time()
         if self._clock is None:
             self.ticker = wall_clock(self.cfg.period_s)
-        t_start = self.ticker.now()
+        t_start = self.t_start_s = self.ticker.now()
         # The wall clock's ticker marks the time between cycles; a simulated one never sleeps.
         wall_ticker = self.ticker if isinstance(self.ticker, Ticker) else None
         while not self._stop_evt.is_set():

@@ -93,6 +93,23 @@ def psi_from_vectors(x: np.ndarray, phi_start: np.ndarray | None = None) -> np.n
     return np.stack((theta, phi), axis=-1)
 
 
+#: Values converted to Python floats per ``tolist`` call (see :func:`_tolist`).
+TOLIST_SLICE = 8192
+
+
+def _tolist(a: np.ndarray) -> list[Any]:
+    """``a.tolist()`` of a 1-D array, :data:`TOLIST_SLICE` values at a time: one ``tolist`` of
+    a long array is one C call that keeps the interpreter lock throughout, and trajectories are
+    made in the loop's process while the loop runs (issue #21); between two slices the loop
+    thread gets the lock back. The same list as ``a.tolist()``."""
+    if len(a) <= TOLIST_SLICE:
+        return a.tolist()
+    out: list[Any] = []
+    for i in range(0, len(a), TOLIST_SLICE):
+        out.extend(a[i : i + TOLIST_SLICE].tolist())
+    return out
+
+
 class Trajectory:
     """Timed setpoints (see the module docstring for interpolation and file formats).
 
@@ -125,13 +142,23 @@ class Trajectory:
         with np.errstate(invalid="ignore", over="ignore"):  # non-finite input: validate() says
             self._x = bend_vectors(p)
         self._x.flags.writeable = False
+        # sample() reads the bending vectors and poses as flat sequences: sample k, segment j,
+        # component c at (k * S + j) * 2 + c. Flat lists of floats hold no container objects
+        # for the garbage collector to traverse (nested lists made one per sample and segment,
+        # and a collection pass over 10^5 of them held the interpreter for 10-30 ms, in the
+        # loop's process: issue #21).
+        self._S2 = 2 * p.shape[1]
         if t.size <= LIST_SAMPLES:
-            self._tl, self._xl, self._pl = t.tolist(), self._x.tolist(), p.tolist()
+            self._tl, self._xl, self._pl = (
+                _tolist(t),
+                _tolist(self._x.reshape(-1)),
+                _tolist(p.reshape(-1)),
+            )
         else:
             # A long trajectory (a 10^6-row file) stays in its arrays: making millions of Python
             # floats would hold the interpreter for seconds, in the loop's process. sample() then
             # bisects and steps on numpy scalars (the same float64 arithmetic, ~10 us a call).
-            self._tl, self._xl, self._pl = t, self._x, p
+            self._tl, self._xl, self._pl = t, self._x.reshape(-1), p.reshape(-1)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -175,9 +202,11 @@ class Trajectory:
         if s == 0.0:
             return self.psi[k].copy()
         out = []
-        for (a0, b0), (a1, b1), (th0, ph0), (_, ph1) in zip(
-            self._xl[k], self._xl[k + 1], self._pl[k], self._pl[k + 1], strict=True
-        ):
+        xl, pl, S2 = self._xl, self._pl, self._S2
+        i0 = k * S2
+        for i in range(i0, i0 + S2, 2):
+            a0, b0, a1, b1 = xl[i], xl[i + 1], xl[i + S2], xl[i + S2 + 1]
+            th0, ph0, ph1 = pl[i], pl[i + 1], pl[i + S2 + 1]
             xa, xb = a0 + s * (a1 - a0), b0 + s * (b1 - b0)
             theta = math.hypot(xa, xb)
             if theta == 0.0:

@@ -1,0 +1,38 @@
+"""What the daemon's worker processes (the front's intake, the rig process's planner) do first:
+end themselves when the process that started them is gone.
+
+A ``ProcessPoolExecutor`` worker waits for work on a pipe that its parent's pool keeps open; a
+parent killed with SIGKILL (a test, the OOM killer, systemd after its stop timeout) cannot shut
+the pool down, and the worker would live on as an orphan. A daemon thread of the worker looks at
+its parent process every :data:`PARENT_CHECK_S` and ends the worker once it has changed.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+#: How often a worker checks that the process that started it still runs (s).
+PARENT_CHECK_S = 1.0
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_CHECK_S)
+    os._exit(0)
+
+
+def watch_parent(parent_pid: int) -> None:
+    """(in a worker) End this process once its parent (``parent_pid``, the pid of the process
+    that made the pool) is gone."""
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+
+
+def nice_and_watch_parent(increment: int, parent_pid: int) -> None:
+    """(a pool initializer) ``os.nice(increment)``, then :func:`watch_parent`."""
+    os.nice(increment)
+    watch_parent(parent_pid)
+
+
+__all__ = ["PARENT_CHECK_S", "nice_and_watch_parent", "watch_parent"]
