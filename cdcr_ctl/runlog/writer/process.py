@@ -58,7 +58,6 @@ from cdcr_ctl.runlog.writer.ring import (
     ROW_HEAD,
     ROW_TAIL,
     ROW_WAITS,
-    ROWS_OFFSET,
     SLOT_HEAD,
     W_HIGH,
     W_START,
@@ -158,7 +157,6 @@ class ProcessRunLogWriter(WriterBase):
         self._parts_from = self._parts_to = 0
         self._tail = 0
         self._warned = False
-        self._queued = 0
         self._dropped = 0
         self._head = 0
         self._closing = False
@@ -173,8 +171,10 @@ class ProcessRunLogWriter(WriterBase):
             raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
         self._cap = layout.rows
         self._hq = self._ring.hq
-        self._stride = layout.row_floats * 8
-        self._slot0 = ROWS_OFFSET
+        #: A slot's place in the rows area, in float64s; its bytes for the packed head store.
+        self._row_floats = layout.row_floats
+        self._f64 = self._ring.f64
+        self._rows_buf = self._ring.rows_buf
         self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
         spec = {
             "run_dir": str(self.run_dir),
@@ -255,8 +255,11 @@ class ProcessRunLogWriter(WriterBase):
 
         ``row``: a mapping column -> value, a sequence in column order, or an object with
         ``row_parts()`` -> (names of the values, float64 values, ``t_s``, ``cycle``,
-        ``lateness_us``, ``event``) such as the loop's ``CycleRow`` (the names tuple is the
-        same object from row to row; its column positions are looked up once). Numbers go as
+        lateness (s), ``event``) such as the loop's ``CycleRow`` (the names tuple is the
+        same object from row to row; its column positions are looked up once; ``t_s`` and the
+        lateness go unrounded, the writer process rounds them). Such a row costs one packed
+        store of its head and one memoryview copy of its array (no numpy call, no rounding,
+        no allocation here); numbers go as
         float64 (``cycle`` comes back as an integer), None and NaN
         as empty; the ``event`` column as text (cut at the ring's
         :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
@@ -276,13 +279,16 @@ class ProcessRunLogWriter(WriterBase):
         try:
             parts = getattr(row, "row_parts", None)
             if parts is not None:
-                keys, values, t_s, cycle, lateness_us, text = parts()
+                keys, values, t_s, cycle, lateness_s, text = parts()
                 if keys is not self._parts_keys:
                     self._set_names(keys)
-                # One copy of the loop's array, one packed store of the rest.
-                self._pack_head(ring.buf, self._slot0 + slot * self._stride, ORDER_NAMES, 0.0,
-                                t_s, cycle, lateness_us)  # fmt: skip
-                ring.nums[slot, self._parts_from : self._parts_to] = values
+                # One packed store of the head, one copy of the loop's array.
+                at = slot * self._row_floats
+                self._pack_head(self._rows_buf, at * 8, ORDER_NAMES, 0.0, t_s, cycle, lateness_s)
+                try:
+                    self._f64[at + self._parts_from : at + self._parts_to] = values
+                except (TypeError, ValueError):  # not a float64 array: numpy converts
+                    ring.nums[slot, self._parts_from : self._parts_to] = values
             else:
                 text = self._fill_plain(row, ring.nums[slot])
             if text:
@@ -294,10 +300,9 @@ class ProcessRunLogWriter(WriterBase):
             self._dropped += 1
             ring.hq[ROW_DROPPED] = self._dropped
             return False
-        self._head = head = head + 1
+        self._head = head = head + 1  # rows taken so far (the ``queued`` count)
         ring.hq[ROW_HEAD] = head
-        self._queued += 1
-        if self._queued % ALIVE_EVERY_ROWS == 0:
+        if not head % ALIVE_EVERY_ROWS:
             self._check_alive()
         return True
 
@@ -422,10 +427,10 @@ class ProcessRunLogWriter(WriterBase):
         h = self._ring.hdr if self._ring is not None else self._final
         written, dropped, lost, fsyncs, nbytes = writer_counts(h)
         return LogStats(
-            self._queued,
+            self._head,
             written,
             self._dropped + dropped,
-            lost + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
+            lost + max(0, self._head - int(h[ROW_TAIL])) * self.closed,
             fsyncs,
             nbytes,
         )
