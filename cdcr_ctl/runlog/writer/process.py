@@ -156,6 +156,9 @@ class ProcessRunLogWriter(WriterBase):
         self._parts_keys: Any = None
         self._parts_from = self._parts_to = 0
         self._tail = 0
+        #: ``write`` takes its fast path while its head is below this: the writer process's
+        #: tail (as last read) + the ring's size; -1 once closing or failed.
+        self._limit = 0
         self._warned = False
         self._dropped = 0
         self._head = 0
@@ -264,17 +267,10 @@ class ProcessRunLogWriter(WriterBase):
         as empty; the ``event`` column as text (cut at the ring's
         :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
         """
-        ring = self._ring
         head = self._head
-        if ring is None or self._closing or self._failure is not None:
-            self._dropped += 1
+        if head >= self._limit and not self._make_room(head):
             return False
-        if head - self._tail >= self._cap:
-            self._tail = ring.hq[ROW_TAIL]
-            if head - self._tail >= self._cap and not self._room(head):
-                self._dropped += 1
-                ring.hq[ROW_DROPPED] = self._dropped
-                return False
+        ring = self._ring
         slot = head % self._cap
         try:
             parts = getattr(row, "row_parts", None)
@@ -304,6 +300,22 @@ class ProcessRunLogWriter(WriterBase):
         ring.hq[ROW_HEAD] = head
         if not head % ALIVE_EVERY_ROWS:
             self._check_alive()
+        return True
+
+    def _make_room(self, head: int) -> bool:
+        """``write``'s slow path: False (the row dropped and counted) if the log is closing or
+        failed, or the ring is full at ``head`` and :meth:`_room` finds no room."""
+        ring = self._ring
+        if ring is None or self._closing or self._failure is not None:
+            self._limit = -1
+            self._dropped += 1
+            return False
+        self._tail = ring.hq[ROW_TAIL]
+        if head - self._tail >= self._cap and not self._room(head):
+            self._dropped += 1
+            ring.hq[ROW_DROPPED] = self._dropped
+            return False
+        self._limit = self._tail + self._cap
         return True
 
     def _room(self, head: int) -> bool:
@@ -393,6 +405,7 @@ class ProcessRunLogWriter(WriterBase):
             self._notify()
 
     def _notify(self) -> None:
+        self._limit = -1  # failed: every later row takes the slow path and is refused
         if self._notified or self._on_failure is None:
             return
         self._notified = True
@@ -441,6 +454,7 @@ class ProcessRunLogWriter(WriterBase):
         loop); :meth:`wait_closed` waits. A second call changes nothing. Never raises."""
         if not self._closing:
             self._closing = True
+            self._limit = -1
             if self.can_tap is not None:
                 self.can_tap.detach()
             self._ring.request_close(str(reason), outcome or "closed", utc_now_iso())
@@ -462,6 +476,7 @@ class ProcessRunLogWriter(WriterBase):
             return
         self._check_alive_final()
         self._final = [int(v) for v in ring.hdr]
+        self._limit = -1
         self._ring = None
         _OPEN.discard(self)
         ring.close()
@@ -473,6 +488,7 @@ class ProcessRunLogWriter(WriterBase):
                 f"(exit status {self._proc.returncode}) before it closed the run"
             )
             log.error("run log: %s", self._failure)
+            self._limit = -1
         self.failure  # noqa: B018 - picks up a failure the writer published last
 
 

@@ -43,26 +43,29 @@ from typing import Any
 
 import numpy as np
 
-#: Header slots (int64).
+#: Header slots (int64). The slots the producer (the loop's process) writes share the first
+#: 64-byte cache line, those the writer process writes start at the second: the loop's store of
+#: ``ROW_HEAD`` every row never finds its line taken away by the writer's stores of its tail and
+#: counters at every drain (false sharing between the two processes' cores).
 HEADER_SLOTS = 64
 ROW_HEAD = 0  # rows published by the producer (loop)
-ROW_TAIL = 1  # rows taken by the consumer (writer process)
-CAN_HEAD = 2
-CAN_TAIL = 3
-CLOSE = 4  # 1: the producer asks the writer to close (text in the close area)
-FAILED = 5  # 1: the writer failed (text in the failure area)
-DONE = 6  # 1: the writer process has closed the run (run.yaml written)
-W_WRITTEN = 7  # the writer's counters, published at every drain
-W_LOST = 8
-W_FSYNCS = 9
-W_BYTES = 10
-W_DROPPED = 11
-ROW_DROPPED = 12  # rows the producer refused (ring full, closing, failed)
-CAN_DROPPED = 13  # CAN frames the producer refused (ring full)
-READY = 14  # 1: the writer process has opened its files
-W_HIGH = 15  # high-water mark: most rows the ring held at a drain after the first
-W_START = 17  # rows the ring held at the writer's first drain (its start-up: files, imports)
-ROW_WAITS = 16  # rows the producer had to wait for room for (back-pressure, lock-step only)
+CAN_HEAD = 1
+CLOSE = 2  # 1: the producer asks the writer to close (text in the close area)
+ROW_DROPPED = 3  # rows the producer refused (ring full, closing, failed)
+CAN_DROPPED = 4  # CAN frames the producer refused (ring full)
+ROW_WAITS = 5  # rows the producer had to wait for room for (back-pressure, lock-step only)
+ROW_TAIL = 8  # rows taken by the consumer (writer process)
+CAN_TAIL = 9
+FAILED = 10  # 1: the writer failed (text in the failure area)
+DONE = 11  # 1: the writer process has closed the run (run.yaml written)
+W_WRITTEN = 12  # the writer's counters, published at every drain
+W_LOST = 13
+W_FSYNCS = 14
+W_BYTES = 15
+W_DROPPED = 16
+READY = 17  # 1: the writer process has opened its files
+W_HIGH = 18  # high-water mark: most rows the ring held at a drain after the first
+W_START = 19  # rows the ring held at the writer's first drain (its start-up: files, imports)
 #: Bytes of each text area (close request, write error).
 TEXT_BYTES = 4096
 #: Bytes of a row's text (the ``event`` column); longer text is cut and marked.
