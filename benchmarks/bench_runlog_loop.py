@@ -55,18 +55,19 @@ PATTERNS = {
 }
 
 
-def command(variant: str, seconds: float, spare_s: float, rt: int) -> tuple[list[str], Path]:
+def command(variant: str, args: argparse.Namespace) -> tuple[list[str], Path]:
+    common = ["--seconds", str(args.seconds), "--rt-priority", str(args.rt_priority)]
+    common += ["--transport", args.transport]
     if variant.startswith("base="):
         root = Path(variant.removeprefix("base=")).resolve()
         py = root / ".venv/bin/python"
-        return [str(py), str(root / "benchmarks/bench_loop.py"), "--runlog", "csv",
-                "--seconds", str(seconds), "--rt-priority", str(rt)], root  # fmt: skip
+        return [str(py), str(root / "benchmarks/bench_loop.py"), "--runlog", "csv", *common], root
     kind, _, writer = variant.partition("-")
     writer = writer or "process"
     cmd = [sys.executable, str(HERE / "benchmarks/bench_loop.py"), "--runlog", kind]
-    cmd += ["--seconds", str(seconds), "--writer", writer, "--rt-priority", str(rt)]
+    cmd += [*common, "--writer", writer]
     if writer == "process":
-        cmd += ["--spare-s", str(spare_s)]
+        cmd += ["--spare-s", str(args.spare_s)]
     return cmd, HERE
 
 
@@ -105,13 +106,20 @@ def main() -> None:
         help="every variant's loop asks for SCHED_FIFO at this priority (bench_loop.py "
         "--rt-priority; as the rig runs it): other processes' load then cannot preempt it",
     )
+    ap.add_argument(
+        "--transport",
+        default="virtual",
+        help="bench_loop.py --transport: virtual (the simulated drives share the loop's "
+        "process and interpreter lock) or slcan (their own process behind the slcan adapter "
+        "emulator, as drives on a USB-CAN adapter would be)",
+    )
     args = ap.parse_args()
     variants = args.variants.split(",")
     results: dict[str, list[dict[str, float]]] = {v: [] for v in variants}
     for n in range(args.runs):
         k = n % len(variants)
         for v in variants[k:] + variants[:k]:
-            cmd, cwd = command(v, args.seconds, args.spare_s, args.rt_priority)
+            cmd, cwd = command(v, args)
             load = load_1min()
             proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
             r = {"load1": load, **parse(proc.stdout)}
