@@ -37,6 +37,7 @@ Variants (``--variants``, comma-separated):
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import statistics
 import subprocess
@@ -127,11 +128,18 @@ def main() -> None:
             print(f"run {n + 1} {v}: " + ", ".join(f"{k} {x:g}" for k, x in r.items()), flush=True)
             if proc.returncode:
                 print(f"  exit status {proc.returncode}: {proc.stderr[-400:]}", flush=True)
-    print(f"median [min, max] over {args.runs} runs of {args.seconds:g} s each:")
+    print(
+        f"median [min, max] over the runs of {args.seconds:g} s each that ran (a run whose rig "
+        "did not start, e.g. a drive's heartbeat lost while enabling, has no numbers):"
+    )
     for v, rs in results.items():
-        parts = []
+        ran = [r for r in rs if not math.isnan(r["mean_us"])]
+        if not ran:
+            print(f"  {v}: no run completed")
+            continue
+        parts = [f"runs {len(ran)}"]
         for key in ("load1", *PATTERNS):
-            xs = [r[key] for r in rs]
+            xs = [r[key] for r in ran]
             parts.append(f"{key} {statistics.median(xs):g} [{min(xs):g}, {max(xs):g}]")
         print(f"  {v}: " + ", ".join(parts))
 
