@@ -241,6 +241,10 @@ class RunLogBench:
                 self.n += 1
 
         loop.counters._stages = record
+        # As the daemon does (cdcr_ctl.daemon.service): the traffic log's writer thread formats
+        # frames only between the loop's cycles. Read when the traffic log starts.
+        if hasattr(group, "traffic_quiet"):
+            group.traffic_quiet = loop.between_cycles
         group.log_traffic(self.writer.can_log_path(), self.writer.can_tap)
         loop.attach_sink(self.writer)
 

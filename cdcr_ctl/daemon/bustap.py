@@ -116,6 +116,17 @@ class TeeListener(can.Listener):
         for listener in self.listeners:
             listener.on_message_received(msg)
 
+    def on_messages(self, msgs: list[can.Message]) -> None:
+        """A batch (the traffic log's, see :class:`~cdcr_ctl.drives.group.traffic.
+        DeferredTrafficLog`): to each listener as a batch where it takes one."""
+        for listener in self.listeners:
+            many = getattr(listener, "on_messages", None)
+            if many is not None:
+                many(msgs)
+            else:
+                for msg in msgs:
+                    listener.on_message_received(msg)
+
     def stop(self) -> None:
         for listener in self.listeners:
             listener.stop()

@@ -45,6 +45,18 @@ TEXT_COLUMNS = frozenset({"event"})
 
 TIP_COLUMNS = ("tip_x_mm", "tip_y_mm", "tip_z_mm")
 
+
+def t_cell(t_s: float) -> float:
+    """The ``t_s`` of a loop row: the loop time (s) rounded to 1 us. One rule for the loop's
+    row mapping and the writer process (which rounds what the loop hands over unrounded)."""
+    return round(t_s, 6)
+
+
+def lateness_cell_us(lateness_s: float) -> float:
+    """The ``lateness_us`` of a loop row: the cycle's lateness (s) in us, rounded to 0.1 us."""
+    return round(lateness_s * 1e6, 1)
+
+
 _CABLE_KINDS = {
     GROUP_Q_NOMINAL: "q_nominal_mm",
     GROUP_Q_CMD: "q_cmd_mm",

@@ -8,7 +8,12 @@ import time
 
 import can
 
-from cdcr_ctl.drives.group.traffic import BACKLOG_FRAMES, DRAIN_PERIOD_S, DeferredTrafficLog
+from cdcr_ctl.drives.group.traffic import (
+    BACKLOG_FRAMES,
+    DRAIN_PERIOD_S,
+    TAP_BATCH_FRAMES,
+    DeferredTrafficLog,
+)
 
 
 class _Collect(can.Listener):
@@ -99,3 +104,56 @@ def test_a_backlog_is_written_even_when_never_quiet_and_stop_writes_the_rest():
     assert len(sink.frames) == 101
     log.stop()  # writes everything left, quiet or not
     assert len(sink.frames) == n and sink.stopped == 1
+
+
+class _BatchTap(can.Listener):
+    def __init__(self) -> None:
+        self.batches: list[list[tuple[int, bytes]]] = []
+        self.stopped = 0
+
+    def on_messages(self, msgs: list[can.Message]) -> None:
+        self.batches.append([(m.arbitration_id, bytes(m.data)) for m in msgs])
+
+    def on_message_received(self, msg: can.Message) -> None:  # never used: batches only
+        raise AssertionError("the tap takes batches")
+
+    def stop(self) -> None:
+        self.stopped += 1
+
+
+def test_a_tap_gets_every_frame_in_order_a_batch_at_a_time_and_stops_with_the_log():
+    sink, tap = _Collect(), _BatchTap()
+    log = DeferredTrafficLog(sink, on_failure=lambda text: None, tap=tap)
+    sent = [(0x200 + i % 16, bytes([i % 256])) for i in range(3 * TAP_BATCH_FRAMES + 5)]
+    for cob, data in sent:
+        log.on_message_received(_msg(cob, data))
+    log.stop()
+    assert sink.frames == sent
+    assert [f for b in tap.batches for f in b] == sent
+    assert all(0 < len(b) <= TAP_BATCH_FRAMES for b in tap.batches)
+    assert len(tap.batches) < len(sent)  # batches, not a call per frame
+    assert sink.stopped == 1 and tap.stopped == 1
+
+
+def test_a_tap_without_batches_gets_the_frames_one_by_one():
+    sink, tap = _Collect(), _Collect()
+    log = DeferredTrafficLog(sink, on_failure=lambda text: None, tap=tap)
+    sent = [(0x180 + i % 3, bytes([i % 256])) for i in range(150)]
+    for cob, data in sent:
+        log.on_message_received(_msg(cob, data))
+    log.stop()
+    assert sink.frames == sent and tap.frames == sent
+    assert sink.stopped == 1 and tap.stopped == 1
+
+
+def test_a_write_error_with_a_tap_stops_both_and_is_reported_once():
+    sink, tap = _Collect(fail_at=3), _BatchTap()
+    failures: list[str] = []
+    log = DeferredTrafficLog(sink, on_failure=failures.append, tap=tap)
+    for i in range(10):
+        log.on_message_received(_msg(0x080 + i, b""))
+    log.drain()
+    assert log.failed and len(sink.frames) == 3 and tap.stopped == 1
+    assert failures == ["CAN traffic log: [Errno 28] No space left on device"]
+    log.stop()
+    assert sink.stopped == 1 and tap.stopped == 1 and len(failures) == 1

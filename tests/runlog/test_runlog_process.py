@@ -246,3 +246,63 @@ def test_can_records_round_trip_through_the_ring(frames):
         assert not ring.put_frame(0.0, 1, 0, 0, b"")  # full: refused, nothing overwritten
     finally:
         ring.close()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    frames=st.lists(
+        st.tuples(
+            st.floats(0, 1e10, allow_nan=False),
+            st.integers(0, 2**29 - 1),
+            st.integers(0, 15),
+            st.integers(0, 15),
+            st.binary(max_size=64),
+        ),
+        max_size=30,
+    ),
+    batch=st.integers(1, 9),
+    taken_every=st.integers(1, 4),
+)
+def test_a_batch_of_frames_is_stored_as_frame_by_frame_byte_for_byte(frames, batch, taken_every):
+    # The loop's process hands the traffic log's frames over a batch at a time (one numpy store,
+    # two where the ring wraps); the ring's bytes and what the writer takes are the same as one
+    # ``struct`` store per frame, and a batch larger than the room left stores its first frames.
+    per_frame = SharedRing.create(RingLayout(n_numbers=1, rows=1, frames=8))
+    batched = SharedRing.create(RingLayout(n_numbers=1, rows=1, frames=8))
+    try:
+        got_a, got_b = [], []
+        chunks = [frames[i : i + batch] for i in range(0, len(frames), batch)]
+        for n, chunk in enumerate(chunks):
+            records = [(ts, cob, f, dlc, len(data), data) for ts, cob, f, dlc, data in chunk]
+            stored_a = 0
+            for ts, cob, f, dlc, data in chunk:
+                stored_a += per_frame.put_frame(ts, cob, f, dlc, data)
+            assert batched.put_frames(records) == stored_a
+            assert bytes(per_frame.can) == bytes(batched.can)
+            if n % taken_every == 0:
+                got_a += per_frame.take_frames()
+                got_b += batched.take_frames()
+        assert got_a == got_b
+    finally:
+        per_frame.close()
+        batched.close()
+
+
+class _Values:
+    """A row handing over its numbers as another dtype than float64 (numpy converts them)."""
+
+    def __init__(self, layout: RowLayout, i: int) -> None:
+        self.row = CycleRow(layout, i * 1e-3, i, np.arange(2 * S + 4 * K + 3) * i, 1e-6 * i, "")
+
+    def row_parts(self):
+        keys, values, *rest = self.row.row_parts()
+        return (keys, values.astype(np.int32), *rest)
+
+
+def test_a_row_of_other_numbers_than_float64_is_logged_as_floats(tmp_path):
+    layout = RowLayout(S, K)
+    w = ProcessRunLogWriter(tmp_path / "r", COLS, RunMetadata(name="ints"))
+    assert all(w.write(_Values(layout, i)) for i in range(5))
+    w.close("done")
+    run = load_run(tmp_path / "r")
+    assert run.column("cable1_q_cmd_mm").tolist() == [float((2 * S + K) * i) for i in range(5)]

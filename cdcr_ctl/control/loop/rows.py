@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from cdcr_ctl.runlog.columns import lateness_cell_us, t_cell
+
 
 class RowLayout:
     """The columns of a loop row (run-log names) and, per column, where its value sits in the
@@ -58,23 +60,24 @@ class CycleRow(Mapping[str, Any]):
         d = self._dict
         if d is None:
             values = self._values[self._layout.order].tolist()
-            d = {"t_s": round(self._t_s, 6), "cycle": self._cycle}
+            d = {"t_s": t_cell(self._t_s), "cycle": self._cycle}
             d.update(zip(self._layout.keys, values, strict=True))
-            d["lateness_us"] = round(self._lateness_s * 1e6, 1)
+            d["lateness_us"] = lateness_cell_us(self._lateness_s)
             d["event"] = self._event
             self._dict = d
         return d
 
     def row_parts(self) -> tuple[tuple[str, ...], np.ndarray, float, int, float, str]:
-        """(names of ``values``, float64 ``values``, ``t_s``, ``cycle``, ``lateness_us``,
-        ``event``): the row for a writer that copies numbers (no dict, no reordering; the same
-        rounding as :meth:`columns`)."""
+        """(names of ``values``, float64 ``values``, ``t_s``, ``cycle``, lateness (s),
+        ``event``): the row for a writer that copies numbers (no dict, no reordering, no
+        rounding: the writer rounds ``t_s`` and the lateness with :func:`t_cell` and
+        :func:`lateness_cell_us`, as :meth:`columns` does)."""
         return (
             self._layout.flat_keys,
             self._values,
-            round(self._t_s, 6),
+            self._t_s,
             self._cycle,
-            round(self._lateness_s * 1e6, 1),
+            self._lateness_s,
             self._event,
         )
 

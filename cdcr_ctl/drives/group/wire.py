@@ -28,23 +28,6 @@ from cdcr_ctl.errors import CommError, DriveFault
 log = logging.getLogger("cdcr_ctl.drives.group")
 
 
-class _Tee(can.Listener):
-    """Frames to the traffic file and to a tap; stopping stops both."""
-
-    def __init__(self, first: can.Listener, second: can.Listener) -> None:
-        self.first, self.second = first, second
-
-    def on_message_received(self, msg: can.Message) -> None:
-        self.first.on_message_received(msg)
-        self.second.on_message_received(msg)
-
-    def stop(self) -> None:
-        try:
-            self.first.stop()
-        finally:
-            self.second.stop()
-
-
 class _Network(canopen.Network):
     """canopen's Network with every transmission routed through the group (ring, log, lock) and
     every reception through the group's dispatcher ``rx`` (in place of canopen's
@@ -284,9 +267,8 @@ class _Wire:
                     logger: can.Listener = can.ASCWriter(str(path))
                 else:
                     logger = can.Logger(str(path))
-                listener = logger if tap is None else _Tee(logger, tap)
                 quiet = getattr(self, "traffic_quiet", None)
-                self._traffic = DeferredTrafficLog(listener, self._traffic_failed, quiet)
+                self._traffic = DeferredTrafficLog(logger, self._traffic_failed, quiet, tap)
                 self.traffic_failure = None
 
     def _sdo_read(self, d: _Drive, index: int, sub: int) -> bytes:

@@ -29,7 +29,7 @@ import time
 from typing import Any
 
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.runlog.columns import TEXT_COLUMNS
+from cdcr_ctl.runlog.columns import TEXT_COLUMNS, lateness_cell_us, t_cell
 from cdcr_ctl.runlog.writer.ring import (
     DONE,
     FAILED,
@@ -91,6 +91,10 @@ class RingDrain:
             raw: list[Any] = nums[slot].tolist()
             order, n_text = raw[0], int(raw[1])
             if order == ORDER_NAMES:
+                # The loop's time and lateness come unrounded (s): rounded here, by the rule
+                # of the loop's own row mapping.
+                raw[SLOT_HEAD] = t_cell(raw[SLOT_HEAD])
+                raw[SLOT_HEAD + 2] = lateness_cell_us(raw[SLOT_HEAD + 2])
                 values: list[Any] = [math.nan] * n
                 for j, v in zip(self._names_index(), raw[SLOT_HEAD:], strict=False):
                     values[j] = v

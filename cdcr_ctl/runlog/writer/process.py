@@ -58,7 +58,6 @@ from cdcr_ctl.runlog.writer.ring import (
     ROW_HEAD,
     ROW_TAIL,
     ROW_WAITS,
-    ROWS_OFFSET,
     SLOT_HEAD,
     W_HIGH,
     W_START,
@@ -157,8 +156,10 @@ class ProcessRunLogWriter(WriterBase):
         self._parts_keys: Any = None
         self._parts_from = self._parts_to = 0
         self._tail = 0
+        #: ``write`` takes its fast path while its head is below this: the writer process's
+        #: tail (as last read) + the ring's size; -1 once closing or failed.
+        self._limit = 0
         self._warned = False
-        self._queued = 0
         self._dropped = 0
         self._head = 0
         self._closing = False
@@ -173,8 +174,10 @@ class ProcessRunLogWriter(WriterBase):
             raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
         self._cap = layout.rows
         self._hq = self._ring.hq
-        self._stride = layout.row_floats * 8
-        self._slot0 = ROWS_OFFSET
+        #: A slot's place in the rows area, in float64s; its bytes for the packed head store.
+        self._row_floats = layout.row_floats
+        self._f64 = self._ring.f64
+        self._rows_buf = self._ring.rows_buf
         self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
         spec = {
             "run_dir": str(self.run_dir),
@@ -255,34 +258,33 @@ class ProcessRunLogWriter(WriterBase):
 
         ``row``: a mapping column -> value, a sequence in column order, or an object with
         ``row_parts()`` -> (names of the values, float64 values, ``t_s``, ``cycle``,
-        ``lateness_us``, ``event``) such as the loop's ``CycleRow`` (the names tuple is the
-        same object from row to row; its column positions are looked up once). Numbers go as
+        lateness (s), ``event``) such as the loop's ``CycleRow`` (the names tuple is the
+        same object from row to row; its column positions are looked up once; ``t_s`` and the
+        lateness go unrounded, the writer process rounds them). Such a row costs one packed
+        store of its head and one memoryview copy of its array (no numpy call, no rounding,
+        no allocation here); numbers go as
         float64 (``cycle`` comes back as an integer), None and NaN
         as empty; the ``event`` column as text (cut at the ring's
         :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
         """
-        ring = self._ring
         head = self._head
-        if ring is None or self._closing or self._failure is not None:
-            self._dropped += 1
+        if head >= self._limit and not self._make_room(head):
             return False
-        if head - self._tail >= self._cap:
-            self._tail = ring.hq[ROW_TAIL]
-            if head - self._tail >= self._cap and not self._room(head):
-                self._dropped += 1
-                ring.hq[ROW_DROPPED] = self._dropped
-                return False
+        ring = self._ring
         slot = head % self._cap
         try:
             parts = getattr(row, "row_parts", None)
             if parts is not None:
-                keys, values, t_s, cycle, lateness_us, text = parts()
+                keys, values, t_s, cycle, lateness_s, text = parts()
                 if keys is not self._parts_keys:
                     self._set_names(keys)
-                # One copy of the loop's array, one packed store of the rest.
-                self._pack_head(ring.buf, self._slot0 + slot * self._stride, ORDER_NAMES, 0.0,
-                                t_s, cycle, lateness_us)  # fmt: skip
-                ring.nums[slot, self._parts_from : self._parts_to] = values
+                # One packed store of the head, one copy of the loop's array.
+                at = slot * self._row_floats
+                self._pack_head(self._rows_buf, at * 8, ORDER_NAMES, 0.0, t_s, cycle, lateness_s)
+                try:
+                    self._f64[at + self._parts_from : at + self._parts_to] = values
+                except (TypeError, ValueError):  # not a float64 array: numpy converts
+                    ring.nums[slot, self._parts_from : self._parts_to] = values
             else:
                 text = self._fill_plain(row, ring.nums[slot])
             if text:
@@ -294,11 +296,26 @@ class ProcessRunLogWriter(WriterBase):
             self._dropped += 1
             ring.hq[ROW_DROPPED] = self._dropped
             return False
-        self._head = head = head + 1
+        self._head = head = head + 1  # rows taken so far (the ``queued`` count)
         ring.hq[ROW_HEAD] = head
-        self._queued += 1
-        if self._queued % ALIVE_EVERY_ROWS == 0:
+        if not head % ALIVE_EVERY_ROWS:
             self._check_alive()
+        return True
+
+    def _make_room(self, head: int) -> bool:
+        """``write``'s slow path: False (the row dropped and counted) if the log is closing or
+        failed, or the ring is full at ``head`` and :meth:`_room` finds no room."""
+        ring = self._ring
+        if ring is None or self._closing or self._failure is not None:
+            self._limit = -1
+            self._dropped += 1
+            return False
+        self._tail = ring.hq[ROW_TAIL]
+        if head - self._tail >= self._cap and not self._room(head):
+            self._dropped += 1
+            ring.hq[ROW_DROPPED] = self._dropped
+            return False
+        self._limit = self._tail + self._cap
         return True
 
     def _room(self, head: int) -> bool:
@@ -388,6 +405,7 @@ class ProcessRunLogWriter(WriterBase):
             self._notify()
 
     def _notify(self) -> None:
+        self._limit = -1  # failed: every later row takes the slow path and is refused
         if self._notified or self._on_failure is None:
             return
         self._notified = True
@@ -422,10 +440,10 @@ class ProcessRunLogWriter(WriterBase):
         h = self._ring.hdr if self._ring is not None else self._final
         written, dropped, lost, fsyncs, nbytes = writer_counts(h)
         return LogStats(
-            self._queued,
+            self._head,
             written,
             self._dropped + dropped,
-            lost + max(0, self._queued - int(h[ROW_TAIL])) * self.closed,
+            lost + max(0, self._head - int(h[ROW_TAIL])) * self.closed,
             fsyncs,
             nbytes,
         )
@@ -436,6 +454,7 @@ class ProcessRunLogWriter(WriterBase):
         loop); :meth:`wait_closed` waits. A second call changes nothing. Never raises."""
         if not self._closing:
             self._closing = True
+            self._limit = -1
             if self.can_tap is not None:
                 self.can_tap.detach()
             self._ring.request_close(str(reason), outcome or "closed", utc_now_iso())
@@ -457,6 +476,7 @@ class ProcessRunLogWriter(WriterBase):
             return
         self._check_alive_final()
         self._final = [int(v) for v in ring.hdr]
+        self._limit = -1
         self._ring = None
         _OPEN.discard(self)
         ring.close()
@@ -468,6 +488,7 @@ class ProcessRunLogWriter(WriterBase):
                 f"(exit status {self._proc.returncode}) before it closed the run"
             )
             log.error("run log: %s", self._failure)
+            self._limit = -1
         self.failure  # noqa: B018 - picks up a failure the writer published last
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from collections.abc import Sequence
 
 import can
 
@@ -69,7 +70,11 @@ def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
 
 class RingCanTap(can.Listener):
     """A python-can listener putting frames into the ring's CAN records for ``/can``. Any thread
-    may call it (a lock orders the producers); a full ring counts the frame as dropped."""
+    may call it (a lock orders the producers); a full ring counts the frame as dropped.
+
+    :meth:`on_messages` takes a batch (the CAN traffic log's writer thread hands over what it
+    drained, :class:`~cdcr_ctl.drives.group.traffic.DeferredTrafficLog`): one lock, one numpy
+    store of the batch's records, instead of a call, a lock and a ``struct`` store per frame."""
 
     def __init__(self, ring: SharedRing) -> None:
         self._ring = ring
@@ -77,15 +82,21 @@ class RingCanTap(can.Listener):
         self.dropped = 0
 
     def on_message_received(self, msg: can.Message) -> None:
-        flags = (
-            msg.is_extended_id | msg.is_rx << 1 | msg.is_error_frame << 2 | msg.is_remote_frame << 3
-        )
+        self.on_messages((msg,))
+
+    def on_messages(self, msgs: Sequence[can.Message]) -> None:
+        """A batch of frames, in order (timestamp, id, flags, dlc, data; data cut at 64 bytes)."""
+        records = [
+            (m.timestamp, m.arbitration_id,
+             m.is_extended_id | m.is_rx << 1 | m.is_error_frame << 2 | m.is_remote_frame << 3,
+             m.dlc, min(len(m.data), 64), bytes(m.data[:64]))
+            for m in msgs
+        ]  # fmt: skip
         with self._lock:
             ring = self._ring
-            if ring is None or not ring.put_frame(
-                msg.timestamp, msg.arbitration_id, flags, msg.dlc, bytes(msg.data)
-            ):
-                self.dropped += 1
+            stored = ring.put_frames(records) if ring is not None else 0
+            if stored < len(records):
+                self.dropped += len(records) - stored
                 if ring is not None:
                     ring.hq[CAN_DROPPED] = self.dropped
 
