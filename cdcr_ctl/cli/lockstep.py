@@ -23,6 +23,7 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.config.build_model import build_model
     from cdcr_ctl.control import trajectory
+    from cdcr_ctl.control.ports import attach_attitude
     from cdcr_ctl.daemon.service import Daemon, RigIO
     from cdcr_ctl.runlog.writer import RunLogFactory
     from cdcr_ctl.sim.lockstep.rig import LockstepRig
@@ -42,9 +43,7 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
     rig = LockstepRig.open(loaded, cfg, str(path))
     assert rig.drives is not None
     io = RigIO(rig.drives, rig.tensions, rig.tip, close=rig.close, attitude=rig.attitude)
-    attach = getattr(model, "attach_attitude", None)
-    if attach is not None and io.attitude is not None:
-        attach(io.attitude)
+    attach_attitude(model, io)
     d = Daemon(
         cfg,
         path,

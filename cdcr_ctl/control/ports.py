@@ -153,3 +153,11 @@ class RigIO:
     close: Callable[[], None]
     #: Per-joint attitude sensors (:class:`AttitudePort`) or None.
     attitude: Any = None
+
+
+def attach_attitude(model: Any, io: RigIO) -> None:
+    """Hand ``model`` the rig's attitude sensors, if it takes them (``attach_attitude``, see
+    above) and the rig has them."""
+    attach = getattr(model, "attach_attitude", None)
+    if attach is not None and io.attitude is not None:
+        attach(io.attitude)

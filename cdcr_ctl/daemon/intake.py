@@ -18,7 +18,6 @@ Both wait for the worker in the calling (socket) thread; the loop never waits fo
 from __future__ import annotations
 
 import contextlib
-import multiprocessing
 import os
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -37,7 +36,7 @@ from cdcr_ctl.daemon.protocol import (
     Request,
     parse_request,
 )
-from cdcr_ctl.daemon.workers import nice_and_watch_parent
+from cdcr_ctl.daemon.workers import nice_and_watch_parent, one_worker_pool
 from cdcr_ctl.errors import RigError
 
 #: Longest wait for the worker on one request (s): a 10^6-row CSV takes ~10 s on a busy PC.
@@ -165,14 +164,8 @@ class Intake:
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            ctx = multiprocessing.get_context("spawn")
             # Niced: on a small machine the worker must not take the loop's core.
-            self._pool = ProcessPoolExecutor(
-                max_workers=1,
-                mp_context=ctx,
-                initializer=nice_and_watch_parent,
-                initargs=(WORKER_NICE, os.getpid()),
-            )
+            self._pool = one_worker_pool(nice_and_watch_parent, (WORKER_NICE, os.getpid()))
         return self._pool
 
     def start(self) -> Intake:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -36,7 +35,7 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.planning import LeadMove, plan_jog, plan_lead
-from cdcr_ctl.daemon.workers import watch_parent
+from cdcr_ctl.daemon.workers import one_worker_pool, watch_parent
 from cdcr_ctl.errors import RigError
 
 log = logging.getLogger(__name__)
@@ -89,13 +88,7 @@ class Planner:
 
     def _executor(self) -> ProcessPoolExecutor:
         if self._pool is None:
-            ctx = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(
-                max_workers=1,
-                mp_context=ctx,
-                initializer=_init,
-                initargs=(self.config_path, os.getpid()),
-            )
+            self._pool = one_worker_pool(_init, (self.config_path, os.getpid()))
         return self._pool
 
     def start(self) -> Planner:

@@ -43,6 +43,7 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory
 from cdcr_ctl.control.io import open_rig_io
+from cdcr_ctl.control.ports import attach_attitude
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.timing import try_realtime
 from cdcr_ctl.daemon import recovery
@@ -209,9 +210,7 @@ def build_daemon(config_path: str, socket_path: str | None, intake_dir: str) -> 
     # Before any thread of this process exists: every thread inherits the policy.
     try_realtime(cfg.control.realtime_priority, cfg.control.lock_memory)
     io = open_rig_io(cfg, path, traffic_dir=sinks.base_dir)
-    attach = getattr(model, "attach_attitude", None)
-    if attach is not None and io.attitude is not None:
-        attach(io.attitude)
+    attach_attitude(model, io)
     intake = Intake(model.n_segments, cfg.limits.bend_rad, directory=intake_dir)
     return Daemon(
         cfg,

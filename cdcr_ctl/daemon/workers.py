@@ -9,9 +9,13 @@ its parent process every :data:`PARENT_CHECK_S` and ends the worker once it has 
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
 
 #: How often a worker checks that the process that started it still runs (s).
 PARENT_CHECK_S = 1.0
@@ -35,4 +39,17 @@ def nice_and_watch_parent(increment: int, parent_pid: int) -> None:
     watch_parent(parent_pid)
 
 
-__all__ = ["PARENT_CHECK_S", "nice_and_watch_parent", "watch_parent"]
+def one_worker_pool(
+    initializer: Callable[..., None], initargs: tuple[Any, ...]
+) -> ProcessPoolExecutor:
+    """A pool of one spawned worker (spawned: no copy of the caller's threads, locks or real-time
+    policy), set up by ``initializer(*initargs)``, which should call :func:`watch_parent`."""
+    return ProcessPoolExecutor(
+        max_workers=1,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=initializer,
+        initargs=initargs,
+    )
+
+
+__all__ = ["PARENT_CHECK_S", "nice_and_watch_parent", "one_worker_pool", "watch_parent"]

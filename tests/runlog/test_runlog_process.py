@@ -215,9 +215,9 @@ def test_a_start_error_names_the_run_directory(tmp_path):
     assert str(tmp_path / "r") in str(info.value)
 
 
-@settings(max_examples=60, deadline=None)
-@given(
-    frames=st.lists(
+def can_frames(max_size: int) -> st.SearchStrategy:
+    """Lists of (timestamp s, COB-ID, flags, DLC, data) as the ring stores a CAN frame."""
+    return st.lists(
         st.tuples(
             st.floats(0, 1e10, allow_nan=False),
             st.integers(0, 2**29 - 1),
@@ -225,9 +225,12 @@ def test_a_start_error_names_the_run_directory(tmp_path):
             st.integers(0, 15),
             st.binary(max_size=64),
         ),
-        max_size=12,
+        max_size=max_size,
     )
-)
+
+
+@settings(max_examples=60, deadline=None)
+@given(frames=can_frames(12))
 def test_can_records_round_trip_through_the_ring(frames):
     ring = SharedRing.create(RingLayout(n_numbers=1, rows=1, frames=8))
     try:
@@ -250,16 +253,7 @@ def test_can_records_round_trip_through_the_ring(frames):
 
 @settings(max_examples=60, deadline=None)
 @given(
-    frames=st.lists(
-        st.tuples(
-            st.floats(0, 1e10, allow_nan=False),
-            st.integers(0, 2**29 - 1),
-            st.integers(0, 15),
-            st.integers(0, 15),
-            st.binary(max_size=64),
-        ),
-        max_size=30,
-    ),
+    frames=can_frames(30),
     batch=st.integers(1, 9),
     taken_every=st.integers(1, 4),
 )
