@@ -219,11 +219,17 @@ class RunLogBench:
             spawn_mod.WRITER_NICE = args.writer_nice
         if getattr(args, "writer_policy", None) is not None:
             spawn_mod.WRITER_POLICY = args.writer_policy
-        cls = ProcessRunLogWriter if self.writer_kind == "process" else RunLogWriter
+        process = self.writer_kind.startswith("process")
+        cls = ProcessRunLogWriter if process else RunLogWriter
         cols = sample_columns(model.n_segments, model.n_cables, LOOP_EXTRA_COLUMNS)
         run_dir = new_run_dir(Path(work) / "runs", meta.name)
         kw = {}
-        if self.writer_kind == "process" and getattr(args, "spare_s", 0.0) > 0:
+        if self.writer_kind == "process":
+            # As the daemon sets it up (cdcr_ctl.daemon.service): the rows go into the ring
+            # between the loop's cycles (runlog/writer/handoff.py); "process-direct": on the
+            # loop's thread, in its log stage (the writer process before that handoff).
+            kw["quiet"] = loop.between_cycles
+        if process and getattr(args, "spare_s", 0.0) > 0:
             # As the daemon's factory does: a spare writer process started ahead, its imports
             # done by the time the run starts (the benchmark gives it spare_s seconds).
             kw["process"] = start_writer_process()
@@ -273,7 +279,7 @@ class RunLogBench:
                 f" ({self.writer.high_water / self.rate * 1e3:.0f} ms of rows; at the writer's "
                 f"first drain {self.writer.start_backlog}; writer process "
                 f"{spawn_mod.WRITER_POLICY}, nice +{spawn_mod.WRITER_NICE})"
-                if self.writer_kind == "process"
+                if self.writer_kind.startswith("process")
                 else ""
             ),
             "run log size: "
@@ -338,10 +344,13 @@ def main() -> None:
     )
     ap.add_argument(
         "--writer",
-        choices=("process", "thread"),
+        choices=("process", "process-direct", "thread"),
         default="process",
         help="with --runlog: encode and write in a writer process fed through shared memory "
-        "(logging.writer: process, the default) or in a thread of this process (the old writer)",
+        "(logging.writer: process, the default; the rows stored into it between the loop's "
+        "cycles, as the daemon does), the same storing them on the loop's thread "
+        "(process-direct, the writer before that), or in a thread of this process (the old "
+        "writer)",
     )
     ap.add_argument(
         "--backlash-mm",

@@ -26,7 +26,11 @@ Variants (``--variants``, comma-separated):
 
 - ``csv-thread``: samples.csv by a writer thread (the writer before the writer process);
 - ``mcap-thread``: samples.csv + run.mcap by a writer thread;
-- ``csv``, ``mcap``: the same through the writer process (``logging.writer: process``);
+- ``csv``, ``mcap``: the same through the writer process (``logging.writer: process``), the
+  rows stored into its ring between the loop's cycles as the daemon does
+  (``cdcr_ctl/runlog/writer/handoff.py``);
+- ``csv-process-direct``, ``mcap-process-direct``: the writer process with the rows stored on
+  the loop's thread in its log stage (the writer process before that handoff);
 - ``base=DIR``: ``DIR/.venv/bin/python DIR/benchmarks/bench_loop.py --runlog csv`` run from
   ``DIR`` (another checkout, e.g. the main branch before the writer process).
 
@@ -67,7 +71,7 @@ def command(variant: str, args: argparse.Namespace) -> tuple[list[str], Path]:
     writer = writer or "process"
     cmd = [sys.executable, str(HERE / "benchmarks/bench_loop.py"), "--runlog", kind]
     cmd += [*common, "--writer", writer]
-    if writer == "process":
+    if writer.startswith("process"):
         cmd += ["--spare-s", str(args.spare_s)]
     return cmd, HERE
 

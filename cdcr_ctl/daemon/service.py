@@ -109,6 +109,9 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         if group is not None and hasattr(group, "traffic_quiet"):
             # The traffic log's writer formats frames only between the loop's cycles.
             group.traffic_quiet = self.loop.between_cycles
+        if hasattr(run_sink_factory, "quiet"):
+            # The run log's rows go into its writer process's ring between the loop's cycles.
+            run_sink_factory.quiet = self.loop.between_cycles
         self.enabled = False
         self.homed = False
         self._manual_sink: Any = None

@@ -101,6 +101,10 @@ class RunLogFactory:
         #: without waiting for an interpreter: ~0.5 s idle, seconds on a loaded machine).
         self._spare = start_writer_process() if writer == "process" else None
         self._spare_closed = False
+        #: The control loop's "between my cycles" (its ``between_cycles``), set by the daemon:
+        #: a process writer in real time then stores its rows into the ring only then
+        #: (:mod:`cdcr_ctl.runlog.writer.handoff`). None: on the loop's thread, in ``write``.
+        self.quiet: Callable[[], bool] | None = None
 
     @classmethod
     def from_config(
@@ -162,6 +166,7 @@ class RunLogFactory:
         if self.writer == "process":
             cls: Any = ProcessRunLogWriter
             kw["process"], self._spare = self._spare, None
+            kw["quiet"] = self.quiet
         else:
             cls = RunLogWriter
         writer = cls(

@@ -35,6 +35,7 @@ import os
 import pickle
 import struct
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -48,6 +49,7 @@ from cdcr_ctl.runlog.writer.files import (
     WriterBase,
     utc_now_iso,
 )
+from cdcr_ctl.runlog.writer.handoff import RowHandoff
 from cdcr_ctl.runlog.writer.ring import (
     CLOSE,
     DONE,
@@ -116,7 +118,8 @@ class ProcessRunLogWriter(WriterBase):
     ``samples.csv``'s header) as the thread writer does; raises :class:`RigError` naming the path
     if they cannot be made or the directory is not empty, or the writer process cannot start. It
     does not wait for the writer process (an error there is a :attr:`failure`, which trips the
-    loop).
+    loop). ``quiet`` (the loop's "between my cycles", with ``on_full="trip"``): rows go through
+    a :class:`~cdcr_ctl.runlog.writer.handoff.RowHandoff`, ``write`` only queues them.
     """
 
     def __init__(
@@ -136,6 +139,7 @@ class ProcessRunLogWriter(WriterBase):
         can_frames: int = DEFAULT_CAN_FRAMES,
         process: subprocess.Popen | None = None,
         on_full: str = "trip",
+        quiet: Callable[[], bool] | None = None,
     ) -> None:
         cols = check_settings(columns, fsync_every_s, max_queued_rows, drain_interval_s, on_full)
         self.on_full = on_full
@@ -162,6 +166,11 @@ class ProcessRunLogWriter(WriterBase):
         self._warned = False
         self._dropped = 0
         self._head = 0
+        #: Rows stored into the ring (the ring's head) and rows handed over that the handoff
+        #: thread could not store (counted dropped).
+        self._fed = 0
+        self._skipped = 0
+        self._handoff: RowHandoff | None = None
         self._closing = False
         self._failure: str | None = None
         self._notified = False
@@ -229,6 +238,9 @@ class ProcessRunLogWriter(WriterBase):
         # write error does). The files the daemon makes itself were made above and raise here.
         self._proc = self._start(blob, process)
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
+        if quiet is not None and on_full != "wait":
+            self._handoff = RowHandoff(self._store_handed, quiet)
+            self._put = self._handoff.put
         _OPEN.add(self)
 
     def _start(self, blob: bytes, proc: subprocess.Popen | None) -> subprocess.Popen:
@@ -265,11 +277,38 @@ class ProcessRunLogWriter(WriterBase):
         no allocation here); numbers go as
         float64 (``cycle`` comes back as an integer), None and NaN
         as empty; the ``event`` column as text (cut at the ring's
-        :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread.
+        :data:`~cdcr_ctl.runlog.writer.ring.EVENT_BYTES`). Call from one thread. With a
+        handoff (``quiet``), the row is queued (its numbers must not change afterwards: the
+        loop's ``CycleRow`` keeps a fresh array) and stored between the loop's cycles.
         """
         head = self._head
         if head >= self._limit and not self._make_room(head):
             return False
+        if self._handoff is not None:
+            if not head:  # the first row: the handoff thread takes this thread's scheduling
+                self._handoff.adopt(threading.get_native_id())
+            self._put(row)
+            self._head = head + 1
+            return True
+        if not self._store(row, head):
+            return False
+        self._head = head + 1  # rows taken so far (the ``queued`` count)
+        return True
+
+    def _store_handed(self, row: Any) -> bool:
+        """The handoff thread: store a row handed over into the ring's next slot."""
+        if self._ring is None:
+            self._skipped += 1
+            return False
+        if self._store(row, self._fed):
+            self._fed += 1
+            return True
+        self._skipped += 1
+        return False
+
+    def _store(self, row: Any, head: int) -> bool:
+        """Store ``row`` into slot ``head`` and publish ``head + 1``; False (dropped, counted)
+        if it cannot be taken."""
         ring = self._ring
         slot = head % self._cap
         try:
@@ -296,7 +335,7 @@ class ProcessRunLogWriter(WriterBase):
             self._dropped += 1
             ring.hq[ROW_DROPPED] = self._dropped
             return False
-        self._head = head = head + 1  # rows taken so far (the ``queued`` count)
+        head += 1
         ring.hq[ROW_HEAD] = head
         if not head % ALIVE_EVERY_ROWS:
             self._check_alive()
@@ -311,11 +350,11 @@ class ProcessRunLogWriter(WriterBase):
             self._dropped += 1
             return False
         self._tail = ring.hq[ROW_TAIL]
-        if head - self._tail >= self._cap and not self._room(head):
+        if head - self._skipped - self._tail >= self._cap and not self._room(head):
             self._dropped += 1
             ring.hq[ROW_DROPPED] = self._dropped
             return False
-        self._limit = self._tail + self._cap
+        self._limit = self._tail + self._cap + self._skipped
         return True
 
     def _room(self, head: int) -> bool:
@@ -443,7 +482,7 @@ class ProcessRunLogWriter(WriterBase):
             self._head,
             written,
             self._dropped + dropped,
-            lost + max(0, self._head - int(h[ROW_TAIL])) * self.closed,
+            lost + max(0, self._head - self._skipped - int(h[ROW_TAIL])) * self.closed,
             fsyncs,
             nbytes,
         )
@@ -457,9 +496,18 @@ class ProcessRunLogWriter(WriterBase):
             self._limit = -1
             if self.can_tap is not None:
                 self.can_tap.detach()
-            self._ring.request_close(str(reason), outcome or "closed", utc_now_iso())
+            end = (str(reason), outcome or "closed", utc_now_iso())
+            if self._handoff is not None:  # the rows handed over first, then the request
+                self._handoff.finish(lambda: self._request_close(*end))
+            else:
+                self._request_close(*end)
         if wait:
             self.wait_closed(CLOSE_TIMEOUT_S)
+
+    def _request_close(self, reason: str, outcome: str, end_utc: str) -> None:
+        ring = self._ring
+        if ring is not None:
+            ring.request_close(reason, outcome, end_utc)
 
     def wait_closed(self, timeout_s: float | None = None) -> bool:
         """Wait until the writer process has finished after :meth:`close`; False on timeout."""
