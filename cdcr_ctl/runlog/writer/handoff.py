@@ -67,16 +67,18 @@ class RowHandoff:
         self._then: Callable[[], None] | None = None
         self._finishing = False
         self._called = False
-        #: Native id of the thread that hands rows over (set by :meth:`adopt`), whose scheduling
-        #: this thread takes before it stores any row.
-        self._source_tid: int | None = None
+        #: The scheduling (policy, parameters) of the thread that hands rows over (set by
+        #: :meth:`adopt`), which this thread takes before it stores any row.
+        self._source: tuple[int, Any] | None = None
         self._adopted = False
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def adopt(self, tid: int) -> None:
-        """(The loop thread, once.) This thread takes the scheduling of thread ``tid``."""
-        self._source_tid = tid
+    def adopt(self) -> None:
+        """(The loop thread, once: two system calls.) The handoff thread takes the calling
+        thread's scheduling policy and priority."""
+        with contextlib.suppress(OSError, AttributeError):
+            self._source = (os.sched_getscheduler(0), os.sched_getparam(0))
 
     def queued(self) -> int:
         """Rows handed over and not yet stored."""
@@ -100,11 +102,10 @@ class RowHandoff:
         the calling thread's). Without the right to (not root, no CAP_SYS_NICE, no
         RLIMIT_RTPRIO), this thread stays as it is and says so once."""
         self._adopted = True
-        tid = self._source_tid
-        if tid is None or not hasattr(os, "sched_getscheduler"):
+        if self._source is None:
             return
+        policy, param = self._source
         try:
-            policy, param = os.sched_getscheduler(tid), os.sched_getparam(tid)
             if (policy, param.sched_priority) != (os.sched_getscheduler(0), 0):
                 os.sched_setscheduler(0, policy, param)
         except OSError as exc:
@@ -116,7 +117,7 @@ class RowHandoff:
         try:
             while not (self._finishing and not self._queue):
                 self._wake.wait(FEED_PERIOD_S)
-                if not self._adopted and self._source_tid is not None:
+                if not self._adopted and self._source is not None:
                     self._take_scheduling()
                 self._feed()
         finally:

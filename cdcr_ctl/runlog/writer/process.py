@@ -35,7 +35,6 @@ import os
 import pickle
 import struct
 import subprocess
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -286,7 +285,7 @@ class ProcessRunLogWriter(WriterBase):
             return False
         if self._handoff is not None:
             if not head:  # the first row: the handoff thread takes this thread's scheduling
-                self._handoff.adopt(threading.get_native_id())
+                self._handoff.adopt()
             self._put(row)
             self._head = head + 1
             return True
