@@ -49,17 +49,20 @@ QUIET_POLL_S = 0.0002
 class RowHandoff:
     """Rows from the loop thread (:meth:`put`: a ``deque.append``) into the ring by ``store(row)``
     (False: the row was refused and is not counted as stored) on a thread of its own, while
-    ``quiet()`` holds. :meth:`finish` stores what is queued, then calls ``then()`` once (the close
-    request) and ends the thread."""
+    ``quiet()`` holds, then calls ``tick()`` (the writer's check of its process's failure flag,
+    off the loop's path). :meth:`finish` stores what is queued, then calls ``then()`` once (the
+    close request) and ends the thread."""
 
     def __init__(
         self,
         store: Callable[[Any], bool],
         quiet: Callable[[], bool],
+        tick: Callable[[], None] | None = None,
         name: str = "run-log-handoff",
     ) -> None:
         self._store = store
         self._quiet = quiet
+        self._tick = tick
         self._queue: deque[Any] = deque()
         #: The loop's ``write`` calls this (bound once: a plain ``deque.append``).
         self.put = self._queue.append
@@ -120,6 +123,11 @@ class RowHandoff:
                 if not self._adopted and self._source is not None:
                     self._take_scheduling()
                 self._feed()
+                if self._tick is not None:
+                    try:
+                        self._tick()
+                    except Exception:
+                        log.exception("run-log handoff: the writer's check failed")
         finally:
             then = self._then
             if then is not None and not self._called:

@@ -238,7 +238,7 @@ class ProcessRunLogWriter(WriterBase):
         self._proc = self._start(blob, process)
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         if quiet is not None and on_full != "wait":
-            self._handoff = RowHandoff(self._store_handed, quiet)
+            self._handoff = RowHandoff(self._store_handed, quiet, self._poll_failure)
             self._put = self._handoff.put
         _OPEN.add(self)
 
@@ -454,13 +454,20 @@ class ProcessRunLogWriter(WriterBase):
 
     @property
     def failure(self) -> str | None:
-        """Text of the write error that stopped this log (file and cause), or None."""
-        if self._failure is None and self._hq[FAILED]:  # one int64 load on the loop's path
+        """Text of the write error that stopped this log (file and cause), or None. With a
+        handoff its thread looks at the writer process's flag (:meth:`_poll_failure`, every
+        feed); else this does (one int64 load on the loop's path)."""
+        if self._failure is None and self._handoff is None and self._hq[FAILED]:
+            self._poll_failure()
+        return self._failure
+
+    def _poll_failure(self) -> None:
+        """Take the writer process's published failure, if any."""
+        if self._failure is None and self._hq[FAILED]:
             text = self._ring.failure() if self._ring is not None else None
             if text is not None:
                 self._failure = text
                 self._notify()
-        return self._failure
 
     @property
     def error(self) -> BaseException | None:
@@ -536,7 +543,7 @@ class ProcessRunLogWriter(WriterBase):
             )
             log.error("run log: %s", self._failure)
             self._limit = -1
-        self.failure  # noqa: B018 - picks up a failure the writer published last
+        self._poll_failure()  # picks up a failure the writer published last
 
 
 # A closed writer answers ``failure`` without its ring.
