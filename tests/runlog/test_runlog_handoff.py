@@ -77,6 +77,19 @@ def test_nothing_is_stored_while_the_loop_is_in_a_cycle(tmp_path):
     assert len(load_run(w.run_dir)) == 50
 
 
+def test_past_the_backlog_rows_are_stored_whatever_quiet_says(tmp_path):
+    """A loop that is never between cycles (late after late) does not keep its rows waiting
+    without bound: at most half ``fsync_every_s`` of them (here 0.5 * 0.2 s at 1 kHz = 100)."""
+    gate = Gate(False)
+    w = _writer(tmp_path, "late", quiet=gate, fsync_every_s=0.2)
+    assert all(w.write(r) for r in _rows(400))
+    assert _wait(lambda: w._ring.hq[ROW_HEAD] >= 300)
+    assert w._handoff.queued() <= 100 and w._ring.hq[ROW_HEAD] + w._handoff.queued() == 400
+    gate.open = True
+    w.close("done", outcome="completed")
+    assert w.stats.written == 400 and len(load_run(w.run_dir)) == 400
+
+
 def test_close_stores_the_queued_rows_before_the_close_request(tmp_path, monkeypatch):
     """Rows still queued when the run ends are written (the request follows them)."""
     monkeypatch.setattr(handoff, "FEED_PERIOD_S", 60.0)  # no periodic feed: only the close's

@@ -18,9 +18,15 @@ scheduling policy and priority (taken from the loop thread when it hands over it
 a thread holding the interpreter lock and preempted by ordinary work would make a real-time
 loop wait for the lock.
 
-Crash safety: rows in the deque are lost if the loop's process is killed (SIGKILL): at most
-:data:`FEED_PERIOD_S` plus a cycle of rows (~11 ms at 1 kHz), far inside the issue's rule of no
-more than ``fsync_every_s`` (0.5 s by default) of samples missing. Rows in the ring survive as
+A loop that is never between cycles (late cycle after late cycle on an overloaded machine)
+would keep the rows in the deque: past ``backlog_rows`` queued rows the thread stores them
+whatever ``quiet`` says (as the traffic log does past its backlog), so they neither wait for a
+quiet moment without bound nor fill the ring unseen.
+
+Crash safety: rows in the deque are lost if the loop's process is killed (SIGKILL): normally at
+most :data:`FEED_PERIOD_S` plus a cycle of rows (~11 ms at 1 kHz), and never more than
+``backlog_rows`` (the writer sets it to half ``fsync_every_s`` of rows), inside the issue's rule
+of no more than ``fsync_every_s`` (0.5 s by default) of samples missing. Rows in the ring survive as
 before (the writer process drains them). A loop on simulated time (``on_full="wait"``) and a
 writer given no ``quiet`` store on the caller's thread, as before.
 """
@@ -49,18 +55,20 @@ QUIET_POLL_S = 0.0002
 class RowHandoff:
     """Rows from the loop thread (:meth:`put`: a ``deque.append``) into the ring by ``store(row)``
     (False: the row was refused and is not counted as stored) on a thread of its own, while
-    ``quiet()`` holds, then calls ``tick()`` (the writer's check of its process's failure flag,
-    off the loop's path). :meth:`finish` stores what is queued, then calls ``then()`` once (the
-    close request) and ends the thread."""
+    ``quiet()`` holds (or more than ``backlog_rows`` wait), then calls ``tick()`` (the writer's
+    check of its process's failure flag, off the loop's path). :meth:`finish` stores what is
+    queued, then calls ``then()`` once (the close request) and ends the thread."""
 
     def __init__(
         self,
         store: Callable[[Any], bool],
         quiet: Callable[[], bool],
         tick: Callable[[], None] | None = None,
+        backlog_rows: int = 250,
         name: str = "run-log-handoff",
     ) -> None:
         self._store = store
+        self._backlog = max(1, int(backlog_rows))
         self._quiet = quiet
         self._tick = tick
         self._queue: deque[Any] = deque()
@@ -136,10 +144,11 @@ class RowHandoff:
                     then()
 
     def _feed(self) -> None:
-        """Store every queued row, one at a time while ``quiet()`` holds."""
-        q, quiet, store = self._queue, self._quiet, self._store
+        """Store every queued row, one at a time while ``quiet()`` holds or the backlog is
+        reached."""
+        q, quiet, store, backlog = self._queue, self._quiet, self._store, self._backlog
         while q:
-            if not quiet():
+            if len(q) < backlog and not quiet():
                 time.sleep(QUIET_POLL_S)
                 continue
             try:

@@ -238,7 +238,10 @@ class ProcessRunLogWriter(WriterBase):
         self._proc = self._start(blob, process)
         self.can_tap = RingCanTap(self._ring) if second_sink is not None else None
         if quiet is not None and on_full != "wait":
-            self._handoff = RowHandoff(self._store_handed, quiet, self._poll_failure)
+            # At most half fsync_every_s of rows wait in this process (lost on its SIGKILL).
+            rate = metadata.rate_hz or 1000.0
+            backlog = min(self._cap // 2, int(0.5 * self.fsync_every_s * rate))
+            self._handoff = RowHandoff(self._store_handed, quiet, self._poll_failure, backlog)
             self._put = self._handoff.put
         _OPEN.add(self)
 
