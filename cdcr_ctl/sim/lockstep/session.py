@@ -28,6 +28,9 @@ from cdcr_ctl.sim.simconfig import LoadedSim
 
 #: Longest wall time a run may take per simulated second before it counts as stuck (s/s).
 STUCK_WALL_PER_SIM_S = 20.0
+#: How often :meth:`LockstepSession.run` looks whether the run has ended (s, wall clock): each
+#: look takes the interpreter lock from the loop thread, so not much more often than this.
+RUN_POLL_S = 0.02
 
 
 class LockstepSession:
@@ -115,7 +118,7 @@ class LockstepSession:
         while run.state == "running" or self.loop.current_run is run:
             if time.monotonic() > limit or not self.loop.running:
                 raise RigError(f"lock-step run {name} did not end (state {run.state})")
-            time.sleep(0.005)  # the caller waits on the wall clock; the loop does not
+            time.sleep(RUN_POLL_S)  # the caller waits on the wall clock; the loop does not
         if sink is not None:
             sink.wait_closed(60.0)
         return run
