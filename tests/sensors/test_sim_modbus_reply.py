@@ -49,9 +49,7 @@ def test_read_reply_is_the_frame_pymodbus_builds(value_type, fc, force_N):
                 cls = ReadHoldingRegistersResponse if fc == 3 else ReadInputRegistersResponse
                 expected = sim._framer.buildFrame(cls(registers=regs, dev_id=slave))
                 assert frame == expected
-                body = bytes([slave, fc, 2 * count]) + b"".join(
-                    r.to_bytes(2, "big") for r in regs
-                )
+                body = bytes([slave, fc, 2 * count]) + b"".join(r.to_bytes(2, "big") for r in regs)
                 assert frame == body + _crc16_modbus(body)
         assert sim.stats.requests == 8
     finally:
