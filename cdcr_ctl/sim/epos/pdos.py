@@ -306,6 +306,7 @@ class _PdoService:
             for index in [i for i in self.node.data_store if i >= 0x2000]:
                 del self.node.data_store[index]
             self._params.clear()
+            self._derived.clear()
             self._reset_communication()
             self.boot()
             self._rebooting = False
@@ -315,6 +316,7 @@ class _PdoService:
             del self.node.data_store[index]
         for key in [k for k in self._params if 0x1000 <= k[0] < 0x2000]:
             del self._params[key]
+        self._derived.clear()
         self._watch_master(0)
         self._pdo_dirty = True
 
