@@ -22,7 +22,7 @@ from cdcr_ctl.drives.busload import check_drives_bus_load
 from cdcr_ctl.drives.group import DriveGroup, open_drive_group
 from cdcr_ctl.errors import CommError, ConfigError
 from cdcr_ctl.sensors.attitude import AttitudeSensors, open_attitude_sensors
-from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, forces_and_ages, open_load_cells
+from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler, open_load_cells
 from cdcr_ctl.sensors.tracker import open_tracker
 
 
@@ -41,15 +41,15 @@ class LoadCellTension:
     ) -> None:
         self.sampler = sampler
         self._reopen = reopen
-        self._order = np.array(order, dtype=int)
-        self._has = self._order >= 0
-        self._idx = np.where(self._has, self._order, 0)
+        self._order = [int(i) for i in order]
 
     def latest(self) -> tuple[np.ndarray, np.ndarray]:
-        force, age = forces_and_ages(self.sampler.latest())
-        f = np.where(self._has, force[self._idx], np.nan)
-        a = np.where(self._has, age[self._idx], np.inf)
-        return f, a
+        # Plain lists per cable, one array each: the loop calls this every cycle, and numpy's
+        # indexing and where() on three values cost more than the values.
+        samples = self.sampler.latest()
+        f = [samples[i].force_N if i >= 0 else math.nan for i in self._order]
+        a = [samples[i].age_s if i >= 0 else math.inf for i in self._order]
+        return np.array(f, dtype=float), np.array(a, dtype=float)
 
     def close(self) -> None:
         self.sampler.close()

@@ -133,6 +133,10 @@ def check_write(table: ObjectTable, index: int, sub: int, data: bytes) -> Refusa
     """What a drive with ``table`` answers to an SDO download of ``data`` to ``index:sub``:
     None (accepted) or the refusal (existence, access, data length/type, range)."""
     o = table.get(index, sub)
+    if o is not None and o.writable and o.dtype in DATA_TYPES and len(data) == o.size:
+        value = o.decode(data)
+        if (o.low is None or value >= o.low) and (o.high is None or value <= o.high):
+            return None  # accepted (the common case: no text to format)
     where = f"0x{index:04X}:{sub:02X}"
     if o is None:
         if index in table.indices:

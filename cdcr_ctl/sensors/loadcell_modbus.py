@@ -410,7 +410,7 @@ class ModbusLoadCellBus:
         self.traffic.add("tx", request)
         deadline = time.monotonic() + self.response_timeout_s
         buf = bytearray()
-        scan = scan_reply(buf, slave, function_code, reply_bytes, self._framer)
+        scan = Scan(None, 0, 0, max(1, reply_bytes), 0)  # what scan_reply says of no bytes
         while scan.pdu is None and time.monotonic() < deadline:
             chunk = self._io("read", lambda need=scan.need: self.port.read(need))
             if chunk:

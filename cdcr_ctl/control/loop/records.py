@@ -190,4 +190,7 @@ class TipHistory:
         sel = (self._t >= t_sample - lag_s) & (self._t <= t_sample + period_s)
         if not sel.any():
             sel = self._t == self._t.max()
-        return float(np.min(np.linalg.norm(self._tip[sel] - tip_mm, axis=1)))
+        d = self._tip[sel] - tip_mm
+        # The Euclidean norm of each row as np.linalg.norm(d, axis=1) computes it (sqrt of the
+        # sum of squares), without its argument handling (this runs every cycle).
+        return float(np.sqrt((d * d).sum(axis=1)).min())

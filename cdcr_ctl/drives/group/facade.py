@@ -34,6 +34,7 @@ from cdcr_ctl.drives.group.common import (
     SDO_TIMEOUT_S,
     SEND_TIMEOUT_S,
     TPDO_MISSES,
+    WATCHDOG_PERIOD_S,
     GroupFault,
     _Drive,
 )
@@ -179,6 +180,10 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         if callable(set_frame_hook):
             set_frame_hook(list(self._by_tpdo), self._on_tpdo_frame)
         self.network.connect()
+        #: How often the watchdog thread wakes (s): master heartbeat, idle heartbeat checks. A
+        #: rig whose heartbeat periods are long (the lock-step simulator's) may wake it less
+        #: often: each wake takes the interpreter lock from the loop thread.
+        self.watchdog_period_s = WATCHDOG_PERIOD_S
         self._watchdog_stop = threading.Event()
         self._watchdog = threading.Thread(target=self._watch, name="drives-watchdog", daemon=True)
         self._watchdog.start()

@@ -18,7 +18,6 @@ from cdcr_ctl.drives.emcy import decode_emcy
 from cdcr_ctl.drives.group.common import (
     IDLE_PERIODS,
     TPDO_MISSES,
-    WATCHDOG_PERIOD_S,
     GroupFault,
     _Drive,
 )
@@ -233,7 +232,7 @@ class _Supervision:
     # ================================================================== watchdog
     def _watch(self) -> None:
         """Master heartbeat producer, and heartbeat checks while no cycle runs."""
-        while not self._watchdog_stop.wait(WATCHDOG_PERIOD_S):
+        while not self._watchdog_stop.wait(self.watchdog_period_s):
             now = self.clock()
             if self._hb_on and now >= self._hb_next_s:
                 self._hb_next_s = max(self._hb_next_s + self._hb_period_s, now)

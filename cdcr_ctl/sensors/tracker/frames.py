@@ -46,7 +46,7 @@ def rotation_from_quaternion(q_xyzw: np.ndarray | tuple[float, ...]) -> np.ndarr
     n = float(np.linalg.norm(q))
     if not (math.isfinite(n) and abs(n - 1.0) <= QUATERNION_NORM_TOL):
         raise ValueError(f"not a unit quaternion (norm {n})")
-    x, y, z, w = q / n
+    x, y, z, w = (q / n).tolist()  # Python floats: the same doubles, cheaper arithmetic
     return np.array(
         [
             [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
@@ -58,20 +58,22 @@ def rotation_from_quaternion(q_xyzw: np.ndarray | tuple[float, ...]) -> np.ndarr
 
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (x, y, z, w; w >= 0) of a rotation matrix (Shepperd's method)."""
-    m = np.asarray(R, dtype=float)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    # The nine entries as Python floats (the same doubles; numpy's per-element indexing costs
+    # more than the arithmetic).
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = np.asarray(R, dtype=float).tolist()
+    tr = m00 + m11 + m22
     if tr > 0:
         s = 2.0 * math.sqrt(1.0 + tr)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+        q = [(m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s, s / 4]
+    elif m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = [s / 4, (m01 + m10) / s, (m02 + m20) / s, (m21 - m12) / s]
+    elif m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = [(m01 + m10) / s, s / 4, (m12 + m21) / s, (m02 - m20) / s]
     else:
-        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = [(m02 + m20) / s, (m12 + m21) / s, s / 4, (m10 - m01) / s]
     out = np.asarray(q) / np.linalg.norm(q)
     return -out if out[3] < 0 else out
 

@@ -166,6 +166,9 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
         self._consumer_ms = 0
         self._now: Callable[[], float] = time.monotonic
         self._params: dict[tuple[int, int], int] = {}
+        #: Values derived from parameters (interpolation period, position limits): emptied with
+        #: every parameter write and reset, as :attr:`_params` changes.
+        self._derived: dict[str, object] = {}
         self._rpdos: dict[int, _Pdo] = {}
         self._tpdos: list[_Pdo] = []
         self._pdo_dirty = True

@@ -178,6 +178,7 @@ class _Objects:
         self._apply_write(index, subindex, data)
         if getattr(od, "data_type", None) in NUMBER_TYPES:
             self._params[(index, subindex)] = int(od.decode_raw(data))  # type: ignore[attr-defined]
+        self._derived.clear()
 
     def _apply_write(self, index: int, subindex: int, data: bytes) -> None:
         if 0x1400 <= index <= 0x1BFF:
@@ -237,7 +238,11 @@ class _Objects:
 
     @property
     def interpolation_period_s(self) -> float:
-        """0x60C2: value * 10^index s."""
-        return self._value(epos.INTERPOLATION_PERIOD, 1) * 10.0 ** self._value(
-            epos.INTERPOLATION_PERIOD, 2
-        )
+        """0x60C2: value * 10^index s (kept in :attr:`_derived` until a parameter changes)."""
+        value = self._derived.get("interpolation_period_s")
+        if value is None:
+            value = self._value(epos.INTERPOLATION_PERIOD, 1) * 10.0 ** self._value(
+                epos.INTERPOLATION_PERIOD, 2
+            )
+            self._derived["interpolation_period_s"] = value
+        return value

@@ -8,16 +8,24 @@ A mixin of :class:`~cdcr_ctl.sim.epos.node.SimEpos` (the state lives on the node
 from __future__ import annotations
 
 import logging
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import can
+from canopen.objectdictionary import INTEGER_TYPES, NUMBER_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
 from cdcr_ctl.drives import epos
 from cdcr_ctl.drives.cia402 import Mode, State
 from cdcr_ctl.drives.emcy import PDO_LENGTH_ERROR
 from cdcr_ctl.sim.epos.objects import _LIVE
+
+#: Objects whose write by RPDO counts as the SYNC's set-point.
+_SETPOINTS = frozenset(
+    (epos.TARGET_POSITION, epos.EPOS2_POSITION_MODE_SETPOINT, epos.EPOS2_IP_DATA_RECORD)
+)
 
 #: One logger for the whole simulated node (the name it had before the node was split up).
 log = logging.getLogger("cdcr_ctl.sim.epos.node")
@@ -34,6 +42,13 @@ class _Pdo:
     pending: bytes | None = None  # synchronous RPDO data waiting for SYNC
     #: TPDO: per entry a function giving its bytes (live objects read straight, see _readers).
     readers: list[Callable[[], bytes]] | None = None
+    #: TPDO of live numeric objects only: (one ``struct`` for the payload, per entry the value's
+    #: getter and its range), see :meth:`_PdoService._packer`; False: none (use ``readers``).
+    packer: tuple[struct.Struct, list[Callable[[], int]], list[tuple[Any, Any]]] | bool | None = (
+        None
+    )
+    #: RPDO: per entry its dictionary object (looked up once; None: not in the dictionary).
+    objects: list[Any] | None = None
 
 
 class _PdoService:
@@ -88,28 +103,87 @@ class _PdoService:
             self._send_changed_tpdos()
 
     def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
+        objects = pdo.objects
+        if objects is None:
+            objects = pdo.objects = [self._find_or_none(i, s) for i, s, _ in pdo.entries]
         offset = 0
-        for index, sub, n in pdo.entries:
+        for (index, sub, n), obj in zip(pdo.entries, objects, strict=True):
             chunk = data[offset : offset + n]
             offset += n
-            if index in (
-                epos.TARGET_POSITION,
-                epos.EPOS2_POSITION_MODE_SETPOINT,
-                epos.EPOS2_IP_DATA_RECORD,
-            ):
+            if index in _SETPOINTS:
                 self._setpoint_since_sync = True
             try:
-                self.node.set_data(index, sub, chunk)
+                if obj is None:
+                    self.node.set_data(index, sub, chunk)
+                else:
+                    self._set_data(obj, index, sub, chunk)
             except SdoAbortedError as exc:
                 log.warning(
                     "node %d: RPDO write 0x%04X refused (0x%08X)", self.node_id, index, exc.code
                 )
 
+    def _find_or_none(self, index: int, sub: int) -> Any:
+        """The dictionary object ``index:sub``, or None when there is none (then canopen's
+        ``set_data`` gives its abort on every write, as before)."""
+        try:
+            return self.node._find_object(index, sub)
+        except SdoAbortedError:
+            return None
+
+    def _set_data(self, obj: Any, index: int, sub: int, data: bytes) -> None:
+        """canopen's ``LocalNode.set_data(index, sub, data)`` for the object ``obj`` found once
+        (:attr:`_Pdo.objects`): the same length check, write callbacks and store, without the
+        dictionary lookup per frame."""
+        node = self.node
+        if obj.data_type in NUMBER_TYPES and 8 * len(data) != len(obj):
+            raise SdoAbortedError(0x06070010)
+        for callback in node._write_callbacks:
+            callback(index=index, subindex=sub, od=obj, data=data)
+        node.data_store.setdefault(index, {})[sub] = bytes(data)
+
     def _tpdo_payload(self, pdo: _Pdo) -> bytes:
+        packer = pdo.packer
+        if packer is None:
+            packer = pdo.packer = self._packer(pdo)
+        if packer is not False:
+            st, getters, ranges = packer  # type: ignore[misc]
+            values = [get() for get in getters]
+            for v, (lo, hi) in zip(values, ranges, strict=True):
+                if (lo is not None and v < lo) or (hi is not None and v > hi):
+                    break  # canopen warns about it: let it (and refuse what does not fit)
+            else:
+                try:
+                    return st.pack(*values)
+                except struct.error:
+                    pass
         readers = pdo.readers
         if readers is None:
             readers = pdo.readers = self._readers(pdo)
         return b"".join(read() for read in readers)
+
+    def _packer(self, pdo: _Pdo) -> tuple[struct.Struct, list[Callable[[], int]], list] | bool:
+        """A TPDO mapping only whole live integer objects (statusword, actual position, ...)
+        built with one ``struct`` from the values :meth:`_on_read` gives: the bytes canopen's
+        ``encode_raw`` makes of each (little-endian, the object's own type), joined. False
+        when any entry is not such an object (the per-entry :meth:`_readers` then)."""
+        formats, getters, ranges = [], [], []
+        for index, sub, n in pdo.entries:
+            if index not in _LIVE:
+                return False
+            obj = self._find_or_none(index, sub)
+            st = None if obj is None else obj.STRUCT_TYPES.get(obj.data_type)
+            if not isinstance(st, struct.Struct) or obj.data_type not in INTEGER_TYPES:
+                return False
+            if st.size != n or len(st.format.lstrip("<")) != 1:
+                return False
+            formats.append(st.format.lstrip("<"))
+
+            def get(index: int = index, sub: int = sub, obj: Any = obj) -> int:
+                return int(self._on_read(index, sub, obj))
+
+            getters.append(get)
+            ranges.append((obj.min, obj.max))
+        return struct.Struct("<" + "".join(formats)), getters, ranges
 
     def _readers(self, pdo: _Pdo) -> list[Callable[[], bytes]]:
         """Per TPDO entry, what ``node.get_data(index, sub)[:n]`` gives: for the live objects
@@ -232,6 +306,7 @@ class _PdoService:
             for index in [i for i in self.node.data_store if i >= 0x2000]:
                 del self.node.data_store[index]
             self._params.clear()
+            self._derived.clear()
             self._reset_communication()
             self.boot()
             self._rebooting = False
@@ -241,6 +316,7 @@ class _PdoService:
             del self.node.data_store[index]
         for key in [k for k in self._params if 0x1000 <= k[0] < 0x2000]:
             del self._params[key]
+        self._derived.clear()
         self._watch_master(0)
         self._pdo_dirty = True
 

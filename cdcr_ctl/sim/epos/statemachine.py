@@ -117,10 +117,15 @@ class _StateMachine:
             self._homing_phase = ""
 
     def _limits(self) -> tuple[int, int]:
-        return (
-            self._value(epos.SOFTWARE_POSITION_LIMIT, 1),
-            self._value(epos.SOFTWARE_POSITION_LIMIT, 2),
-        )
+        """0x607D min and max (kept in :attr:`_derived` until a parameter changes)."""
+        value = self._derived.get("limits")
+        if value is None:
+            value = (
+                self._value(epos.SOFTWARE_POSITION_LIMIT, 1),
+                self._value(epos.SOFTWARE_POSITION_LIMIT, 2),
+            )
+            self._derived["limits"] = value
+        return value
 
     def _target(self, target: int) -> None:
         with self._lock:

@@ -100,6 +100,9 @@ class _Stepping:
         csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
         max_err = self.max_following_error_counts
         clear = False  # a sub-step within every limit since the last write-back
+        # The segment's velocity: the same float every sub-step (from, to and period change
+        # only in _supervise, after which it is computed again).
+        vel = (c_to - c_from) / period
         done = 0
         while done < n:
             # Motor.substep (powered)
@@ -115,9 +118,10 @@ class _Stepping:
             torque -= visc * omega
             v += torque / J / k * h
             x += v * h
-            # the CSP reference moves on to t + h
-            csp_t = min(csp_t + h, period)
-            vel = (c_to - c_from) / period
+            # the CSP reference moves on to t + h (min(csp_t + h, period), without the call)
+            csp_t += h
+            if period < csp_t:
+                csp_t = period
             pa = 0.0
             px, pv = c_from + vel * csp_t, (vel if csp_t < period else 0.0)
             done += 1
@@ -134,6 +138,7 @@ class _Stepping:
             x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
             px, pv, pa = prof.x, prof.v, prof.a
             csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
+            vel = (c_to - c_from) / period
             max_err = self.max_following_error_counts
             if self.state is not State.OPERATION_ENABLED:
                 return done

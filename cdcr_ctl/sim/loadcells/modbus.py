@@ -9,6 +9,7 @@ spec's t3.5: 3.5 characters, fixed 1.75 ms above 19200 bit/s).
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -132,22 +133,12 @@ class ModbusLoadCellSim(PtySim):
         """The reply PDU to a decoded request (None: stay silent, i.e. a dropout)."""
         slave = request.dev_id
         fc = request.function_code
-        rm = self.register_map
         if fc in (3, 4):
             if request.address + request.count > self.n_registers:
                 return ExceptionResponse(fc, 2, device_id=slave)
-            regs = list(self.registers[slave][request.address : request.address + request.count])
-            span = range(request.address, request.address + request.count)
-            vwords = 2 if rm.value_type == "int32" else 1
-            vregs = range(rm.value_register, rm.value_register + vwords)
-            if any(r in span for r in vregs):
-                force = self.feed.measure(self.slaves.index(slave))
-                if force is None:
-                    return None
-                words = self._value_words(self.counts(slave, force))
-                for r, w in zip(vregs, words, strict=True):
-                    if r in span:
-                        regs[r - request.address] = w
+            regs = self._read_registers(slave, request.address, request.count)
+            if regs is None:
+                return None
             cls = ReadHoldingRegistersResponse if fc == 3 else ReadInputRegistersResponse
             return cls(registers=regs, dev_id=slave)
         if fc in (6, 16):
@@ -160,6 +151,36 @@ class ModbusLoadCellSim(PtySim):
                 return WriteSingleRegisterResponse(address=start, registers=values, dev_id=slave)
             return WriteMultipleRegistersResponse(address=start, count=len(values), dev_id=slave)
         return ExceptionResponse(fc, 1, device_id=slave)
+
+    def _read_registers(self, slave: int, address: int, count: int) -> list[int] | None:
+        """Registers ``address`` .. ``address + count - 1`` of ``slave`` (in range), the value
+        measured now; None when the reading drops out."""
+        rm = self.register_map
+        regs = list(self.registers[slave][address : address + count])
+        span = range(address, address + count)
+        vwords = 2 if rm.value_type == "int32" else 1
+        vregs = range(rm.value_register, rm.value_register + vwords)
+        if any(r in span for r in vregs):
+            force = self.feed.measure(self.slaves.index(slave))
+            if force is None:
+                return None
+            words = self._value_words(self.counts(slave, force))
+            for r, w in zip(vregs, words, strict=True):
+                if r in span:
+                    regs[r - address] = w
+        return regs
+
+    def _read_reply(self, request: ModbusPDU, dev_id: int) -> bytes | None:
+        """The reply frame to a register read (fc 3/4) within the registers, built with one
+        ``struct`` and pymodbus's CRC: the bytes pymodbus's ``buildFrame`` makes of the
+        response PDU (device, function, byte count, registers big-endian, CRC), without the
+        PDU object. None when the reading drops out."""
+        regs = self._read_registers(dev_id, request.address, request.count)
+        if regs is None:
+            return None
+        n = len(regs)
+        body = struct.pack(f">BBB{n}H", dev_id, request.function_code, 2 * n, *regs)
+        return body + FramerRTU.compute_CRC(body).to_bytes(2, "big")
 
     def _write_register(self, slave: int, register: int, value: int) -> None:
         rm = self.register_map
@@ -229,6 +250,14 @@ class ModbusLoadCellSim(PtySim):
         """Answer one request of ``used`` bytes: its reply frame appended to ``out`` (none if
         :meth:`respond` drops it)."""
         self.stats.requests += 1
+        fc = request.function_code
+        if fc in (3, 4) and request.address + request.count <= self.n_registers:
+            frame = self._read_reply(request, dev_id)
+            if frame is None:
+                self.stats.dropped += 1
+                return
+            out.append((frame, used))
+            return
         reply = self.respond(request)
         if reply is None:
             self.stats.dropped += 1

@@ -82,6 +82,14 @@ class HostBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._link.to_nodes(msg)
 
+    def send_frames(
+        self, frames: Sequence[tuple[int, bytes]], timeout: float | None = None
+    ) -> None:
+        """A cycle's burst of standard data frames (id, data), in order (the group's burst
+        path, as :meth:`~cdcr_ctl.drives.slcan.SlcanBus.send_frames`): each handled by the
+        nodes now, without a ``can.Message`` per frame."""
+        self._link.burst_to_nodes(frames)
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         try:
             return self._queue.get(timeout=timeout), False
@@ -128,6 +136,18 @@ class CanLink:
         with self._lock:
             self.frames_to_nodes += 1
             self.network.notify(msg.arbitration_id, bytearray(msg.data), 0.0)
+        self.node_time_s += clock() - c0 - (self.decode_time_s - d0)
+
+    def burst_to_nodes(self, frames: Sequence[tuple[int, bytes]]) -> None:
+        """Standard data frames from the host, in order, each handled by every node now."""
+        clock = self.cpu_clock
+        c0 = clock()
+        d0 = self.decode_time_s
+        notify = self.network.notify
+        with self._lock:
+            for can_id, data in frames:
+                self.frames_to_nodes += 1
+                notify(can_id, bytearray(data), 0.0)
         self.node_time_s += clock() - c0 - (self.decode_time_s - d0)
 
     def to_host(self, msg: can.Message) -> None:

@@ -47,6 +47,9 @@ class SimClock:
         self.t0_s = float(t0_s)
         self._t = self.t0_s
         self._wake = threading.Event()
+        #: Set while the loop waits for work (it has ended its run, say), clear while it has
+        #: some: a caller waiting for a run's end waits on this, not polling the loop.
+        self.idle = threading.Event()
         self._closed = False
 
     def now(self) -> float:
@@ -57,10 +60,12 @@ class SimClock:
         """Wait for work (never for time), advance the world one period; (deadline, 0). The
         first cycle is at ``t0_s`` and advances nothing."""
         busy = self.busy
-        if busy is not None:
+        if busy is not None and not busy():
+            self.idle.set()
             while not busy() and not self._closed:
                 self._wake.wait(IDLE_POLL_S)
                 self._wake.clear()
+            self.idle.clear()
         if self.cycles > 0:
             t0, t1 = self._t, self.t0_s + self.cycles * self.period_s
             if self.advance is not None:

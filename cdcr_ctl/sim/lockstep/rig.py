@@ -75,6 +75,10 @@ log = logging.getLogger(__name__)
 #: these (ms) so that it never does; the frames still go out and are checked.
 LOCKSTEP_HEARTBEAT_MS = 1000
 LOCKSTEP_HEARTBEAT_CONSUMER_MS = 5000
+#: The drive group's watchdog thread (master heartbeat, idle heartbeat checks) wakes this often
+#: (s) instead of every 10 ms: with the heartbeats above it has nothing to do sooner, and every
+#: wake takes the interpreter lock from the loop thread (a thread switch each way).
+LOCKSTEP_WATCHDOG_S = 0.1
 
 #: Sensor traffic simulated before the loop's first cycle (s), see :meth:`LockstepRig._prime`.
 PRIME_S = 0.1
@@ -176,6 +180,7 @@ class LockstepRig:
             [by_cable[c.name] for c in ctl.robot.cables],
             file=ctl_file,
         )
+        group.watchdog_period_s = LOCKSTEP_WATCHDOG_S
         self.drives = DriveGroupPort(group)
         self._closers.insert(0, self.drives.close)
         group.boot()

@@ -18,7 +18,6 @@ simulated time.
 from __future__ import annotations
 
 import collections
-import dataclasses
 from collections.abc import Callable
 
 from cdcr_ctl.sensors.loadcell_modbus import READ_REQUEST_BYTES, ModbusLoadCellBus, char_time_s
@@ -27,7 +26,7 @@ from cdcr_ctl.sensors.natnet import FrameOfData, pack_frame_of_data
 from cdcr_ctl.sensors.tracker import NatNetTracker
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim
 from cdcr_ctl.sim.lockstep.canlink import no_cpu_clock
-from cdcr_ctl.sim.tracker import SIM_CLOCK_HZ, SimNatNetServer
+from cdcr_ctl.sim.tracker import SimNatNetServer
 
 
 class SerialLoopback:
@@ -122,12 +121,12 @@ class TrackerSchedule:
         c0 = self.cpu_clock()
         server = self.server
         while self.next_s <= t1:
-            self._queue.append((self.next_s + server.latency_s, server.make_frame(self.next_s)))
+            t_rx = self.next_s + server.latency_s
+            self._queue.append((t_rx, server.make_frame(self.next_s, transmit_s=t_rx)))
             self.next_s += server.period_s
         while self._queue and self._queue[0][0] <= t1:
             t_rx, frame = self._queue.popleft()
-            sent = dataclasses.replace(frame, stamp_transmit=int(t_rx * SIM_CLOCK_HZ))
-            data = pack_frame_of_data(sent, server.version)
+            data = pack_frame_of_data(frame, server.version)
             self.reader.handle_datagram(data, self._source, t_rx)
             self.frames += 1
         self.cpu_s += self.cpu_clock() - c0

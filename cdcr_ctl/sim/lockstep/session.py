@@ -28,6 +28,12 @@ from cdcr_ctl.sim.simconfig import LoadedSim
 
 #: Longest wall time a run may take per simulated second before it counts as stuck (s/s).
 STUCK_WALL_PER_SIM_S = 20.0
+#: :meth:`LockstepSession.run` waits for the loop to go idle (:attr:`SimClock.idle`), and looks
+#: at the run at least this often (s, wall clock; each look takes the interpreter lock from the
+#: loop thread).
+RUN_POLL_S = 0.05
+#: The loop went idle before it took the run up: look again after this (s, wall clock).
+TAKE_UP_WAIT_S = 0.001
 
 
 class LockstepSession:
@@ -110,12 +116,15 @@ class LockstepSession:
         comp = compensation or self.loop.cfg.compensation
         sink = self.sinks(name, comp) if log else None
         run = self.loop.follow(lead, name, compensation, sink)
-        self.rig.clock.wake()
+        clock = self.rig.clock
+        clock.wake()
         limit = time.monotonic() + 60.0 + STUCK_WALL_PER_SIM_S * lead.duration_s
         while run.state == "running" or self.loop.current_run is run:
             if time.monotonic() > limit or not self.loop.running:
                 raise RigError(f"lock-step run {name} did not end (state {run.state})")
-            time.sleep(0.005)  # the caller waits on the wall clock; the loop does not
+            # The caller waits on the wall clock; the loop does not.
+            if clock.idle.wait(RUN_POLL_S):
+                time.sleep(TAKE_UP_WAIT_S)  # idle with the run not ended: not yet taken up
         if sink is not None:
             sink.wait_closed(60.0)
         return run

@@ -146,8 +146,9 @@ class SimNatNetServer(_ServerThread):
         for address in self._live_subscribers(time.monotonic()):
             self.data_sock.sendto(data, address)
 
-    def make_frame(self, now: float) -> FrameOfData:
-        """Sample the truth and build the frame for time ``now`` (s, monotonic)."""
+    def make_frame(self, now: float, transmit_s: float | None = None) -> FrameOfData:
+        """Sample the truth and build the frame for time ``now`` (s, monotonic); its transmit
+        stamp is ``transmit_s`` (s, default ``now``)."""
         self.frame_number += 1
         occluded = self._occluded or (self.dropout > 0 and self.rng.random() < self.dropout)
         bodies: list[RigidBodyPose] = []
@@ -190,7 +191,7 @@ class SimNatNetServer(_ServerThread):
             timestamp_s=now - self._t0,
             stamp_mid_exposure=ticks,
             stamp_data_received=ticks,
-            stamp_transmit=ticks,
+            stamp_transmit=ticks if transmit_s is None else int(transmit_s * SIM_CLOCK_HZ),
             marker_sets=markers,
             labeled_markers=labeled,
         )
