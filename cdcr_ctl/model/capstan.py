@@ -272,6 +272,48 @@ class PulleyTransfer:
         """Tension on the robot side of the pulley from the actuator side (N)."""
         return self.lower_high(T_actuator_N, s) if s >= 0.0 else self.raise_low(T_actuator_N, -s)
 
+    def _lnk_mean(self, T_low_N: float) -> tuple[float, float]:
+        """(:meth:`ln_kappa`, :meth:`mean_ratio`) at one low-side tension: the same floats, one
+        logarithm and one table position for both."""
+        if self.constant:
+            return self._lnk, self._mean
+        if T_low_N <= 0.0:
+            return self._lnk_tab[0], self._mean_tab[0]
+        u = (math.log(T_low_N) - self._x0) / self._dx
+        if u <= 0.0:
+            return self._lnk_tab[0], self._mean_tab[0]
+        if u >= self._n_pts - 1:
+            return self._lnk_tab[-1], self._mean_tab[-1]
+        j = int(u)
+        f = u - j
+        a, b = self._lnk_tab[j], self._lnk_tab[j + 1]
+        c, d = self._mean_tab[j], self._mean_tab[j + 1]
+        return a + f * (b - a), c + f * (d - c)
+
+    def to_actuator_stretch(self, T_robot_N: float, s: float, T0_N: float) -> tuple[float, float]:
+        """(:meth:`to_actuator`, :meth:`stretch_integral` over this pulley) from the robot-side
+        tension: the same floats as the two calls, with the table looked up once where the low
+        side is the robot side (pulled in, s >= 0: the common case)."""
+        T = T_robot_N
+        if self.frictionless:
+            return self.to_actuator(T, s), self.stretch_integral(self.to_actuator(T, s), T, s, T0_N)
+        if s >= 0.0:
+            lnk, mean = self._lnk_mean(T)
+            Tn = T * math.exp(s * lnk)  # raise_low(T, s)
+            if Tn < T:  # (only with a negative ln kappa) the actuator side is the low one
+                lnk, mean = self._lnk_mean(Tn)
+                low = Tn
+            else:
+                low = T
+        else:
+            Tn = self.lower_high(T, -s)
+            low = Tn if Tn <= T else T
+            lnk, mean = self._lnk_mean(low)
+        f = abs(s)
+        if f < 1.0 and lnk > 0.0:
+            mean = 1.0 + (mean - 1.0) * math.expm1(f * lnk) / math.expm1(lnk)
+        return Tn, (low * mean - T0_N) * self.wrapped_mm
+
     def stretch_integral(self, T_a_N: float, T_b_N: float, s: float, T0_N: float) -> float:
         """Integral of (T - T0) over the wrapped length (N mm); T_a, T_b the two side tensions.
 

@@ -150,9 +150,8 @@ class TensionChain:
         T = T_base
         acc = (T - T0) * run
         for tr in self._pul_rev[k]:
-            Tn = tr.to_actuator(T, s)
-            acc += tr.stretch_integral(Tn, T, s, T0)
-            T = Tn
+            T, st = tr.to_actuator_stretch(T, s, T0)
+            acc += st
             acc += (T - T0) * run
         return T, acc * self._iEA[k]
 

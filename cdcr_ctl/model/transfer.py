@@ -26,7 +26,7 @@ import math
 from cdcr_ctl.model.capstan import PulleyTransfer
 from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
 from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
-from cdcr_ctl.model.routing import segment_chord_shortening, tangent_angle
+from cdcr_ctl.model.routing import tangent_angle
 from cdcr_ctl.model.statics import G_MM_S2_TO_N
 from cdcr_ctl.model.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
 
@@ -124,6 +124,8 @@ class ForceTransfer(TensionChain):
         self._last_xs: list[float] | None = None
         self._last_pose: Pose | None = None
         self._cc_arm = [(self._ex[k], self._ey[k]) for k in range(K)]
+        #: segments some cable crosses (the chord geometry's per-segment factors)
+        self._n_arm_segs = max(self._a) + 1 if K else 0
 
     # ------------------------------------------------------------------ geometry and loads
     def pose(self, xs: list[float]) -> Pose:
@@ -183,22 +185,39 @@ class ForceTransfer(TensionChain):
         return Pose(theta, q_geom, arm, Zb, inner, m_req)
 
     def _chord_geometry(self, xs, theta, ux, uy):
+        """q_geom and arms with the exact chords (routing.segment_chord_shortening and its
+        gradient), the per-segment factors computed once for all the cables crossing it.
+
+        Per segment, a = theta/2n: shortening l (1 - s1(a)) + 2 n r cos(phi - gamma) sin a
+        - 2 n t sin^2(a/2), with r cos(phi - gamma) = e.u (e = r (cos gamma, sin gamma) the hole,
+        u = (cos phi, sin phi)); gradient w.r.t. x_i: f x_i + s1(a) e with
+        f = d1(a)/4n^2 (e.x_i - l) - t s1(a)/4n, since ds1(a)/dx = d1(a) x/4n^2.
+        """
+        seg = []
+        for i in range(self._n_arm_segs):
+            t, n, L, tk = theta[i], self._n[i], self._l[i], self._tk[i]
+            a = 0.5 * t / n
+            sa = s1(a)
+            h = math.sin(0.5 * a)
+            seg.append(
+                (
+                    L * (1.0 - sa) - 2.0 * n * tk * h * h,
+                    2.0 * n * math.sin(a),
+                    d1(a) / (4.0 * n * n),
+                    tk * sa / (4.0 * n),
+                    sa,
+                )
+            )
         q_geom, arm = [], []
         for k in range(self.K):
-            r, gam = self._r[k], self._gam[k]
+            ex, ey = self._ex[k], self._ey[k]
             qk = 0.0
             ak = []
             for i in range(self._a[k] + 1):
-                X, Y, t, n, L = xs[2 * i], xs[2 * i + 1], theta[i], self._n[i], self._l[i]
-                phi = math.atan2(uy[i], ux[i])
-                tk = self._tk[i]
-                qk += segment_chord_shortening(t, phi, L, n, r, gam, tk)
-                # gradient of routing.segment_chord_shortening w.r.t. x_i, a = theta/2n:
-                # l (1 - s1(a)) + s1(a) r e.x - n t (1 - cos a), with ds1(a)/dx = d1(a) x/4n^2
-                a = 0.5 * t / n
-                ex, ey = self._ex[k], self._ey[k]
-                sa = s1(a)
-                f = d1(a) / (4.0 * n * n) * (ex * X + ey * Y - L) - tk * sa / (4.0 * n)
+                X, Y = xs[2 * i], xs[2 * i + 1]
+                base, two_n_sin, fd, ft, sa = seg[i]
+                qk += base + two_n_sin * (ex * ux[i] + ey * uy[i])
+                f = fd * (ex * X + ey * Y - self._l[i]) - ft
                 ak.append((f * X + sa * ex, f * Y + sa * ey))
             q_geom.append(qk)
             arm.append(ak)

@@ -15,7 +15,7 @@ from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.friction import FrictionState, direction_update
-from cdcr_ctl.model.kinematics import tip_position_fast, x_to_psi
+from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.model.tension_chain import Transfer
@@ -100,17 +100,24 @@ class ForwardModel:
         x_guess: np.ndarray | None = None,
         T_guess: np.ndarray | None = None,
         modes_hint: tuple[str, ...] | None = None,
+        q_guess: list[float] | None = None,
     ) -> ForwardResult:
         """Pose, tensions and new friction state for cable displacements ``q_act_mm`` (K,).
 
         ``q_act_mm`` is the cable pulled in at the actuator (after any actuator effects), mm.
         ``state`` is the friction state before this step (default: straight, nothing mobilised);
         ``x_guess``/``T_guess`` warm-start bending vectors and anchor tensions, ``modes_hint`` the
-        cable modes (``stick``/``slide``/``slack``/``free``). Raises :class:`ModelError` when no
+        cable modes (``stick``/``slide``/``slack``/``free``). ``q_guess``: the cable
+        displacements (mm) the guess solves, when known (a predictor's); the guess is then moved
+        to ``q_act_mm`` by one chord step of the last Jacobian before the first evaluation
+        (:meth:`_linear_move`; performance only). Raises :class:`ModelError` when no
         consistent solution is found (e.g. a segment whose own cables all went slack).
         """
         K, S = self.K, self.S
-        q_act = [float(v) for v in np.asarray(q_act_mm, dtype=float).reshape(K)]
+        if isinstance(q_act_mm, list) and len(q_act_mm) == K:
+            q_act = [float(v) for v in q_act_mm]
+        else:
+            q_act = [float(v) for v in np.asarray(q_act_mm, dtype=float).reshape(K)]
         st = FrictionState.initial(K) if state is None else state
         if self.rigid:
             return self._solve_rigid(q_act, st, x_guess)
@@ -122,8 +129,11 @@ class ForwardModel:
         )
         z = x0 + T0 + [float(v) for v in st.s]
         w_prev = list(st.w_mm)
-        P = self.ft.pose(x0)
         modes = list(modes_hint) if modes_hint is not None else [STICK] * K
+        if q_guess is not None and self._Jraw is not None:
+            z = self._linear_move(z, q_guess, q_act, modes)
+            x0 = z[: 2 * S]
+        P = self.ft.pose(x0)
         sigma = [1.0 if v >= 0 else -1.0 for v in st.s]
         hold = list(st.s)
         for k in range(K):
@@ -160,6 +170,29 @@ class ForwardModel:
         if res > 1e-6:
             raise ModelError(f"forward model did not converge (residual {res:.3g})")
         return self._result(z, modes, total_it, res, w_prev, raw)
+
+    def _linear_move(
+        self, z: list[float], q_from: list[float], q_to: list[float], modes: list[str]
+    ) -> list[float]:
+        """``z`` (a guess that solves cable displacements ``q_from``, mm) moved to ``q_to`` by
+        one chord step of the last Jacobian, with no evaluation (a warm start only).
+
+        At a solution for q_from the residual for q_to is, to first order, only the cable
+        compatibility rows' (q_from - q_to) / r (stick, slide and moment rows unchanged, slack
+        cables have no compatibility row), so dz = -J^-1 r moves z along the linearised
+        solution path. The Newton iteration then converges from there to the tolerance as
+        from any start: the solution does not depend on this step, only the work does.
+        """
+        S2, K = 2 * self.S, self.K
+        r = np.zeros(S2 + 2 * K)
+        for k in range(K):
+            if modes[k] != SLACK:
+                r[S2 + k] = (q_from[k] - q_to[k]) * self._w_len
+        dz = self._step(modes, r)
+        big = float(np.max(np.abs(dz[:S2]))) if S2 else 0.0
+        if big > _MAX_DX:  # the trust region of the Newton steps
+            dz *= _MAX_DX / big
+        return [a + b for a, b in zip(z, dz.tolist(), strict=True)]
 
     # ------------------------------------------------------------------ rigid cables
     def _solve_rigid(
@@ -458,11 +491,16 @@ class ForwardModel:
         return self._pack(xs, tr, state, tuple(modes), it, res)
 
     def _pack(self, xs, tr, state, modes, it, res) -> ForwardResult:
-        x = np.asarray(xs, dtype=float)
+        xs = [float(v) for v in xs]
+        psi = []
+        for i in range(self.S):  # x_to_psi on floats: theta >= 0, phi = 0 where straight
+            X, Y = xs[2 * i], xs[2 * i + 1]
+            t = math.hypot(X, Y)
+            psi.append((t, math.atan2(Y, X) if t > 0.0 else 0.0))
         return ForwardResult(
-            psi=x_to_psi(x.reshape(-1, 2)),
-            x=x,
-            tip_mm=np.array(tip_position_fast(list(xs), self._lengths)),
+            psi=np.array(psi, dtype=float).reshape(-1, 2),
+            x=np.array(xs, dtype=float),
+            tip_mm=np.array(tip_position_fast(xs, self._lengths)),
             tension_distal_N=np.asarray(tr.T_distal),
             tension_base_N=np.asarray(tr.T_base),
             tension_actuator_N=np.asarray(tr.T_actuator),
