@@ -248,20 +248,34 @@ class PulleyTransfer:
         return T_low_N * math.exp(frac * self.ln_kappa(T_low_N))
 
     def lower_high(self, T_high_N: float, frac: float) -> float:
-        """Low-side tension whose :meth:`raise_low` is ``T_high_N`` (Newton on the piecewise-linear
-        table in ln T; one step when kappa is constant)."""
+        """Low-side tension whose :meth:`raise_low` is ``T_high_N``.
+
+        Solves y + frac ln kappa(y) = ln T_high for y = ln T_low on the table, which is linear in
+        ln T between grid points: on the piece j holding y, ln kappa = a_j + m_j (y - y_j), so
+        y = (ln T_high - frac (a_j - m_j y_j)) / (1 + frac m_j) exactly (what Newton's method on
+        the table converges to); started on the piece of ln T_high - frac ln kappa(T_high) and
+        moved to the piece the solution lies on (one step when kappa is constant)."""
         if self.constant:
             return T_high_N * math.exp(-frac * self._lnk)
         if T_high_N <= 0.0:
             return T_high_N * math.exp(-frac * self._lnk_tab[0])
+        tab, x0, dx, last = self._lnk_tab, self._x0, self._dx, self._n_pts - 1
         lnH = math.log(T_high_N)
-        y = lnH - frac * self.ln_kappa(T_high_N)
-        for _ in range(30):
-            val, slope = self._interp(self._lnk_tab, y)
-            f = y + frac * val - lnH
-            if abs(f) < 1e-13:
+        y = lnH - frac * self._interp(tab, lnH)[0]
+        piece = -2
+        for _ in range(last + 2):
+            u = (y - x0) / dx
+            j = -1 if u <= 0.0 else (last if u >= last else int(u))
+            if j == piece:
                 break
-            y -= f / (1.0 + frac * slope)
+            piece = j
+            if j < 0:  # held at the edge values outside the table
+                y = lnH - frac * tab[0]
+            elif j == last:
+                y = lnH - frac * tab[-1]
+            else:
+                m = (tab[j + 1] - tab[j]) / dx
+                y = (lnH - frac * (tab[j] - m * (x0 + j * dx))) / (1.0 + frac * m)
         return math.exp(y)
 
     def to_actuator(self, T_robot_N: float, s: float) -> float:
