@@ -86,6 +86,7 @@ class ForceTransfer(TensionChain):
             else []
             for s in segs
         ]
+        self._disk_mass = [sum(m for _, m in d) for d in self._disks]
         cab = params.cables
         self._a = [c.segment for c in cab]
         self._r = [c.routing_radius_mm for c in cab]
@@ -256,19 +257,24 @@ class ForceTransfer(TensionChain):
         for i in range(S - 1, -1, -1):
             X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
             gx, gy, gz = gs[i]
-            Qx = Qy = 0.0
-            ox = oy = oz = om = 0.0
+            # own disks (mass m at arc fraction sig): first moment m (sig^2 l c2 X, sig^2 l c2 Y,
+            # sig l s1) and weight moment m sig^2 l (c2 g + sig^2 d2 x (x.g) + sig d1 x g_z),
+            # ratios at sig theta, summed over the disks as four scalars (A, B, C, D) first
+            A = B = C = D = 0.0
             for sig, m in self._disks[i]:
                 ss1, cc2, dd1, dd2, _ = _ratios(sig * t)
-                s2 = sig * sig
-                ox += m * s2 * L * cc2 * X
-                oy += m * s2 * L * cc2 * Y
-                oz += m * sig * L * ss1
-                om += m
-                xg = X * gx + Y * gy
-                f = m * s2 * L
-                Qx += f * (cc2 * gx + s2 * dd2 * X * xg + sig * dd1 * X * gz)
-                Qy += f * (cc2 * gy + s2 * dd2 * Y * xg + sig * dd1 * Y * gz)
+                ms2 = m * sig * sig
+                A += ms2 * cc2
+                B += ms2 * sig * sig * dd2
+                C += ms2 * sig * dd1
+                D += m * sig * ss1
+            om = self._disk_mass[i]
+            xg = X * gx + Y * gy
+            ox = L * A * X
+            oy = L * A * Y
+            oz = L * D
+            Qx = L * (A * gx + (B * xg + C * gz) * X)
+            Qy = L * (A * gy + (B * xg + C * gz) * Y)
             R = Rs[i]
             Dx = R[0] * Ex + R[1] * Ey + R[2] * Ez
             Dy = R[3] * Ex + R[4] * Ey + R[5] * Ez
