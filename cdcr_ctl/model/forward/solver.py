@@ -374,8 +374,11 @@ class ForwardModel:
             alpha = 1.0
             f0 = float(r @ r)
             accepted = False
+            # Python floats (numpy scalars in z would make every operation of the chain
+            # several times slower; the same IEEE doubles either way)
+            dzl = dz.tolist()
             while alpha >= 1e-4:
-                zn = [z[j] + alpha * dz[j] for j in range(len(z))]
+                zn = [a + alpha * b for a, b in zip(z, dzl, strict=True)]
                 try:
                     rawn = self._raw(zn)
                     rn = self._residual(rawn, zn, q_act, w_prev, modes, sigma, hold)
