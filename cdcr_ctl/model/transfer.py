@@ -114,6 +114,8 @@ class ForceTransfer(TensionChain):
                 )
             self._pul.append(trs)
         self._pul_rev = [list(reversed(t)) for t in self._pul]
+        #: ln kappa of each pulley of each cable at its pretension (friction capacity)
+        self._pul_lnk0 = [[tr.ln_kappa(self._T0[k]) for tr in t] for k, t in enumerate(self._pul)]
         self._run = [c.free_length_mm / (len(c.pulleys) + 1) for c in cab]
         self._own = [list(params.cables_of(i)) for i in range(S)]
         self._distal = [[k for k in range(K) if self._a[k] > i] for i in range(S)]

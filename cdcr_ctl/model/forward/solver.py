@@ -267,23 +267,26 @@ class ForwardModel:
         return P, Fb, Eb, mom, cab
 
     def _residual(self, raw, z, q_act, w_prev, modes, sigma, hold) -> np.ndarray:
+        """Scaled residual [moments (2S), compatibility (K), friction (K)], rad-equivalent
+        (built as floats, one array at the end)."""
         _, _, _, mom, cab = raw
         S2, K = 2 * self.S, self.K
-        r = np.empty(S2 + 2 * K)
-        r[:S2] = np.asarray(mom) * self._w_mom
+        w_mom, w_len = self._w_mom, self._w_len
+        r = [v * w_mom for v in mom]
+        fr = []
         for k in range(K):
             m = modes[k]
             if m == SLACK:
-                r[S2 + k] = z[S2 + k] / self._T_scale
+                r.append(z[S2 + k] / self._T_scale)
             else:
-                r[S2 + k] = (cab[k][3] - q_act[k]) * self._w_len
+                r.append((cab[k][3] - q_act[k]) * w_len)
             if m == STICK:
-                r[S2 + K + k] = (cab[k][2] - w_prev[k]) * self._w_len
+                fr.append((cab[k][2] - w_prev[k]) * w_len)
             elif m == SLIDE:
-                r[S2 + K + k] = z[S2 + K + k] - sigma[k]
+                fr.append(z[S2 + K + k] - sigma[k])
             else:
-                r[S2 + K + k] = z[S2 + K + k] - hold[k]
-        return r
+                fr.append(z[S2 + K + k] - hold[k])
+        return np.array(r + fr)
 
     def _jacobian(self, raw, z, modes) -> np.ndarray:
         """Jacobian of the raw functions [mom (2S), q (K), w (K)] w.r.t. z = [x, T, s]."""
@@ -385,7 +388,7 @@ class ForwardModel:
                     fn = float(rn @ rn)
                 except (OverflowError, ValueError, ZeroDivisionError):
                     fn = math.inf
-                if np.isfinite(fn) and fn <= (1.0 - 1e-4 * alpha) * f0:
+                if math.isfinite(fn) and fn <= (1.0 - 1e-4 * alpha) * f0:
                     accepted = True
                     break
                 alpha *= 0.5
@@ -399,7 +402,11 @@ class ForwardModel:
             self._slow = need_jac = new_norm > 0.1 * norm
             norm = new_norm
             # a stuck cable that needs far more than full friction will slide: stop early
-            if any(modes[k] == STICK and abs(z[S2 + K + k]) > 2.0 for k in range(K)):
+            far = False
+            for k in range(K):
+                if modes[k] == STICK and abs(z[S2 + K + k]) > 2.0:
+                    far = True
+            if far:
                 break
         return z, it, norm, raw
 
