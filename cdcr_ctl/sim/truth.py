@@ -136,7 +136,7 @@ class TruthModel(SteppedTruth):
 
     def _solve(self, q_act: np.ndarray) -> TruthState:
         r = self.stepper.step(q_act)
-        R, _ = tip_frame_fast(r.x.tolist(), self._lengths)
+        R = r.R_tip if r.R_tip is not None else tip_frame_fast(r.x.tolist(), self._lengths)[0]
         return TruthState(
             q_act_mm=q_act.copy(),
             psi=r.psi.copy(),

@@ -15,7 +15,7 @@ from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.friction import FrictionState, direction_update
-from cdcr_ctl.model.kinematics import tip_position_fast
+from cdcr_ctl.model.kinematics import tip_frame_fast
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.model.tension_chain import Transfer
@@ -57,6 +57,8 @@ class ForwardResult:
     modes: tuple[str, ...]
     iterations: int
     residual: float  # largest scaled residual (rad-equivalent); rigid cables: mm
+    #: tip frame's rotation (3, 3) in the base frame (eq. 1-3, computed with tip_mm)
+    R_tip: np.ndarray | None = None
 
     def tension_at(self, location: str) -> np.ndarray:
         """Tensions at the load-cell location (``robot_base`` or ``actuator``)."""
@@ -147,8 +149,9 @@ class ForwardModel:
         P = self.ft.pose(x0)
         sigma = [1.0 if v >= 0 else -1.0 for v in st.s]
         hold = list(st.s)
+        has_friction = self.ft.has_friction
         for k in range(K):
-            if not self.ft.has_friction[k] or self.ft.friction_capacity(P, k) < 1e-12:
+            if not has_friction[k] or self.ft.friction_capacity(P, k) < 1e-12:
                 if modes[k] != SLACK:
                     modes[k] = FREE
             elif modes[k] == FREE:
@@ -518,10 +521,11 @@ class ForwardModel:
             X, Y = xs[2 * i], xs[2 * i + 1]
             t = math.hypot(X, Y)
             psi.append((t, math.atan2(Y, X) if t > 0.0 else 0.0))
+        R, tip = tip_frame_fast(xs, self._lengths)
         return ForwardResult(
             psi=np.array(psi, dtype=float).reshape(-1, 2),
             x=np.array(xs, dtype=float),
-            tip_mm=np.array(tip_position_fast(xs, self._lengths)),
+            tip_mm=np.array(tip),
             tension_distal_N=np.asarray(tr.T_distal),
             tension_base_N=np.asarray(tr.T_base),
             tension_actuator_N=np.asarray(tr.T_actuator),
@@ -531,4 +535,5 @@ class ForwardModel:
             modes=modes,
             iterations=it,
             residual=res,
+            R_tip=np.array(R),
         )
