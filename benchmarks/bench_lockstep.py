@@ -114,7 +114,7 @@ def main() -> None:
                 truth_s = p["truth"] + p["truth_worker"]
                 print(
                     f"  truth: {solves} statics solves, {truth_s / max(solves, 1) * 1e6:.1f} us "
-                    "CPU per solve (benchmarks/bench_truth.py: the solve alone)"
+                    "CPU per solve (the solve without a loop beside it: benchmarks/bench_truth.py)"
                 )
         finally:
             s.close()
