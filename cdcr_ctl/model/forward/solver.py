@@ -2,18 +2,18 @@
 
 :class:`ForwardModel` solves moment balance (Qi et al. 2023 eq. 9-15), cable compatibility
 (eq. 33-37) and the friction active set by Newton's method; see :mod:`cdcr_ctl.model.forward`
-for the equations. :class:`ForwardResult` is one solved pose.
+for the equations. :class:`~cdcr_ctl.model.forward.result.ForwardResult` is one solved pose.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.forward.result import ForwardResult, _amax
 from cdcr_ctl.model.friction import FrictionState, direction_update
 from cdcr_ctl.model.kinematics import tip_frame_fast
 from cdcr_ctl.model.params import Effects, RobotParams
@@ -28,41 +28,6 @@ _MODE_ROUNDS = 12
 _MAX_DX = 0.3  # rad, largest change of a bending vector component per Newton step
 #: A stepper that cannot solve a step at once splits it into up to 2**SUBSTEP_LEVELS sub-steps.
 SUBSTEP_LEVELS = 4
-
-
-def _amax(v: np.ndarray) -> float:
-    """max |v_i| of a short vector, NaN if any entry is NaN (as ``np.max(np.abs(v))``), on
-    floats: a third of the numpy reductions' call cost for the solver's 2S + 2K entries."""
-    vals = v.tolist()
-    m = max(map(abs, vals))
-    for x in vals:
-        if x != x:
-            return x
-    return m
-
-
-@dataclass(frozen=True)
-class ForwardResult:
-    """A solved static pose (arrays in cable / segment order)."""
-
-    psi: np.ndarray  # (S, 2) theta, phi (rad)
-    x: np.ndarray  # (2S,) bending vectors (rad)
-    tip_mm: np.ndarray  # (3,) base frame
-    tension_distal_N: np.ndarray
-    tension_base_N: np.ndarray
-    tension_actuator_N: np.ndarray
-    q_geom_mm: np.ndarray
-    delta_mm: np.ndarray
-    state: FrictionState
-    modes: tuple[str, ...]
-    iterations: int
-    residual: float  # largest scaled residual (rad-equivalent); rigid cables: mm
-    #: tip frame's rotation (3, 3) in the base frame (eq. 1-3, computed with tip_mm)
-    R_tip: np.ndarray | None = None
-
-    def tension_at(self, location: str) -> np.ndarray:
-        """Tensions at the load-cell location (``robot_base`` or ``actuator``)."""
-        return self.tension_base_N if location == "robot_base" else self.tension_actuator_N
 
 
 class ForwardModel:
