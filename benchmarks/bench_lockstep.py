@@ -69,6 +69,7 @@ def main() -> None:
                 rig, loop = s.rig, s.loop
                 cyc0, t_sim0 = rig.clock.cycles, rig.clock.now()
                 parts0 = rig.cpu_breakdown_s()
+                solves0 = rig.truth_steps
                 work0, send0 = loop.counters.work_cpu_s, send_cpu[0]
                 w0, c0 = time.perf_counter(), time.process_time()
                 run = s.run(traj, f"bench{i}", args.compensation)
@@ -109,6 +110,12 @@ def main() -> None:
                 ]
                 for label, v in rows:
                     print(f"    {label:46s} {v * us:8.1f} us")
+                solves = rig.truth_steps - solves0
+                truth_s = p["truth"] + p["truth_worker"]
+                print(
+                    f"  truth: {solves} statics solves, {truth_s / max(solves, 1) * 1e6:.1f} us "
+                    "CPU per solve (the solve without a loop beside it: benchmarks/bench_truth.py)"
+                )
         finally:
             s.close()
 

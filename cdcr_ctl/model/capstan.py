@@ -248,20 +248,34 @@ class PulleyTransfer:
         return T_low_N * math.exp(frac * self.ln_kappa(T_low_N))
 
     def lower_high(self, T_high_N: float, frac: float) -> float:
-        """Low-side tension whose :meth:`raise_low` is ``T_high_N`` (Newton on the piecewise-linear
-        table in ln T; one step when kappa is constant)."""
+        """Low-side tension whose :meth:`raise_low` is ``T_high_N``.
+
+        Solves y + frac ln kappa(y) = ln T_high for y = ln T_low on the table, which is linear in
+        ln T between grid points: on the piece j holding y, ln kappa = a_j + m_j (y - y_j), so
+        y = (ln T_high - frac (a_j - m_j y_j)) / (1 + frac m_j) exactly (what Newton's method on
+        the table converges to); started on the piece of ln T_high - frac ln kappa(T_high) and
+        moved to the piece the solution lies on (one step when kappa is constant)."""
         if self.constant:
             return T_high_N * math.exp(-frac * self._lnk)
         if T_high_N <= 0.0:
             return T_high_N * math.exp(-frac * self._lnk_tab[0])
+        tab, x0, dx, last = self._lnk_tab, self._x0, self._dx, self._n_pts - 1
         lnH = math.log(T_high_N)
-        y = lnH - frac * self.ln_kappa(T_high_N)
-        for _ in range(30):
-            val, slope = self._interp(self._lnk_tab, y)
-            f = y + frac * val - lnH
-            if abs(f) < 1e-13:
+        y = lnH - frac * self._interp(tab, lnH)[0]
+        piece = -2
+        for _ in range(last + 2):
+            u = (y - x0) / dx
+            j = -1 if u <= 0.0 else (last if u >= last else int(u))
+            if j == piece:
                 break
-            y -= f / (1.0 + frac * slope)
+            piece = j
+            if j < 0:  # held at the edge values outside the table
+                y = lnH - frac * tab[0]
+            elif j == last:
+                y = lnH - frac * tab[-1]
+            else:
+                m = (tab[j + 1] - tab[j]) / dx
+                y = (lnH - frac * (tab[j] - m * (x0 + j * dx))) / (1.0 + frac * m)
         return math.exp(y)
 
     def to_actuator(self, T_robot_N: float, s: float) -> float:
@@ -271,6 +285,48 @@ class PulleyTransfer:
     def to_robot(self, T_actuator_N: float, s: float) -> float:
         """Tension on the robot side of the pulley from the actuator side (N)."""
         return self.lower_high(T_actuator_N, s) if s >= 0.0 else self.raise_low(T_actuator_N, -s)
+
+    def _lnk_mean(self, T_low_N: float) -> tuple[float, float]:
+        """(:meth:`ln_kappa`, :meth:`mean_ratio`) at one low-side tension: the same floats, one
+        logarithm and one table position for both."""
+        if self.constant:
+            return self._lnk, self._mean
+        if T_low_N <= 0.0:
+            return self._lnk_tab[0], self._mean_tab[0]
+        u = (math.log(T_low_N) - self._x0) / self._dx
+        if u <= 0.0:
+            return self._lnk_tab[0], self._mean_tab[0]
+        if u >= self._n_pts - 1:
+            return self._lnk_tab[-1], self._mean_tab[-1]
+        j = int(u)
+        f = u - j
+        a, b = self._lnk_tab[j], self._lnk_tab[j + 1]
+        c, d = self._mean_tab[j], self._mean_tab[j + 1]
+        return a + f * (b - a), c + f * (d - c)
+
+    def to_actuator_stretch(self, T_robot_N: float, s: float, T0_N: float) -> tuple[float, float]:
+        """(:meth:`to_actuator`, :meth:`stretch_integral` over this pulley) from the robot-side
+        tension: the same floats as the two calls, with the table looked up once where the low
+        side is the robot side (pulled in, s >= 0: the common case)."""
+        T = T_robot_N
+        if self.frictionless:
+            return self.to_actuator(T, s), self.stretch_integral(self.to_actuator(T, s), T, s, T0_N)
+        if s >= 0.0:
+            lnk, mean = self._lnk_mean(T)
+            Tn = T * math.exp(s * lnk)  # raise_low(T, s)
+            if Tn < T:  # (only with a negative ln kappa) the actuator side is the low one
+                lnk, mean = self._lnk_mean(Tn)
+                low = Tn
+            else:
+                low = T
+        else:
+            Tn = self.lower_high(T, -s)
+            low = Tn if Tn <= T else T
+            lnk, mean = self._lnk_mean(low)
+        f = abs(s)
+        if f < 1.0 and lnk > 0.0:
+            mean = 1.0 + (mean - 1.0) * math.expm1(f * lnk) / math.expm1(lnk)
+        return Tn, (low * mean - T0_N) * self.wrapped_mm
 
     def stretch_integral(self, T_a_N: float, T_b_N: float, s: float, T0_N: float) -> float:
         """Integral of (T - T0) over the wrapped length (N mm); T_a, T_b the two side tensions.

@@ -46,6 +46,20 @@ def play_forward(x_mm: np.ndarray, y_prev_mm: np.ndarray, width_mm: np.ndarray) 
     return np.clip(np.asarray(y_prev_mm, dtype=float), x_mm - half, x_mm + half)
 
 
+def play_forward_list(
+    x_mm: list[float], y_prev_mm: list[float], half_mm: list[float]
+) -> list[float]:
+    """:func:`play_forward` on plain floats for a few cables (the numpy clip costs ~10 us for
+    K = 3, this ~1 us): min(max(y_prev, x - b/2), x + b/2), mm, the same floats as np.clip."""
+    out = []
+    for x, y, h in zip(x_mm, y_prev_mm, half_mm, strict=True):
+        lo = x - h
+        hi = x + h
+        v = lo if y < lo else y
+        out.append(hi if v > hi else v)
+    return out
+
+
 def dead_zone_inverse(
     y_mm: np.ndarray,
     y_prev_mm: np.ndarray,

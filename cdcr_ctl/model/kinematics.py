@@ -305,6 +305,20 @@ def tip_position_fast(xs: list[float], lengths_mm: list[float]) -> tuple[float, 
 
     Same result as :func:`tip_position` (tested) for use once per control cycle.
     """
+    return tip_frame_fast(xs, lengths_mm)[1]
+
+
+def tip_frame_fast(
+    xs: list[float], lengths_mm: list[float]
+) -> tuple[tuple[tuple[float, float, float], ...], tuple[float, float, float]]:
+    """Tip frame of the last segment in the robot base frame from flat bending vectors
+    ``xs`` (x_1, y_1, x_2, ...; rad), eq. 1-3 on plain floats: (R rows, p in mm).
+
+    The same frame as ``chain(psi, lengths_mm)[-1]`` within rounding (tested). Each segment in
+    bending-vector form (X, Y) = theta (cos phi, sin phi), t = theta, a = s1(t), b = c2(t):
+    R = [[1 - b X^2, -b X Y, a X], [-b X Y, 1 - b Y^2, a Y], [-a X, -a Y, 1 - b t^2]] (eq. 1)
+    and p = l (b X, b Y, a) (eq. 2), chained R_i = R_{i-1} R, P_i = R_{i-1} p + P_{i-1} (eq. 3).
+    """
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     px = py = pz = 0.0
     for i, L in enumerate(lengths_mm):
@@ -329,4 +343,4 @@ def tip_position_fast(xs: list[float], lengths_mm: list[float]) -> tuple[float, 
             r20 * q01 + r21 * q11 + r22 * q21,
             r20 * q02 + r21 * q12 + r22 * q22,
         )
-    return px, py, pz
+    return ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22)), (px, py, pz)

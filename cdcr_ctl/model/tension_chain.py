@@ -150,9 +150,8 @@ class TensionChain:
         T = T_base
         acc = (T - T0) * run
         for tr in self._pul_rev[k]:
-            Tn = tr.to_actuator(T, s)
-            acc += tr.stretch_integral(Tn, T, s, T0)
-            T = Tn
+            T, st = tr.to_actuator_stretch(T, s, T0)
+            acc += st
             acc += (T - T0) * run
         return T, acc * self._iEA[k]
 
@@ -236,8 +235,8 @@ class TensionChain:
     def friction_capacity(self, P: Pose, k: int) -> float:
         """ln(T_high/T_low) of cable k fully sliding at this pose (holes + pulleys at T0)."""
         cap = self._mu[k] * P.Zb[self._a[k]]
-        for tr in self._pul[k]:
-            cap += tr.ln_kappa(self._T0[k])
+        for lnk in self._pul_lnk0[k]:  # ln kappa of each pulley at T0, in pulley order
+            cap += lnk
         return cap
 
     def pulleys(self, k: int) -> list[PulleyTransfer]:

@@ -26,7 +26,7 @@ import math
 from cdcr_ctl.model.capstan import PulleyTransfer
 from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
 from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
-from cdcr_ctl.model.routing import segment_chord_shortening, tangent_angle
+from cdcr_ctl.model.routing import tangent_angle
 from cdcr_ctl.model.statics import G_MM_S2_TO_N
 from cdcr_ctl.model.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
 
@@ -86,6 +86,7 @@ class ForceTransfer(TensionChain):
             else []
             for s in segs
         ]
+        self._disk_mass = [sum(m for _, m in d) for d in self._disks]
         cab = params.cables
         self._a = [c.segment for c in cab]
         self._r = [c.routing_radius_mm for c in cab]
@@ -113,6 +114,8 @@ class ForceTransfer(TensionChain):
                 )
             self._pul.append(trs)
         self._pul_rev = [list(reversed(t)) for t in self._pul]
+        #: ln kappa of each pulley of each cable at its pretension (friction capacity)
+        self._pul_lnk0 = [[tr.ln_kappa(self._T0[k]) for tr in t] for k, t in enumerate(self._pul)]
         self._run = [c.free_length_mm / (len(c.pulleys) + 1) for c in cab]
         self._own = [list(params.cables_of(i)) for i in range(S)]
         self._distal = [[k for k in range(K) if self._a[k] > i] for i in range(S)]
@@ -124,6 +127,8 @@ class ForceTransfer(TensionChain):
         self._last_xs: list[float] | None = None
         self._last_pose: Pose | None = None
         self._cc_arm = [(self._ex[k], self._ey[k]) for k in range(K)]
+        #: segments some cable crosses (the chord geometry's per-segment factors)
+        self._n_arm_segs = max(self._a) + 1 if K else 0
 
     # ------------------------------------------------------------------ geometry and loads
     def pose(self, xs: list[float]) -> Pose:
@@ -183,22 +188,39 @@ class ForceTransfer(TensionChain):
         return Pose(theta, q_geom, arm, Zb, inner, m_req)
 
     def _chord_geometry(self, xs, theta, ux, uy):
+        """q_geom and arms with the exact chords (routing.segment_chord_shortening and its
+        gradient), the per-segment factors computed once for all the cables crossing it.
+
+        Per segment, a = theta/2n: shortening l (1 - s1(a)) + 2 n r cos(phi - gamma) sin a
+        - 2 n t sin^2(a/2), with r cos(phi - gamma) = e.u (e = r (cos gamma, sin gamma) the hole,
+        u = (cos phi, sin phi)); gradient w.r.t. x_i: f x_i + s1(a) e with
+        f = d1(a)/4n^2 (e.x_i - l) - t s1(a)/4n, since ds1(a)/dx = d1(a) x/4n^2.
+        """
+        seg = []
+        for i in range(self._n_arm_segs):
+            t, n, L, tk = theta[i], self._n[i], self._l[i], self._tk[i]
+            a = 0.5 * t / n
+            sa = s1(a)
+            h = math.sin(0.5 * a)
+            seg.append(
+                (
+                    L * (1.0 - sa) - 2.0 * n * tk * h * h,
+                    2.0 * n * math.sin(a),
+                    d1(a) / (4.0 * n * n),
+                    tk * sa / (4.0 * n),
+                    sa,
+                )
+            )
         q_geom, arm = [], []
         for k in range(self.K):
-            r, gam = self._r[k], self._gam[k]
+            ex, ey = self._ex[k], self._ey[k]
             qk = 0.0
             ak = []
             for i in range(self._a[k] + 1):
-                X, Y, t, n, L = xs[2 * i], xs[2 * i + 1], theta[i], self._n[i], self._l[i]
-                phi = math.atan2(uy[i], ux[i])
-                tk = self._tk[i]
-                qk += segment_chord_shortening(t, phi, L, n, r, gam, tk)
-                # gradient of routing.segment_chord_shortening w.r.t. x_i, a = theta/2n:
-                # l (1 - s1(a)) + s1(a) r e.x - n t (1 - cos a), with ds1(a)/dx = d1(a) x/4n^2
-                a = 0.5 * t / n
-                ex, ey = self._ex[k], self._ey[k]
-                sa = s1(a)
-                f = d1(a) / (4.0 * n * n) * (ex * X + ey * Y - L) - tk * sa / (4.0 * n)
+                X, Y = xs[2 * i], xs[2 * i + 1]
+                base, two_n_sin, fd, ft, sa = seg[i]
+                qk += base + two_n_sin * (ex * ux[i] + ey * uy[i])
+                f = fd * (ex * X + ey * Y - self._l[i]) - ft
                 ak.append((f * X + sa * ex, f * Y + sa * ey))
             q_geom.append(qk)
             arm.append(ak)
@@ -237,19 +259,24 @@ class ForceTransfer(TensionChain):
         for i in range(S - 1, -1, -1):
             X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
             gx, gy, gz = gs[i]
-            Qx = Qy = 0.0
-            ox = oy = oz = om = 0.0
+            # own disks (mass m at arc fraction sig): first moment m (sig^2 l c2 X, sig^2 l c2 Y,
+            # sig l s1) and weight moment m sig^2 l (c2 g + sig^2 d2 x (x.g) + sig d1 x g_z),
+            # ratios at sig theta, summed over the disks as four scalars (A, B, C, D) first
+            A = B = C = D = 0.0
             for sig, m in self._disks[i]:
                 ss1, cc2, dd1, dd2, _ = _ratios(sig * t)
-                s2 = sig * sig
-                ox += m * s2 * L * cc2 * X
-                oy += m * s2 * L * cc2 * Y
-                oz += m * sig * L * ss1
-                om += m
-                xg = X * gx + Y * gy
-                f = m * s2 * L
-                Qx += f * (cc2 * gx + s2 * dd2 * X * xg + sig * dd1 * X * gz)
-                Qy += f * (cc2 * gy + s2 * dd2 * Y * xg + sig * dd1 * Y * gz)
+                ms2 = m * sig * sig
+                A += ms2 * cc2
+                B += ms2 * sig * sig * dd2
+                C += ms2 * sig * dd1
+                D += m * sig * ss1
+            om = self._disk_mass[i]
+            xg = X * gx + Y * gy
+            ox = L * A * X
+            oy = L * A * Y
+            oz = L * D
+            Qx = L * (A * gx + (B * xg + C * gz) * X)
+            Qy = L * (A * gy + (B * xg + C * gz) * Y)
             R = Rs[i]
             Dx = R[0] * Ex + R[1] * Ey + R[2] * Ez
             Dy = R[3] * Ex + R[4] * Ey + R[5] * Ez

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from cdcr_ctl.model.deadzone import dead_zone_inverse_list, play_forward
+from cdcr_ctl.model.deadzone import dead_zone_inverse_list, play_forward_list
 from cdcr_ctl.model.params import Effects, RobotParams
 
 
@@ -51,17 +51,21 @@ class BacklashPlay:
     def new_state(self, n_cables: int) -> np.ndarray:
         return np.zeros((n_cables, 2))
 
+    def _half(self, n: int) -> list[float]:
+        half = self._halves.get(n)
+        if half is None:
+            half = self._halves.setdefault(n, (0.5 * self._b(n)).tolist())
+        return half
+
     def to_cable(self, q_act_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
-        x = np.asarray(q_act_mm, dtype=float)
-        y = play_forward(x, state[:, 0], self._b(x.size))
+        x = np.asarray(q_act_mm, dtype=float).tolist()
+        y = play_forward_list(x, state[:, 0].tolist(), self._half(len(x)))
         state[:, 0] = y
-        return y
+        return np.array(y)
 
     def to_actuator(self, q_cable_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
         y = np.asarray(q_cable_mm, dtype=float).tolist()
-        half = self._halves.get(len(y))
-        if half is None:
-            half = self._halves.setdefault(len(y), (0.5 * self._b(len(y))).tolist())
+        half = self._half(len(y))
         rows = state.tolist()
         x = dead_zone_inverse_list(y, rows, half, self.max_step_mm)
         state[:, :] = rows

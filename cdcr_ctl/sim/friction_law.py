@@ -63,8 +63,8 @@ class WrapPowerTransfer(ForceTransfer):
 
     def friction_capacity(self, P: Pose, k: int) -> float:
         cap = self._mu[k] * self._W(P.Zb[self._a[k]])
-        for tr in self._pul[k]:
-            cap += tr.ln_kappa(self._T0[k])
+        for lnk in self._pul_lnk0[k]:  # ln kappa of each pulley at T0
+            cap += lnk
         return cap
 
 

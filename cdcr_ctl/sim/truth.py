@@ -21,7 +21,7 @@ from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import Effects, ForwardStepper
 from cdcr_ctl.model.effects import with_cable_play
-from cdcr_ctl.model.kinematics import chain
+from cdcr_ctl.model.kinematics import tip_frame_fast
 from cdcr_ctl.sim.friction_law import use_friction_law
 from cdcr_ctl.sim.simconfig import LoadedSim
 
@@ -120,6 +120,7 @@ class TruthModel(SteppedTruth):
         )
         self.node_ids = [by_cable[c.name].node_id for c in rig.robot.cables]
         self.lengths_mm = self.params.lengths_mm
+        self._lengths = [float(v) for v in self.lengths_mm]
         self.cell_cable_index = []
         self.cell_location = []
         if rig.sensors.load_cells is not None:
@@ -135,7 +136,7 @@ class TruthModel(SteppedTruth):
 
     def _solve(self, q_act: np.ndarray) -> TruthState:
         r = self.stepper.step(q_act)
-        R, _ = chain(r.psi, self.lengths_mm)[-1]
+        R = r.R_tip if r.R_tip is not None else tip_frame_fast(r.x.tolist(), self._lengths)[0]
         return TruthState(
             q_act_mm=q_act.copy(),
             psi=r.psi.copy(),

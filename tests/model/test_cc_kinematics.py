@@ -162,6 +162,24 @@ def test_fast_tip_equals_reference():
         )
 
 
+def test_fast_tip_frame_equals_the_chain():
+    # rotation and position of the last tip frame, including straight and nearly straight
+    # segments (the series branch of the ratios) and one theta = 0 exactly
+    rng = np.random.default_rng(7)
+    lengths = [90.0, 80.0, 70.0]
+    for trial in range(30):
+        theta = rng.uniform(0, 2, 3) * (1e-3 if trial % 3 == 0 else 1.0)
+        if trial == 1:
+            theta[1] = 0.0
+        psi = np.column_stack((theta, rng.uniform(-3, 3, 3)))
+        xs = kin.psi_to_x(psi).ravel().tolist()
+        R, p = kin.tip_frame_fast(xs, lengths)
+        R_ref, p_ref = kin.chain(psi, np.array(lengths))[-1]
+        np.testing.assert_allclose(np.array(R), R_ref, atol=1e-14)
+        np.testing.assert_allclose(p, p_ref, atol=1e-12)
+        assert kin.tip_position_fast(xs, lengths) == p
+
+
 def test_bend_angles_roundtrip():
     for theta, phi in [(0.7, 1.0), (0.0, 0.0), (2.0, -3.0)]:
         th, ph = kin.bend_angles(kin.bend_vector(theta, phi))

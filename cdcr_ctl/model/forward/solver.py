@@ -2,20 +2,20 @@
 
 :class:`ForwardModel` solves moment balance (Qi et al. 2023 eq. 9-15), cable compatibility
 (eq. 33-37) and the friction active set by Newton's method; see :mod:`cdcr_ctl.model.forward`
-for the equations. :class:`ForwardResult` is one solved pose.
+for the equations. :class:`~cdcr_ctl.model.forward.result.ForwardResult` is one solved pose.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.forward.result import ForwardResult, _amax
 from cdcr_ctl.model.friction import FrictionState, direction_update
-from cdcr_ctl.model.kinematics import tip_position_fast, x_to_psi
+from cdcr_ctl.model.kinematics import tip_frame_fast
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.model.tension_chain import Transfer
@@ -28,28 +28,6 @@ _MODE_ROUNDS = 12
 _MAX_DX = 0.3  # rad, largest change of a bending vector component per Newton step
 #: A stepper that cannot solve a step at once splits it into up to 2**SUBSTEP_LEVELS sub-steps.
 SUBSTEP_LEVELS = 4
-
-
-@dataclass(frozen=True)
-class ForwardResult:
-    """A solved static pose (arrays in cable / segment order)."""
-
-    psi: np.ndarray  # (S, 2) theta, phi (rad)
-    x: np.ndarray  # (2S,) bending vectors (rad)
-    tip_mm: np.ndarray  # (3,) base frame
-    tension_distal_N: np.ndarray
-    tension_base_N: np.ndarray
-    tension_actuator_N: np.ndarray
-    q_geom_mm: np.ndarray
-    delta_mm: np.ndarray
-    state: FrictionState
-    modes: tuple[str, ...]
-    iterations: int
-    residual: float  # largest scaled residual (rad-equivalent); rigid cables: mm
-
-    def tension_at(self, location: str) -> np.ndarray:
-        """Tensions at the load-cell location (``robot_base`` or ``actuator``)."""
-        return self.tension_base_N if location == "robot_base" else self.tension_actuator_N
 
 
 class ForwardModel:
@@ -100,17 +78,24 @@ class ForwardModel:
         x_guess: np.ndarray | None = None,
         T_guess: np.ndarray | None = None,
         modes_hint: tuple[str, ...] | None = None,
+        q_guess: list[float] | None = None,
     ) -> ForwardResult:
         """Pose, tensions and new friction state for cable displacements ``q_act_mm`` (K,).
 
         ``q_act_mm`` is the cable pulled in at the actuator (after any actuator effects), mm.
         ``state`` is the friction state before this step (default: straight, nothing mobilised);
         ``x_guess``/``T_guess`` warm-start bending vectors and anchor tensions, ``modes_hint`` the
-        cable modes (``stick``/``slide``/``slack``/``free``). Raises :class:`ModelError` when no
+        cable modes (``stick``/``slide``/``slack``/``free``). ``q_guess``: the cable
+        displacements (mm) the guess solves, when known (a predictor's); the guess is then moved
+        to ``q_act_mm`` by one chord step of the last Jacobian before the first evaluation
+        (:meth:`_linear_move`; performance only). Raises :class:`ModelError` when no
         consistent solution is found (e.g. a segment whose own cables all went slack).
         """
         K, S = self.K, self.S
-        q_act = [float(v) for v in np.asarray(q_act_mm, dtype=float).reshape(K)]
+        if isinstance(q_act_mm, list) and len(q_act_mm) == K:
+            q_act = [float(v) for v in q_act_mm]
+        else:
+            q_act = [float(v) for v in np.asarray(q_act_mm, dtype=float).reshape(K)]
         st = FrictionState.initial(K) if state is None else state
         if self.rigid:
             return self._solve_rigid(q_act, st, x_guess)
@@ -122,12 +107,16 @@ class ForwardModel:
         )
         z = x0 + T0 + [float(v) for v in st.s]
         w_prev = list(st.w_mm)
-        P = self.ft.pose(x0)
         modes = list(modes_hint) if modes_hint is not None else [STICK] * K
+        if q_guess is not None and self._Jraw is not None:
+            z = self._linear_move(z, q_guess, q_act, modes)
+            x0 = z[: 2 * S]
+        P = self.ft.pose(x0)
         sigma = [1.0 if v >= 0 else -1.0 for v in st.s]
         hold = list(st.s)
+        has_friction = self.ft.has_friction
         for k in range(K):
-            if not self.ft.has_friction[k] or self.ft.friction_capacity(P, k) < 1e-12:
+            if not has_friction[k] or self.ft.friction_capacity(P, k) < 1e-12:
                 if modes[k] != SLACK:
                     modes[k] = FREE
             elif modes[k] == FREE:
@@ -160,6 +149,29 @@ class ForwardModel:
         if res > 1e-6:
             raise ModelError(f"forward model did not converge (residual {res:.3g})")
         return self._result(z, modes, total_it, res, w_prev, raw)
+
+    def _linear_move(
+        self, z: list[float], q_from: list[float], q_to: list[float], modes: list[str]
+    ) -> list[float]:
+        """``z`` (a guess that solves cable displacements ``q_from``, mm) moved to ``q_to`` by
+        one chord step of the last Jacobian, with no evaluation (a warm start only).
+
+        At a solution for q_from the residual for q_to is, to first order, only the cable
+        compatibility rows' (q_from - q_to) / r (stick, slide and moment rows unchanged, slack
+        cables have no compatibility row), so dz = -J^-1 r moves z along the linearised
+        solution path. The Newton iteration then converges from there to the tolerance as
+        from any start: the solution does not depend on this step, only the work does.
+        """
+        S2, K = 2 * self.S, self.K
+        r = np.zeros(S2 + 2 * K)
+        for k in range(K):
+            if modes[k] != SLACK:
+                r[S2 + k] = (q_from[k] - q_to[k]) * self._w_len
+        dz = self._step(modes, r)
+        big = _amax(dz[:S2]) if S2 else 0.0
+        if big > _MAX_DX:  # the trust region of the Newton steps
+            dz *= _MAX_DX / big
+        return [a + b for a, b in zip(z, dz.tolist(), strict=True)]
 
     # ------------------------------------------------------------------ rigid cables
     def _solve_rigid(
@@ -223,23 +235,26 @@ class ForwardModel:
         return P, Fb, Eb, mom, cab
 
     def _residual(self, raw, z, q_act, w_prev, modes, sigma, hold) -> np.ndarray:
+        """Scaled residual [moments (2S), compatibility (K), friction (K)], rad-equivalent
+        (built as floats, one array at the end)."""
         _, _, _, mom, cab = raw
         S2, K = 2 * self.S, self.K
-        r = np.empty(S2 + 2 * K)
-        r[:S2] = np.asarray(mom) * self._w_mom
+        w_mom, w_len = self._w_mom, self._w_len
+        r = [v * w_mom for v in mom]
+        fr = []
         for k in range(K):
             m = modes[k]
             if m == SLACK:
-                r[S2 + k] = z[S2 + k] / self._T_scale
+                r.append(z[S2 + k] / self._T_scale)
             else:
-                r[S2 + k] = (cab[k][3] - q_act[k]) * self._w_len
+                r.append((cab[k][3] - q_act[k]) * w_len)
             if m == STICK:
-                r[S2 + K + k] = (cab[k][2] - w_prev[k]) * self._w_len
+                fr.append((cab[k][2] - w_prev[k]) * w_len)
             elif m == SLIDE:
-                r[S2 + K + k] = z[S2 + K + k] - sigma[k]
+                fr.append(z[S2 + K + k] - sigma[k])
             else:
-                r[S2 + K + k] = z[S2 + K + k] - hold[k]
-        return r
+                fr.append(z[S2 + K + k] - hold[k])
+        return np.array(r + fr)
 
     def _jacobian(self, raw, z, modes) -> np.ndarray:
         """Jacobian of the raw functions [mom (2S), q (K), w (K)] w.r.t. z = [x, T, s]."""
@@ -313,7 +328,7 @@ class ForwardModel:
                 z[S2 + k] = 0.0
         raw = self._raw(z)
         r = self._residual(raw, z, q_act, w_prev, modes, sigma, hold)
-        norm = float(np.max(np.abs(r)))
+        norm = _amax(r)
         it = 0
         need_jac = self._Jraw is None or self._slow
         while norm > self.tol and it < self.max_newton:
@@ -324,21 +339,24 @@ class ForwardModel:
                 self._Jraw = self._jacobian(raw, z, modes)
                 self._jac_gen += 1
             dz = self._step(modes, r)
-            big = float(np.max(np.abs(dz[:S2]))) if S2 else 0.0
+            big = _amax(dz[:S2]) if S2 else 0.0
             if big > _MAX_DX:  # trust region on the pose
                 dz *= _MAX_DX / big
             alpha = 1.0
             f0 = float(r @ r)
             accepted = False
+            # Python floats (numpy scalars in z would make every operation of the chain
+            # several times slower; the same IEEE doubles either way)
+            dzl = dz.tolist()
             while alpha >= 1e-4:
-                zn = [z[j] + alpha * dz[j] for j in range(len(z))]
+                zn = [a + alpha * b for a, b in zip(z, dzl, strict=True)]
                 try:
                     rawn = self._raw(zn)
                     rn = self._residual(rawn, zn, q_act, w_prev, modes, sigma, hold)
                     fn = float(rn @ rn)
                 except (OverflowError, ValueError, ZeroDivisionError):
                     fn = math.inf
-                if np.isfinite(fn) and fn <= (1.0 - 1e-4 * alpha) * f0:
+                if math.isfinite(fn) and fn <= (1.0 - 1e-4 * alpha) * f0:
                     accepted = True
                     break
                 alpha *= 0.5
@@ -348,11 +366,15 @@ class ForwardModel:
                 need_jac = True
                 continue
             z, raw, r = zn, rawn, rn
-            new_norm = float(np.max(np.abs(r)))
+            new_norm = _amax(r)
             self._slow = need_jac = new_norm > 0.1 * norm
             norm = new_norm
             # a stuck cable that needs far more than full friction will slide: stop early
-            if any(modes[k] == STICK and abs(z[S2 + K + k]) > 2.0 for k in range(K)):
+            far = False
+            for k in range(K):
+                if modes[k] == STICK and abs(z[S2 + K + k]) > 2.0:
+                    far = True
+            if far:
                 break
         return z, it, norm, raw
 
@@ -458,11 +480,17 @@ class ForwardModel:
         return self._pack(xs, tr, state, tuple(modes), it, res)
 
     def _pack(self, xs, tr, state, modes, it, res) -> ForwardResult:
-        x = np.asarray(xs, dtype=float)
+        xs = [float(v) for v in xs]
+        psi = []
+        for i in range(self.S):  # x_to_psi on floats: theta >= 0, phi = 0 where straight
+            X, Y = xs[2 * i], xs[2 * i + 1]
+            t = math.hypot(X, Y)
+            psi.append((t, math.atan2(Y, X) if t > 0.0 else 0.0))
+        R, tip = tip_frame_fast(xs, self._lengths)
         return ForwardResult(
-            psi=x_to_psi(x.reshape(-1, 2)),
-            x=x,
-            tip_mm=np.array(tip_position_fast(list(xs), self._lengths)),
+            psi=np.array(psi, dtype=float).reshape(-1, 2),
+            x=np.array(xs, dtype=float),
+            tip_mm=np.array(tip),
             tension_distal_N=np.asarray(tr.T_distal),
             tension_base_N=np.asarray(tr.T_base),
             tension_actuator_N=np.asarray(tr.T_actuator),
@@ -472,4 +500,5 @@ class ForwardModel:
             modes=modes,
             iterations=it,
             residual=res,
+            R_tip=np.array(R),
         )

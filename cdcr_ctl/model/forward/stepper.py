@@ -47,13 +47,15 @@ class ForwardStepper:
         K = self.model.K
         self.state = FrictionState.initial(K) if state is None else state
         self.effect_states = [e.new_state(K) for e in self.model.effects.actuator]
-        self._x: np.ndarray | None = None
-        self._T: np.ndarray | None = None
+        # the last solution, plain float lists (the predictor's arithmetic on K- and 2S-long
+        # vectors is cheaper on floats than through numpy)
+        self._x: list[float] | None = None
+        self._T: list[float] | None = None
         self._modes: tuple[str, ...] | None = None
-        self._q: np.ndarray | None = None  # last solved cable displacement (mm)
+        self._q: list[float] | None = None  # last solved cable displacement (mm)
         self.last: ForwardResult | None = None
         # the solve before the last: (q, x, T) when both had the same modes (predictor)
-        self._prev: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._prev: tuple[list[float], list[float], list[float]] | None = None
 
     def cable_displacement(self, q_act_mm: np.ndarray) -> np.ndarray:
         """Actuator position -> cable pulled in at the spool, through the actuator effects."""
@@ -73,34 +75,45 @@ class ForwardStepper:
         every attempt fails (no static solution found); the memory then stays at the last
         solved pose.
         """
-        q = self.cable_displacement(q_act_mm)
+        q = self.cable_displacement(q_act_mm).tolist()
         res = self._solve_from_memory(q)
         if res is None:
             res = self._substep(q)
         self._accept(res, q)
         return res
 
-    def _predict(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def _predict(self, q: list[float]) -> tuple[list[float], list[float], list[float]] | None:
         """Warm start extrapolated along the path (performance only): the last two solutions'
-        bending vectors and anchor tensions continued linearly by the projection of this step's
-        cable displacement on the last one's (a path sampled at a steady rate, as a simulator's
-        or a replay's, moves on a nearly straight line). None without two solutions of the same
-        modes. The solve still converges to the solver's tolerance from here."""
+        bending vectors and anchor tensions continued linearly by the projection a of this
+        step's cable displacement on the last one's (a path sampled at a steady rate, as a
+        simulator's or a replay's, moves on a nearly straight line), and the cable displacement
+        that guess solves (q_last + a (q_last - q_before)): the rest of the step, off that line
+        (the drives' count quantisation, ~1 count in 7 on the Qi bend), the solver covers with
+        one chord step before its first evaluation (``q_guess`` of :meth:`ForwardModel.solve`).
+        None without two solutions of the same modes. The solve still converges to the
+        solver's tolerance from here."""
         if self._prev is None or self._q is None or self._x is None or self._T is None:
             return None
         q1, x1, T1 = self._prev
-        d0 = self._q - q1
-        den = float(d0 @ d0)
+        den = num = 0.0
+        for qn, qa, qb in zip(q, self._q, q1, strict=True):
+            d = qa - qb
+            den += d * d
+            num += (qn - qa) * d
         if den <= 0.0:
             return None
-        a = float((q - self._q) @ d0) / den
-        return self._x + a * (self._x - x1), self._T + a * (self._T - T1)
+        a = num / den
+        return (
+            [v + a * (v - v1) for v, v1 in zip(self._x, x1, strict=True)],
+            [v + a * (v - v1) for v, v1 in zip(self._T, T1, strict=True)],
+            [v + a * (v - v1) for v, v1 in zip(self._q, q1, strict=True)],
+        )
 
-    def _solve_from_memory(self, q: np.ndarray) -> ForwardResult | None:
+    def _solve_from_memory(self, q: list[float]) -> ForwardResult | None:
         guess = self._predict(q)
         if guess is not None:
             try:
-                return self.model.solve(q, self.state, guess[0], guess[1], self._modes)
+                return self.model.solve(q, self.state, guess[0], guess[1], self._modes, guess[2])
             except ModelError:
                 pass
         try:
@@ -116,27 +129,28 @@ class ForwardStepper:
         except ModelError:
             return None
 
-    def _accept(self, res: ForwardResult, q: np.ndarray) -> None:
+    def _accept(self, res: ForwardResult, q: list[float]) -> None:
         self._prev = None
         mem = (self._q, self._x, self._T)
         if self._modes == res.modes and all(v is not None for v in mem):
             self._prev = mem  # type: ignore[assignment]
         self.state = res.state
-        self._x = res.x
-        self._T = res.tension_distal_N
+        self._x = res.x.tolist()
+        self._T = res.tension_distal_N.tolist()
         self._modes = res.modes
         self._q = q
         self.last = res
 
-    def _substep(self, q: np.ndarray) -> ForwardResult:
+    def _substep(self, q_list: list[float]) -> ForwardResult:
         start = (self.state, self._x, self._T, self._modes, self._q, self.last, self._prev)
-        q0 = np.zeros_like(q) if self._q is None else self._q
+        q = np.asarray(q_list, dtype=float)
+        q0 = np.zeros_like(q) if self._q is None else np.asarray(self._q, dtype=float)
         err = "no attempt"
         for level in range(1, SUBSTEP_LEVELS + 1):
             n = 2**level
             ok = True
             for i in range(1, n + 1):
-                qi = q0 + (q - q0) * (i / n)
+                qi = (q0 + (q - q0) * (i / n)).tolist()
                 res = self._solve_from_memory(qi)
                 if res is None:
                     ok = False
