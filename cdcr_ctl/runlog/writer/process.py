@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import atexit
 import logging
-import math
 import os
 import pickle
 import struct
@@ -41,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.runlog.columns import TEXT_COLUMNS, TIME
+from cdcr_ctl.runlog.columns import TEXT_COLUMNS
 from cdcr_ctl.runlog.writer.files import (
     LogStats,
     RunMetadata,
@@ -53,19 +52,17 @@ from cdcr_ctl.runlog.writer.ring import (
     CLOSE,
     DONE,
     FAILED,
-    ORDER_COLUMNS,
-    ORDER_NAMES,
     ROW_DROPPED,
     ROW_HEAD,
     ROW_TAIL,
     ROW_WAITS,
-    SLOT_HEAD,
     W_HIGH,
     W_START,
     RingLayout,
     SharedRing,
     writer_counts,
 )
+from cdcr_ctl.runlog.writer.slots import SlotFiller
 from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
@@ -150,14 +147,6 @@ class ProcessRunLogWriter(WriterBase):
         self.fsync_every_s = float(fsync_every_s)
         self.max_queued_rows = int(max_queued_rows)
         self._on_failure = on_failure
-        #: Numeric columns (ring order = column order without the text columns) and the text one.
-        self._num_cols = [c for c in self.columns if c not in TEXT_COLUMNS]
-        self._num_index = {c: j for j, c in enumerate(self._num_cols)}
-        text = [c for c in self.columns if c in TEXT_COLUMNS]
-        self._text_col = text[0] if text else None
-        self._text_pos = self.columns.index(text[0]) if text else -1
-        self._parts_keys: Any = None
-        self._parts_from = self._parts_to = 0
         self._tail = 0
         #: ``write`` takes its fast path while its head is below this: the writer process's
         #: tail (as last read) + the ring's size; -1 once closing or failed.
@@ -175,18 +164,15 @@ class ProcessRunLogWriter(WriterBase):
         self._notified = False
         self._exit_checked = False
 
-        layout = RingLayout(len(self._num_cols), self.max_queued_rows, can_frames)
+        num_cols = [c for c in self.columns if c not in TEXT_COLUMNS]
+        layout = RingLayout(len(num_cols), self.max_queued_rows, can_frames)
         try:
             self._ring = SharedRing.create(layout)
         except OSError as exc:
             raise RigError(f"{self.run_dir}: cannot make the run log's ring: {exc}") from exc
         self._cap = layout.rows
         self._hq = self._ring.hq
-        #: A slot's place in the rows area, in float64s; its bytes for the packed head store.
-        self._row_floats = layout.row_floats
-        self._f64 = self._ring.f64
-        self._rows_buf = self._ring.rows_buf
-        self._pack_head = struct.Struct("<5d").pack_into  # order, text length, t, cycle, late
+        self._fill = SlotFiller(self._ring, self.columns, self.samples_path).fill
         spec = {
             "run_dir": str(self.run_dir),
             "columns": self.columns,
@@ -312,24 +298,8 @@ class ProcessRunLogWriter(WriterBase):
         """Store ``row`` into slot ``head`` and publish ``head + 1``; False (dropped, counted)
         if it cannot be taken."""
         ring = self._ring
-        slot = head % self._cap
         try:
-            parts = getattr(row, "row_parts", None)
-            if parts is not None:
-                keys, values, t_s, cycle, lateness_s, text = parts()
-                if keys is not self._parts_keys:
-                    self._set_names(keys)
-                # One packed store of the head, one copy of the loop's array.
-                at = slot * self._row_floats
-                self._pack_head(self._rows_buf, at * 8, ORDER_NAMES, 0.0, t_s, cycle, lateness_s)
-                try:
-                    self._f64[at + self._parts_from : at + self._parts_to] = values
-                except (TypeError, ValueError):  # not a float64 array: numpy converts
-                    ring.nums[slot, self._parts_from : self._parts_to] = values
-            else:
-                text = self._fill_plain(row, ring.nums[slot])
-            if text:
-                ring.put_event(slot, str(text))
+            self._fill(row, head % self._cap)
         except Exception as exc:  # a row this writer cannot take: dropped, said once
             if not self._warned:
                 self._warned = True
@@ -399,39 +369,6 @@ class ProcessRunLogWriter(WriterBase):
         """Rows the loop waited for room for (``on_full="wait"``)."""
         h = self._ring.hdr if self._ring is not None else self._final
         return int(h[ROW_WAITS])
-
-    def _set_names(self, keys: Sequence[str]) -> None:
-        """The first loop row: its value names into the ring (the writer process maps them to
-        columns). One order per writer: a row with other names is refused."""
-        if self._parts_keys is not None:
-            if tuple(keys) == tuple(self._parts_keys):
-                self._parts_keys = keys
-                return
-            raise ValueError("a row with another layout than the run's first")
-        names = [TIME, "cycle", "lateness_us", *keys]
-        unknown = [k for k in names if k not in self._num_index]
-        if unknown or len(set(names)) != len(names) or len(names) > len(self._num_cols):
-            raise ValueError(f"row names not among the columns (or repeated): {unknown}")
-        self._ring.set_names(names)
-        self._parts_from, self._parts_to = SLOT_HEAD + 3, SLOT_HEAD + len(names)
-        self._parts_keys = keys
-
-    def _fill_plain(self, row: Any, nums: Any) -> str:
-        if isinstance(row, Mapping):
-            if not self._warned and not set(row).issubset(self.columns):
-                self._warned = True
-                unknown = sorted(set(row) - set(self.columns))
-                log.warning("%s: unknown keys ignored: %s", self.samples_path, unknown)
-            values = [row.get(c) for c in self._num_cols]
-            text = row.get(self._text_col) if self._text_col else None
-        else:
-            seq = list(row)
-            seq = (seq + [None] * len(self.columns))[: len(self.columns)]
-            text = seq.pop(self._text_pos) if self._text_pos >= 0 else None
-            values = seq
-        nums[SLOT_HEAD:] = [math.nan if v is None else float(v) for v in values]
-        nums[:SLOT_HEAD] = (ORDER_COLUMNS, 0.0)
-        return "" if text is None else str(text)
 
     def _check_alive(self) -> None:
         if self._exit_checked or self._proc.poll() is None:
