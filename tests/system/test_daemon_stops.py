@@ -15,7 +15,7 @@ from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
 
 def start_run(work, seconds: float = 20.0) -> dict:
