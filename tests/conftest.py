@@ -1,4 +1,23 @@
-"""Fixtures for every test directory.
+"""Fixtures and collection rules for every test directory.
+
+Parallel workers (``scripts/test`` runs pytest-xdist ``-n 2 --dist loadgroup``):
+
+- a test marked ``realtime`` runs the simulated rig and the daemon as processes on the wall clock
+  (stand-in hardware, heartbeats, stop latency, kills); a test marked ``multicore`` keeps two
+  cores busy or more (a lock-step rig: its loop process and its truth worker; a pool of replay
+  workers). Their files (:data:`RIG_FILES`) form one work unit, ``rig``: it runs on one worker,
+  one test after the other, so a real-time rig never shares the two cores with another rig or
+  with a multi-core test. The other worker runs the rest of the suite beside it, one test at a
+  time, about one core: a lighter neighbour than the ``stress-ng --cpu 2`` these tests must pass
+  under;
+- the longest tests are handed out first (the ``rig`` unit, then ``slow``, then the rest, each
+  in file order), so no long test is left to run alone at the end.
+
+The unit is made by :class:`RigGroupScheduling` (xdist's ``pytest_xdist_make_scheduler`` hook),
+by file, not by xdist's own ``xdist_group`` mark: pytest-xdist 3.8 marks a group by rewriting
+the test's node id, which pytest 9.2 no longer takes, so the groups were silently ignored
+(pytest-xdist issue 1386; measured here: two real-time rigs ran side by side). The scheduler
+sees node ids only, hence the file list; a marked test outside it fails.
 
 ``_close_writer_spares``: a :class:`~cdcr_ctl.runlog.writer.RunLogFactory` starts a spare
 run-log writer process ahead of its next run (an interpreter with its imports, ~64 MB). Tests
@@ -10,8 +29,70 @@ suite run). After each test, the spares of the factories it made are ended.
 from __future__ import annotations
 
 import pytest
+from xdist.scheduler import LoadScopeScheduling
 
 from cdcr_ctl.runlog.writer import RunLogFactory
+
+#: The work unit of the tests marked ``realtime`` or ``multicore``.
+RIG_GROUP = "rig"
+#: The test files holding them (paths from the project root, as in pytest's node ids).
+RIG_FILES = frozenset(
+    {
+        "tests/discrepancy/test_keypoint_discrepancy.py",
+        "tests/system/test_daemon_stops.py",
+        "tests/system/test_demo.py",
+        "tests/system/test_demo_ujoint.py",
+        "tests/system/test_demo_vertebra.py",
+        "tests/system/test_drive_reboot.py",
+        "tests/system/test_fault_matrix.py",
+        "tests/system/test_joystick_session.py",
+        "tests/system/test_lockstep.py",
+        "tests/system/test_lockstep_vertebra.py",
+        "tests/system/test_lockstep_vs_realtime.py",
+        "tests/system/test_recovery.py",
+        "tests/system/test_rig_process.py",
+        "tests/system/test_runlog_views.py",
+        "tests/system/test_stop_battery.py",
+    }
+)
+
+
+def _file_of(nodeid: str) -> str:
+    return nodeid.split("::", 1)[0]
+
+
+def _marked(item) -> bool:
+    return any(item.get_closest_marker(m) for m in ("realtime", "multicore"))
+
+
+class RigGroupScheduling(LoadScopeScheduling):
+    """xdist's scope scheduling with one scope for every test in :data:`RIG_FILES` and one per
+    test elsewhere; the largest scope (the rig unit) goes out first."""
+
+    def _split_scope(self, nodeid: str) -> str:
+        return RIG_GROUP if _file_of(nodeid) in RIG_FILES else nodeid
+
+
+def pytest_xdist_make_scheduler(config, log):
+    if config.getvalue("dist") == "loadgroup":
+        return RigGroupScheduling(config, log)
+    return None
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item) -> int:
+        if _file_of(item.nodeid) in RIG_FILES:
+            return 0
+        return 1 if item.get_closest_marker("slow") else 2
+
+    items.sort(key=rank)  # stable: file order within each rank
+
+
+@pytest.fixture(autouse=True)
+def _in_the_rig_unit(request):
+    """A marked test outside :data:`RIG_FILES` would run beside a real-time rig: it fails."""
+    if _marked(request.node) and _file_of(request.node.nodeid) not in RIG_FILES:
+        pytest.fail(f"{_file_of(request.node.nodeid)} is not in tests/conftest.py RIG_FILES")
 
 
 @pytest.fixture(autouse=True)

@@ -23,6 +23,7 @@ CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example
 
 
 # ~22 s CPU measured (forward replays in 2 worker processes); the limit guards a hang, not speed
+@pytest.mark.multicore
 @pytest.mark.timeout(400)
 def test_discrepancy_names_a_hidden_lost_motion_on_a_keypoint_log(tmp_path, capsys):
     m = build_model(load_rig_config(CONFIG))

@@ -10,12 +10,13 @@ import signal
 import time
 
 import pytest
+from faulthelp import rows_on_disk
 from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
 
 def start_run(work, seconds: float = 20.0) -> dict:
@@ -29,13 +30,22 @@ def rows_so_far(run_dir) -> int:
     return len(load_run(run_dir))
 
 
+def wait_under_way(run_dir, rows: int = 100, timeout_s: float = 30.0) -> None:
+    """Until the run's log holds ``rows`` rows on disk (0.4 s of a 250 Hz run): mid-trajectory,
+    the signal can come (it used to be a fixed 2 s wait)."""
+    end = time.monotonic() + timeout_s
+    while rows_on_disk(run_dir) <= rows:
+        assert time.monotonic() < end, f"no {rows} rows on disk after {timeout_s} s: {run_dir}"
+        time.sleep(0.05)
+
+
 def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
     with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
         # SIGTERM mid-trajectory: clean stop, drives disabled, log closed with its reason.
         with start_daemon(rig, tmp_path / "d1.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
             res = start_run(work)
-            time.sleep(2.0)
+            wait_under_way(res["log_dir"])
             d.send_signal(signal.SIGTERM)
             assert d.wait(20) == 0
         run = load_run(res["log_dir"])
@@ -48,7 +58,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
             st = wait_status(work, lambda s: all(x["state"] != "UNKNOWN" for x in s["drives"]))
             assert all(x["state"] != "OPERATION ENABLED" for x in st["drives"])
             res = start_run(work)
-            time.sleep(2.0)
+            wait_under_way(res["log_dir"])
             n_before = rows_so_far(res["log_dir"])
             # The whole daemon (front and rig process: its process group, as systemd's final
             # SIGKILL hits the unit's cgroup); the front alone: tests/system/test_rig_process.py.
@@ -74,7 +84,7 @@ def test_killed_simulator_mid_trajectory_quick_stops_and_keeps_the_log(tmp_path)
         with start_daemon(rig, tmp_path / "d.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d.log")
             res = start_run(work)
-            time.sleep(2.0)
+            wait_under_way(res["log_dir"])
             proc.send_signal(signal.SIGKILL)
             proc.wait(10)
             st = wait_status(work, lambda s: s["fault"] is not None, 10)

@@ -16,6 +16,7 @@ from cdcr_ctl.runlog import load_run
 
 
 @pytest.mark.slow
+@pytest.mark.multicore
 @pytest.mark.timeout(400)
 def test_demo_runs_both_experiments_with_and_without_compensation(tmp_path):
     out = tmp_path / "out"

@@ -21,6 +21,7 @@ SIM_RIG = Path(__file__).resolve().parents[2] / "config" / "yang2022-sim.yaml"
 
 
 @pytest.mark.slow
+@pytest.mark.multicore
 @pytest.mark.timeout(300)
 def test_ujoint_demo_completes_both_runs_and_the_compensation_reduces_the_tip_error(tmp_path):
     out = tmp_path / "out"

@@ -16,6 +16,7 @@ from cdcr_ctl.runlog import load_run
 
 
 @pytest.mark.slow
+@pytest.mark.multicore
 @pytest.mark.timeout(300)
 def test_vertebra_demo_completes_both_runs_and_the_sag_compensation_reduces_the_tip_error(
     tmp_path,

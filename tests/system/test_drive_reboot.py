@@ -13,7 +13,7 @@ from syshelp import session, start_daemon, wait_for_socket
 
 from cdcr_ctl.sim.faults import FaultClient
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
 
 def test_rebooted_drive_is_reconfigured_by_reset_fault_then_enables(tmp_path):

@@ -49,7 +49,7 @@ from cdcr_ctl.drives.heartbeat import HEARTBEAT_TIMEOUT_FACTOR
 from cdcr_ctl.runlog import load_run
 from cdcr_ctl.sim.faults import FaultClient
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(300)]
 
 #: Quick-stop reactions: SYNCs from the moment the master sees the fault to every drive safe.
 REACTION_SYNCS = 2

@@ -91,6 +91,7 @@ def _cables(run, what: str) -> np.ndarray:
 
 
 @pytest.mark.slow
+@pytest.mark.multicore
 @pytest.mark.timeout(120)
 def test_live_session_follows_the_stick_and_stop_ends_it(tmp_path):
     script = paper_session(scale=SCALE)
@@ -142,6 +143,7 @@ def test_live_session_follows_the_stick_and_stop_ends_it(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.timeout(120)
 def test_joystick_unplugged_mid_session_holds_the_arm(tmp_path):
     with vertebra_session(tmp_path, disconnect_after_s=2.0) as (work, _cfg):

@@ -30,6 +30,7 @@ def _run(tmp_path, tag: str, comp: str = "model"):
         return run, clock.cycles, s.rig.truth_steps, s.rig.tracker.frames
 
 
+@pytest.mark.multicore
 @pytest.mark.timeout(300)
 def test_two_lockstep_runs_with_one_seed_give_byte_identical_samples(tmp_path):
     run_a, cycles_a, truth_a, frames_a = _run(tmp_path, "a")

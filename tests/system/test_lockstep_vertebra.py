@@ -40,6 +40,7 @@ def _open(tmp_path, **joystick):
     return loaded, ctl, LockstepRig.open(loaded, ctl, str(rig_path), truth_process=False)
 
 
+@pytest.mark.multicore
 @pytest.mark.timeout(120)
 def test_attitude_frames_reach_the_reader_with_the_truths_angles_on_simulated_time(tmp_path):
     loaded, _ctl, rig = _open(tmp_path)
@@ -67,6 +68,7 @@ def test_attitude_frames_reach_the_reader_with_the_truths_angles_on_simulated_ti
             assert abs(roll) + abs(pitch) > 0.05  # the joints are really bent
 
 
+@pytest.mark.multicore
 @pytest.mark.timeout(120)
 def test_joystick_script_is_played_on_simulated_time_and_the_unplug_fails_the_reader(tmp_path):
     loaded, ctl, rig = _open(tmp_path, disconnect_after_s=CUT_S)

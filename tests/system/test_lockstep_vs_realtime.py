@@ -54,6 +54,7 @@ def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, fl
 
 
 @pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.timeout(400)
 def test_lockstep_and_real_time_give_the_same_tip_errors(tmp_path):
     with session(tmp_path) as (work, rig, sim, _runs):

@@ -17,7 +17,7 @@ from syshelp import client, session, start_daemon, start_sim, wait_for_socket, w
 
 from cdcr_ctl.control import trajectory as tj
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(300)]
 
 
 def _run_to_end(work, seconds: float = 3.0, comp: str = "model") -> dict:

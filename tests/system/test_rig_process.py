@@ -16,7 +16,7 @@ from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for
 from cdcr_ctl.daemon.front import EXIT_RIG_DIED, RIG_EXIT_REPORT_S, RIG_STOP_TIMEOUT_S
 from cdcr_ctl.runlog import load_run
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
 
 def _alive(pid: int) -> bool:

@@ -39,7 +39,7 @@ from cdcr_ctl.runlog import load_run, streams
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "runlog"))
 import fgclient  # tests/runlog/fgclient.py: the protocol client
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
 LIVE_HZ = 20.0
 ANSI = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]|\x1b[()][A-Za-z0-9]|\x1b[=>78]")

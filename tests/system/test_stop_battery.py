@@ -24,7 +24,7 @@ from battery import (
 )
 from syshelp import client, session, start_daemon, start_sim, wait_for_socket
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(300)]
 
 #: The session's rig runs 250 Hz (the shipped simulated rig).
 PERIOD_S = 1 / 250
