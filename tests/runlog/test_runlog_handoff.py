@@ -7,7 +7,6 @@ issue's rule of ``fsync_every_s``."""
 
 from __future__ import annotations
 
-import itertools
 import os
 import signal
 import subprocess
@@ -115,27 +114,6 @@ def test_a_full_ring_still_refuses_rows_and_names_the_overflow(tmp_path):
         os.kill(w._proc.pid, signal.SIGCONT)
     w.close("done", outcome="tripped")
     assert w.stats.queued == 16 and w.stats.written == 16 and w.stats.lost == 0
-
-
-def test_a_write_error_in_the_writer_process_reaches_the_loop_side(tmp_path):
-    """With a handoff the loop's ``failure`` reads no shared flag: the handoff thread does,
-    every feed, and the loop sees the failure (and the callback runs) as without it."""
-    failures: list[str] = []
-    w = _writer(
-        tmp_path, "gone", quiet=Gate(True), fsync_every_s=0.1, on_failure=failures.append,
-        drain_interval_s=0.01,
-    )  # fmt: skip
-    rows = itertools.cycle(_rows(500))
-    assert _wait(lambda: w.write(next(rows)) and w.stats.fsyncs >= 2)
-    for p in sorted(w.run_dir.iterdir()):
-        p.unlink()
-    w.run_dir.rmdir()
-    assert _wait(lambda: (w.write(next(rows)) or True) and w.failure is not None)
-    assert "deleted" in w.failure or "gone" in w.failure, w.failure
-    assert failures == [w.failure]
-    assert w.write(next(rows)) is False
-    w.close("after the failure")
-    assert w.closed
 
 
 def test_a_loop_on_simulated_time_stores_in_write(tmp_path):

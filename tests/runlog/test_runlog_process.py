@@ -133,11 +133,14 @@ def test_a_full_ring_refuses_rows_and_run_yaml_counts_them(tmp_path):
     assert ended["rows"]["dropped"] == 5 and ended["rows"]["written"] == 20
 
 
-def test_a_vanished_run_directory_reaches_the_loop_side(tmp_path):
+@pytest.mark.parametrize("quiet", [None, lambda: True], ids=["stored-in-write", "handoff"])
+def test_a_vanished_run_directory_reaches_the_loop_side(tmp_path, quiet):
+    """With a handoff (``quiet``) the loop's ``failure`` reads no shared flag: the handoff
+    thread does, every feed, and the loop sees the failure (and the callback runs) as without."""
     failures: list[str] = []
     w = ProcessRunLogWriter(
         tmp_path / "r", COLS, RunMetadata(name="gone"), fsync_every_s=0.1,
-        on_failure=failures.append, drain_interval_s=0.01,
+        on_failure=failures.append, drain_interval_s=0.01, quiet=quiet,
     )  # fmt: skip
     rows = itertools.cycle(_rows(500))
     assert _wait(lambda: w.write(next(rows)) and w.stats.fsyncs >= 2)
