@@ -7,7 +7,10 @@ import os
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+
+import pytest
 
 from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.daemon.client import ControlClient
@@ -79,3 +82,19 @@ __all__ = [
     "wait_for_socket",
     "wait_status",
 ]
+
+
+def lasting_run(work: Path, start: Callable[[int], dict], last_s: float, attempts: int = 3) -> dict:
+    """``start(attempt)`` a run (its answer has ``run``) until one is still running ``last_s``
+    later; return that answer. For tests whose subject is a run killed or stopped while it
+    runs: a run a loaded machine trips before that (a drive's heartbeat lost under stress-ng)
+    is started again (``start`` must reset a fault), up to ``attempts`` times."""
+    run: dict = {}
+    for attempt in range(attempts):
+        res = start(attempt)
+        time.sleep(last_s)
+        with client(work) as c:
+            run = c.call("status").get("run") or {}
+        if run.get("state") == "running" and run.get("id") == res["run"]:
+            return res
+    pytest.fail(f"no run lasted {last_s} s on this machine in {attempts} attempts; last: {run}")

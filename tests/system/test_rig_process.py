@@ -11,7 +11,16 @@ import time
 
 import pytest
 from battery import start_run
-from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
+from syshelp import (
+    client,
+    lasting_run,
+    relaunch,
+    session,
+    start_daemon,
+    start_sim,
+    wait_for_socket,
+    wait_status,
+)
 
 from cdcr_ctl.daemon.front import EXIT_RIG_DIED, RIG_EXIT_REPORT_S, RIG_STOP_TIMEOUT_S
 from cdcr_ctl.runlog import load_run
@@ -66,15 +75,7 @@ def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(
             # The subject is a run stopped by the front's death: a run a loaded machine tripped
             # before the kill (a lost heartbeat of a simulated drive under stress-ng) is
             # acknowledged and started again, up to 3 times (battery.start_run resets the fault).
-            for _attempt in range(3):
-                res = start_run(work, 20.0)
-                time.sleep(1.0)
-                with client(work) as c:
-                    run = c.call("status").get("run") or {}
-                if run.get("state") == "running" and run.get("id") == res["run"]:
-                    break
-            else:
-                pytest.fail(f"no run lasted 1 s on this machine in 3 attempts; last run: {run}")
+            res = lasting_run(work, lambda _attempt: start_run(work, 20.0), 1.0)
             d.send_signal(signal.SIGKILL)
             d.wait(10)
             _wait_gone(rig_pid, RIG_STOP_TIMEOUT_S + 30)

@@ -30,7 +30,15 @@ import numpy as np
 import pytest
 import yaml
 from mcap.reader import make_reader
-from syshelp import client, session, start_daemon, start_sim, wait_for_socket, wait_status
+from syshelp import (
+    client,
+    lasting_run,
+    session,
+    start_daemon,
+    start_sim,
+    wait_for_socket,
+    wait_status,
+)
 
 from cdcr_ctl.cli.demo import free_port
 from cdcr_ctl.control import trajectory as tj
@@ -201,15 +209,7 @@ def test_sigkill_of_the_daemon_keeps_the_mcap_up_to_its_last_flush(rig_session):
     # The subject is the log of a run killed while running: a run a loaded machine tripped
     # before the kill (the daemon here is not real-time; e.g. no_feedback under stress-ng) is
     # acknowledged and started again, up to 3 times.
-    for attempt in range(3):
-        res = start_run(work, 20.0, f"killed{attempt}")
-        time.sleep(3.0)
-        with client(work) as c:
-            run = c.call("status").get("run") or {}
-        if run.get("state") == "running" and run.get("id") == res["run"]:
-            break
-    else:
-        pytest.fail(f"no run lasted 3 s on this machine in 3 attempts; last status run: {run}")
+    res = lasting_run(work, lambda attempt: start_run(work, 20.0, f"killed{attempt}"), 3.0)
     os.killpg(d.pid, signal.SIGKILL)
     d.wait(10)
     run_dir = Path(res["log_dir"])
