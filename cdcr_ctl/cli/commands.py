@@ -7,6 +7,7 @@ Imported by :mod:`cdcr_ctl.cli.main`; each command imports what it needs when it
 from __future__ import annotations
 
 import contextlib
+import gc
 import json
 import logging
 import math
@@ -162,7 +163,7 @@ def sim(
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    with SimRig(loaded) as rig, contextlib.ExitStack() as extras:
+    with SimRig(loaded, truth_worker=True) as rig, contextlib.ExitStack() as extras:
         info = {"ready": True, **rig.connection_info()}
         if faults_path:
             from cdcr_ctl.sim.faults import FaultServer
@@ -171,6 +172,10 @@ def sim(
             info["faults"] = str(faults_path)
         click.echo(json.dumps(info), nl=True)
         sys.stdout.flush()
+        # Stand-in hardware should not pause: what start-up made (modules, dictionaries,
+        # configs) leaves the collector's generations, so a full pass scans only what the run
+        # makes (passes of 54-143 ms of wall time were seen under load without it).
+        gc.freeze()
         stop.wait(duration_s)
         click.echo(json.dumps({"stopped": True, "counters": rig.counters.__dict__}), err=True)
 

@@ -33,6 +33,7 @@ from typing import Any
 
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.loadcells import SensorNoise, sim_for_config
+from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
 from cdcr_ctl.sim.tracker import sim_tracker_from_config
 
@@ -62,6 +63,7 @@ class SimRig:
         can_interface: str = "slcan",
         can_channel: str | None = None,
         link_paths: bool = True,
+        truth_worker: bool = False,
     ) -> None:
         self.loaded = loaded
         self.rig = loaded.rig
@@ -78,6 +80,9 @@ class SimRig:
         self.attitude: list[Any] = []
         self.joystick: Any = None
         self._links: list[Path] = []
+        #: Solve the truth in a worker process (``cdcr-ctl sim``), see :meth:`_physics`.
+        self.truth_worker = truth_worker
+        self._truth_proc: TruthProcess | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> SimRig:
@@ -121,6 +126,8 @@ class SimRig:
             else None,
         )
         self.drives.start()
+        if self.truth_worker:
+            self._truth_proc = TruthProcess(str(self.loaded.path), self.truth)
         self._thread = threading.Thread(target=self._physics, name="sim-physics", daemon=True)
         self._thread.start()
         return self
@@ -158,6 +165,8 @@ class SimRig:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5.0)
+        if self._truth_proc is not None:
+            self._truth_proc.close()
         for dev in (self.joystick, self.drives, self.load_cells, self.tracker, *self.attitude):
             if dev is not None:
                 with contextlib.suppress(Exception):
@@ -201,12 +210,28 @@ class SimRig:
 
     # ------------------------------------------------------------------ physics
     def _physics(self) -> None:
+        """The truth at ``physics_rate_hz`` on the drives' positions.
+
+        With ``truth_worker`` the solve runs in a process of its own (:class:`TruthProcess`) and
+        this thread waits for it in a pipe read, without the interpreter lock. The truth is the
+        simulator's only heavy computation; in this process it held the lock for most of a
+        core's worth of small numpy steps and filled the garbage collector's generations, and
+        the stand-in devices' threads (the drives' SYNC answers and heartbeats, the load cells,
+        the tracker) waited behind it: under load the drives fell silent for 0.2-0.3 s at a time
+        (heartbeat lost, no TPDO from any drive) with nothing wrong in the daemon. Real drives
+        and sensors have processors of their own.
+        """
         period = 1.0 / self.loaded.sim.physics_rate_hz
         next_t = time.monotonic()
+        proc = self._truth_proc
         while not self._stop.is_set():
             t0 = time.monotonic()
             counts = self.drives.actual_positions()
-            self.truth.step(counts)
+            if proc is not None:
+                proc.submit(counts)
+                proc.collect()
+            else:
+                self.truth.step(counts)
             self.counters.physics_steps += 1
             self.counters.solve_failures = self.truth.failures
             dt = time.monotonic() - t0

@@ -1,9 +1,11 @@
-"""The simulated rig, started beside the daemon, runs at SIM_NICE (stand-in hardware)."""
+"""The simulated rig, started beside the daemon, runs at SIM_NICE (stand-in hardware), its
+session's autogroup too where the kernel has one."""
 
 from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -16,4 +18,7 @@ def test_running_sets_the_nice_level(tmp_path):
     cmd = [sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(30)"]
     with running(cmd, tmp_path / "p.log", ready="ready", nice=SIM_NICE) as proc:
         assert os.getpriority(os.PRIO_PROCESS, proc.pid) == SIM_NICE
+        autogroup = Path(f"/proc/{proc.pid}/autogroup")
+        if autogroup.exists():  # its session's share against other sessions' (set_session_nice)
+            assert autogroup.read_text().split()[-1] == str(SIM_NICE)
     assert SIM_NICE < 0
