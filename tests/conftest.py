@@ -1,15 +1,23 @@
 """Fixtures and collection rules for every test directory.
 
-Parallel workers (``scripts/test`` runs pytest-xdist ``-n 2 --dist loadgroup``):
+Two phases (``scripts/test``): ``--unit rest`` with two pytest-xdist workers, then ``--unit
+wallclock`` in one process with nothing beside it.
 
-- a test marked ``realtime`` runs the simulated rig and the daemon as processes on the wall clock
-  (stand-in hardware, heartbeats, stop latency, kills); a test marked ``multicore`` keeps two
-  cores busy or more (a lock-step rig: its loop process and its truth worker; a pool of replay
-  workers). Their files (:data:`RIG_FILES`) form one work unit, ``rig``: it runs on one worker,
-  one test after the other, so a real-time rig never shares the two cores with another rig or
-  with a multi-core test. The other worker runs the rest of the suite beside it, one test at a
-  time, about one core: a lighter neighbour than the ``stress-ng --cpu 2`` these tests must pass
-  under;
+- ``wallclock``: tests marked ``realtime`` (the simulated rig and the daemon as processes on
+  the wall clock: stand-in hardware, heartbeats, stop latency, kills) and the drive-layer files
+  whose simulated nodes run in the test's process on the wall clock (:data:`WALLCLOCK_FILES`).
+  Beside a second worker under ``stress-ng --cpu 2`` they tripped (session 9: five real-time
+  tests, "heartbeat lost"), serially they pass: so they run alone, one after the other;
+- ``rest``: everything else, whose outcome does not hang on the wall clock. It runs on two
+  workers as below.
+
+Within a run with workers (``pytest -n 2 --dist loadgroup``, whatever ``--unit``):
+
+- the tests of :data:`RIG_FILES` (marked ``realtime`` or ``multicore``: a lock-step rig with its
+  truth worker, a pool of replay workers; and the drive files above) form one work unit,
+  ``rig``: it runs on one worker, one test after the other, so a multi-core test never shares
+  the two cores with another rig. The other worker runs the rest beside it, one test at a time.
+  In ``--unit rest`` the unit holds the ``multicore`` tests only;
 - the longest tests are handed out first (the ``rig`` unit, then ``slow``, then the rest, each
   in file order), so no long test is left to run alone at the end.
 
@@ -75,6 +83,23 @@ RIG_FILES = frozenset(
 )
 
 
+#: The drive-layer files of :data:`RIG_FILES` (no ``realtime`` mark: their simulated nodes run
+#: in the test's own process) that the ``wallclock`` unit takes with the marked tests.
+WALLCLOCK_FILES = frozenset(f for f in RIG_FILES if f.startswith("tests/drives/"))
+#: ``--unit`` choices.
+UNITS = ("all", "wallclock", "rest")
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--unit",
+        choices=UNITS,
+        default="all",
+        help="run only the wall-clock tests (realtime-marked, WALLCLOCK_FILES), only the rest, "
+        "or all (default); scripts/test runs rest on two workers, then wallclock alone",
+    )
+
+
 def _file_of(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
@@ -97,7 +122,19 @@ def pytest_xdist_make_scheduler(config, log):
     return None
 
 
+def _on_wall_clock(item) -> bool:
+    return bool(item.get_closest_marker("realtime")) or _file_of(item.nodeid) in WALLCLOCK_FILES
+
+
 def pytest_collection_modifyitems(config, items):
+    unit = config.getoption("unit")
+    if unit != "all":
+        keep = [i for i in items if _on_wall_clock(i) == (unit == "wallclock")]
+        dropped = [i for i in items if _on_wall_clock(i) != (unit == "wallclock")]
+        if dropped:
+            config.hook.pytest_deselected(items=dropped)
+        items[:] = keep
+
     def rank(item) -> int:
         if _file_of(item.nodeid) in RIG_FILES:
             return 0
