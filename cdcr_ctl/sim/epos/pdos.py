@@ -49,6 +49,11 @@ class _Pdo:
     )
     #: RPDO: per entry its dictionary object (looked up once; None: not in the dictionary).
     objects: list[Any] | None = None
+    #: Bytes the mapping covers (the sum of the entries' sizes).
+    size: int = 0
+
+    def __post_init__(self) -> None:
+        self.size = sum(n for _, _, n in self.entries)
 
 
 class _PdoService:
@@ -92,7 +97,7 @@ class _PdoService:
         pdo = self._rpdos.get(can_id)
         if pdo is None:
             return
-        if len(data) < sum(n for _, _, n in pdo.entries):
+        if len(data) < pdo.size:
             self._fault(PDO_LENGTH_ERROR)
             return
         self.rpdo_count += 1
