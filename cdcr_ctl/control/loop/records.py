@@ -171,26 +171,42 @@ class TipHistory:
     """
 
     def __init__(self, capacity: int) -> None:
-        self._t = np.full(capacity, -np.inf)
-        self._tip = np.full((capacity, 3), np.nan)
+        # Plain lists of floats: a few dozen entries, looked through every cycle, cost less
+        # than the ten numpy calls on arrays this small (the same doubles, the same results).
+        self._t = [-math.inf] * capacity
+        self._tip = [(math.nan, math.nan, math.nan)] * capacity
         self._i = 0
 
-    def add(self, t_s: float, tip_mm: np.ndarray) -> None:
+    def add(self, t_s: float, tip_mm: np.ndarray | Sequence[float]) -> None:
         i = self._i % len(self._t)
-        self._t[i] = t_s
-        self._tip[i] = tip_mm
+        self._t[i] = float(t_s)
+        x, y, z = np.asarray(tip_mm, dtype=float).tolist()
+        self._tip[i] = (x, y, z)
         self._i += 1
 
     def distance(
         self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
     ) -> float:
         """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
-        [now - age - lag, now - age + period]; the newest model tip when none is in the window."""
+        [now - age - lag, now - age + period]; the newest model tip when none is in the window.
+        The Euclidean norm as ``np.linalg.norm(d, axis=1)`` computes it for 3-vectors (the
+        squares summed left to right, then the square root), NaN when any distance is NaN
+        (``tests/control/test_tip_history.py`` compares it with numpy's bit for bit)."""
         t_sample = now_s - age_s
-        sel = (self._t >= t_sample - lag_s) & (self._t <= t_sample + period_s)
-        if not sel.any():
-            sel = self._t == self._t.max()
-        d = self._tip[sel] - tip_mm
-        # The Euclidean norm of each row as np.linalg.norm(d, axis=1) computes it (sqrt of the
-        # sum of squares), without its argument handling (this runs every cycle).
-        return float(np.sqrt((d * d).sum(axis=1)).min())
+        lo, hi = t_sample - lag_s, t_sample + period_s
+        ts = self._t
+        sel = [k for k, t in enumerate(ts) if lo <= t <= hi]
+        if not sel:
+            newest = max(ts)
+            sel = [k for k, t in enumerate(ts) if t == newest]
+        px, py, pz = np.asarray(tip_mm, dtype=float).tolist()
+        best = math.inf
+        for k in sel:
+            x, y, z = self._tip[k]
+            dx, dy, dz = x - px, y - py, z - pz
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if d != d:
+                return math.nan  # numpy's min propagates a NaN
+            if d < best:
+                best = d
+        return best

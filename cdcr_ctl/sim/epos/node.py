@@ -171,6 +171,7 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
         self._derived: dict[str, object] = {}
         self._rpdos: dict[int, _Pdo] = {}
         self._tpdos: list[_Pdo] = []
+        self._event_tpdos: list[_Pdo] = []
         self._pdo_dirty = True
         self.node.add_write_callback(self._on_write)
         self.node.add_read_callback(self._on_read)
