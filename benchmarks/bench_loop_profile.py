@@ -5,7 +5,9 @@ compensation model (the session of ``benchmarks/bench_lockstep.py``).
     .venv/bin/python benchmarks/bench_loop_profile.py [--top 40] [--sort tottime|cumulative]
         [--no-profile] [--cpu-timer] [--callees REGEX]
 
-Everything the loop's process does per cycle runs on the loop thread: the cycle itself
+Printed first: the CPU per simulated cycle of the loop thread and of the whole loop's process
+(``--no-profile`` for figures without the profiler). Everything the loop's process does per
+cycle runs on the loop thread: the cycle itself
 (``ControlLoop._cycle``: inputs, setpoint, model, checks, RPDOs + SYNC with the simulated nodes
 answering inside the send, log row) and, before it, the world's advance
 (``LockstepRig.advance``: truth hand-off, Modbus transactions, NatNet frames). Both are profiled
@@ -38,6 +40,16 @@ from cdcr_ctl.sim.lockstep.session import LockstepSession
 from cdcr_ctl.sim.simconfig import load_sim_config
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def thread_cpu_s(tid: int | None) -> float:
+    """CPU time (s) of thread ``tid`` of this process so far, from the scheduler's nanosecond
+    count (``/proc/self/task/TID/schedstat``; 0 where there is none)."""
+    try:
+        with open(f"/proc/self/task/{tid}/schedstat") as f:
+            return int(f.read().split()[0]) * 1e-9
+    except (OSError, ValueError, IndexError):
+        return 0.0
 
 
 def main() -> None:
@@ -83,16 +95,24 @@ def main() -> None:
             tempfile.TemporaryDirectory() as tmp,
             LockstepSession.open(loaded, ctl, loaded.rig_path, tmp) as s,
         ):
+            tid = s.loop._thread.native_id if s.loop._thread is not None else None
             c0 = s.rig.clock.cycles
             s.loop.counters.reset_timing()
+            cpu0, thread0 = time.process_time(), thread_cpu_s(tid)
             on[0] = True
             run = s.run(traj, "profile", args.compensation)
             on[0] = False
+            cpu, thread = time.process_time() - cpu0, thread_cpu_s(tid) - thread0
             n = s.rig.clock.cycles - c0
             stages = s.loop.counters.stage_mean_us()
     finally:
         ControlLoop._cycle, LockstepRig.advance = cycle, advance  # type: ignore[method-assign]
     print(f"run {run.name}: {run.state}, {n} cycles")
+    what = "profiled" if not args.no_profile else "the figure to compare"
+    print(
+        f"CPU per simulated cycle ({what}): loop thread {thread / n * 1e6:.1f} us, the loop's "
+        f"process {cpu / n * 1e6:.1f} us (all its threads; the truth worker is another process)"
+    )
     print("loop stages, wall us per cycle" + ("" if args.no_profile else " (profiled)") + ":")
     for k, v in stages.items():
         print(f"  {k:10s} {v:8.1f}")
