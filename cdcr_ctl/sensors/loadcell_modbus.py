@@ -209,7 +209,7 @@ def scan_reply(
                 incomplete_seen = True
             continue
         frame = bytes(buf[i : i + size])
-        if size == reply_bytes and buf[i + 1] in _READ_REPLY_CLASS and not size & 1:
+        if size == reply_bytes and buf[i + 1] in _READ_REPLY_CLASS and (size - 5) % 2 == 0:
             pdu = _decode_read_reply(frame, slave)
         else:
             pdu = _decode_exact(framer, frame, slave)

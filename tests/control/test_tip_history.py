@@ -68,13 +68,13 @@ def _numpy_distance(ts, tips, now_s, tip_mm, age_s, lag_s, period_s) -> float:
     st.integers(4, 40),
     st.integers(0, 120),
     st.lists(st.floats(-500, 500), min_size=3, max_size=3),
-    st.floats(0.0, 0.3),
+    st.one_of(st.floats(0.0, 0.6), st.just(np.inf)),
     st.floats(0.0, 0.1),
     st.floats(-1e3, 1e3),
     st.booleans(),
 )
 def test_distance_is_numpys_bit_for_bit(capacity, cycles, sample, age_s, lag_s, speed, nan_tip):
-    h = TipHistory(capacity)
+    h = TipHistory(capacity)  # times added in order: the newest-first window
     ts, tips = [-np.inf] * capacity, [[np.nan] * 3] * capacity
     rng = np.random.default_rng(cycles)
     for k in range(cycles):
@@ -88,3 +88,16 @@ def test_distance_is_numpys_bit_for_bit(capacity, cycles, sample, age_s, lag_s, 
     got = h.distance(now, np.array(sample), age_s, lag_s, 0.004)
     ref = _numpy_distance(ts, tips, now, np.array(sample), age_s, lag_s, 0.004)
     assert (np.isnan(got) and np.isnan(ref)) or got == ref
+
+
+def test_times_out_of_order_fall_back_to_the_full_scan():
+    h = TipHistory(8)
+    ts, tips = [-np.inf] * 8, [[np.nan] * 3] * 8
+    for k, t in enumerate([0.0, 0.004, 0.008, 0.002, 0.012, 0.006]):
+        tip = [t * 100.0, 1.0, 300.0]
+        h.add(t, np.array(tip))
+        ts[k], tips[k] = t, tip
+    sample = np.array([0.5, 1.0, 300.0])
+    for age in (0.0, 0.004, 0.007, 0.02):
+        got = h.distance(0.012, sample, age, 0.003, 0.004)
+        assert got == _numpy_distance(ts, tips, 0.012, sample, age, 0.003, 0.004)

@@ -13,6 +13,7 @@ from pymodbus.client.mixin import ModbusClientMixin
 from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU
 
+from cdcr_ctl.sensors import loadcell_modbus
 from cdcr_ctl.sensors.loadcell_modbus import (
     _decode_exact,
     _decode_read_reply,
@@ -61,6 +62,20 @@ def test_read_reply_decodes_as_pymodbus_does(slave, fc, registers, flip):
     # and through the scanner the reader calls (which takes the fast path for these frames)
     scan = scan_reply(frame, slave, fc, len(frame))
     assert _same(scan.pdu, fast)
+
+
+def test_the_scanner_decodes_register_replies_on_the_fast_path(monkeypatch):
+    calls = []
+
+    def fast(frame, slave):
+        calls.append(frame)
+        return _decode_read_reply(frame, slave)
+
+    monkeypatch.setattr(loadcell_modbus, "_decode_read_reply", fast)
+    frame = _frame(1, 3, [0, 4876, 2])
+    scan = scan_reply(b"\x00\x17" + frame, 1, 3, len(frame))
+    assert calls == [frame] and list(scan.pdu.registers) == [0, 4876, 2]
+    assert scan.start == 2 and scan.end == 2 + len(frame)
 
 
 @settings(max_examples=300, deadline=None)

@@ -176,13 +176,39 @@ class TipHistory:
         self._t = [-math.inf] * capacity
         self._tip = [(math.nan, math.nan, math.nan)] * capacity
         self._i = 0
+        #: Every time added so far was >= the one before (the loop's clock): the entries with
+        #: t >= a bound are then the newest ones, and :meth:`distance` looks at those only.
+        self._ordered = True
 
     def add(self, t_s: float, tip_mm: np.ndarray | Sequence[float]) -> None:
-        i = self._i % len(self._t)
-        self._t[i] = float(t_s)
+        n = len(self._t)
+        i = self._i % n
+        t = float(t_s)
+        if self._i and not t >= self._t[(i - 1) % n]:
+            self._ordered = False
+        self._t[i] = t
         x, y, z = np.asarray(tip_mm, dtype=float).tolist()
         self._tip[i] = (x, y, z)
         self._i += 1
+
+    def _window(self, lo: float, hi: float) -> list[int]:
+        """Indices of the entries with ``lo <= t <= hi``: newest first while the times were
+        added in order (stopping at the first older than ``lo``), else by a full scan."""
+        ts = self._t
+        if not self._ordered:
+            return [k for k, t in enumerate(ts) if lo <= t <= hi]
+        n = len(ts)
+        out = []
+        for j in range(min(self._i, n)):
+            k = (self._i - 1 - j) % n
+            t = ts[k]
+            if t < lo:
+                break
+            if t <= hi:
+                out.append(k)
+        if self._i < n and lo == -math.inf:
+            out.extend(range(self._i, n))  # the entries never written (t = -inf) are in it too
+        return out
 
     def distance(
         self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
@@ -195,7 +221,7 @@ class TipHistory:
         t_sample = now_s - age_s
         lo, hi = t_sample - lag_s, t_sample + period_s
         ts = self._t
-        sel = [k for k, t in enumerate(ts) if lo <= t <= hi]
+        sel = self._window(lo, hi)
         if not sel:
             newest = max(ts)
             sel = [k for k, t in enumerate(ts) if t == newest]
