@@ -98,7 +98,10 @@ class ModbusLoadCellSim(PtySim):
         #: Per read block (address, count): (value word, offset in the block) of the value's
         #: words inside it (looked up once per block shape; the same for every slave).
         self._value_slots: dict[tuple[int, int], list[tuple[int, int]]] = {}
-        self._cell_index = {s: i for i, s in enumerate(self.slaves)}
+        #: Cell index of each slave address (the first cell with it, as ``slaves.index``).
+        self._cell_index: dict[int, int] = {}
+        for i, s in enumerate(self.slaves):
+            self._cell_index.setdefault(s, i)
         super().__init__(
             tensions,
             len(self.slaves),
