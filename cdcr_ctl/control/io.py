@@ -45,10 +45,11 @@ class LoadCellTension:
 
     def latest(self) -> tuple[np.ndarray, np.ndarray]:
         # Plain lists per cable, one array each: the loop calls this every cycle, and numpy's
-        # indexing and where() on three values cost more than the values.
-        samples = self.sampler.latest()
-        f = [samples[i].force_N if i >= 0 else math.nan for i in self._order]
-        a = [samples[i].age_s if i >= 0 else math.inf for i in self._order]
+        # indexing and where() on three values cost more than the values; the sampler's force
+        # and age alone, not its whole samples.
+        forces, ages = self.sampler.latest_forces()
+        f = [forces[i] if i >= 0 else math.nan for i in self._order]
+        a = [ages[i] if i >= 0 else math.inf for i in self._order]
         return np.array(f, dtype=float), np.array(a, dtype=float)
 
     def close(self) -> None:

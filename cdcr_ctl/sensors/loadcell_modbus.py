@@ -2,7 +2,10 @@
 
 Framing, CRC and PDU encoding/decoding are pymodbus's (``FramerRTU``, ``DecodePDU``, the register
 PDUs); this module only decides what to ask, reads the reply off an injected pyserial port and
-rejects anything that is not the exact reply to the request just sent.
+rejects anything that is not the exact reply to the request just sent. The one frame every poll
+gets, a register-read reply, is checked with pymodbus's CRC and unpacked here with one
+``struct`` into the PDU pymodbus's decoder would build (the same answer, without its per-frame
+class look-ups; :func:`_decode_read_reply`).
 
 Reply hunting: a reply is accepted only if it starts with the polled slave address, carries the
 request's function code (or its exception code), has the expected length and a valid CRC
@@ -21,18 +24,20 @@ from __future__ import annotations
 
 import contextlib
 import math
+import struct
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TypeVar, cast
+from typing import TypeVar
 
 import serial
-from pymodbus.client.mixin import ModbusClientMixin
 from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.pdu.register_message import (
     ReadHoldingRegistersRequest,
+    ReadHoldingRegistersResponse,
     ReadInputRegistersRequest,
+    ReadInputRegistersResponse,
     WriteSingleRegisterRequest,
 )
 
@@ -83,10 +88,7 @@ EXCEPTION_TEXT = {
 R = TypeVar("R")
 
 _INT_LIMITS = {"int16": (-(2**15), 2**15 - 1), "int32": (-(2**31), 2**31 - 1)}
-_DATATYPE = {
-    "int16": ModbusClientMixin.DATATYPE.INT16,
-    "int32": ModbusClientMixin.DATATYPE.INT32,
-}
+_BITS = {"int16": 16, "int32": 32}
 
 
 def char_time_s(baudrate: int, parity: str = "N", stopbits: int = 1) -> float:
@@ -206,7 +208,11 @@ def scan_reply(
                 need = size - (n - i)
                 incomplete_seen = True
             continue
-        pdu = _decode_exact(framer, bytes(buf[i : i + size]), slave)
+        frame = bytes(buf[i : i + size])
+        if size == reply_bytes and buf[i + 1] in _READ_REPLY_CLASS and (size - 5) % 2 == 0:
+            pdu = _decode_read_reply(frame, slave)
+        else:
+            pdu = _decode_exact(framer, frame, slave)
         if pdu is None:
             rejected += 1
             continue
@@ -225,12 +231,39 @@ def _decode_exact(framer: FramerRTU, frame: bytes, slave: int) -> ModbusPDU | No
     return pdu
 
 
+#: Register-read reply PDUs by function code (what pymodbus's client decoder builds).
+_READ_REPLY_CLASS: dict[int, type[ModbusPDU]] = {
+    3: ReadHoldingRegistersResponse,
+    4: ReadInputRegistersResponse,
+}
+
+
+def _decode_read_reply(frame: bytes, slave: int) -> ModbusPDU | None:
+    """:func:`_decode_exact` for a normal register-read reply (function code 3 or 4) whose
+    address, function code, byte count and even length :func:`scan_reply` has checked: the CRC
+    with pymodbus's ``compute_CRC`` (its last two bytes read high byte first, as pymodbus's
+    ``FramerRTU.decode`` reads them), the registers as big-endian words, the PDU of the class
+    pymodbus's decoder builds. The same answer as pymodbus's framer and decoder (None on a bad
+    CRC), without their per-frame class look-ups; the real rig's reader runs it on every poll
+    (``tests/sensors/test_modbus_read_reply.py`` compares the two on every kind of frame)."""
+    end = len(frame) - 2
+    if FramerRTU.compute_CRC(frame[:end]) != (frame[end] << 8) | frame[end + 1]:
+        return None
+    registers = list(struct.unpack(f">{(end - 3) // 2}H", frame[3:end]))
+    return _READ_REPLY_CLASS[frame[1]](dev_id=slave, registers=registers)
+
+
 def registers_to_int(registers: Sequence[int], value_type: str) -> int:
-    """Signed integer from 1 (int16) or 2 (int32, high word first) registers (pymodbus convert)."""
-    value = ModbusClientMixin.convert_from_registers(
-        list(registers), _DATATYPE[value_type], word_order="big"
-    )
-    return int(cast(int, value))
+    """Signed integer from 1 (int16) or 2 (int32, high word first) registers: the words as one
+    big-endian two's-complement number (what pymodbus's ``convert_from_registers`` gives with
+    ``word_order="big"``; tests/sensors/test_modbus_read_reply.py compares them)."""
+    bits = _BITS[value_type]
+    if len(registers) != bits // 16:
+        raise ValueError(f"{value_type} needs {bits // 16} registers, got {len(registers)}")
+    value = 0
+    for word in registers:
+        value = (value << 16) | (int(word) & 0xFFFF)
+    return value - (1 << bits) if value >> (bits - 1) else value
 
 
 def decode_reading(raw: int, decimals: int, register_map: ModbusRegisterMap) -> LoadCellReading:

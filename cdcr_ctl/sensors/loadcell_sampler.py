@@ -216,6 +216,25 @@ class LoadCellSampler:
             )
         return tuple(out)
 
+    def latest_forces(self, now_s: float | None = None) -> tuple[list[float], list[float]]:
+        """Per cell in config order: its calibrated force (N; NaN before the first sample) and
+        the age of that sample at ``now_s`` (s; inf before the first), the ``force_N`` and
+        ``age_s`` :meth:`latest` gives, without the rest of the sample (the loop's one read
+        each cycle). Never blocks on the port."""
+        now = self._clock() if now_s is None else now_s
+        forces: list[float] = []
+        ages: list[float] = []
+        for cal, holder in zip(self._cals, self._holders, strict=True):
+            stamped = holder.stamped  # one reference read: the newest value and its time
+            if stamped is None:
+                forces.append(math.nan)
+                ages.append(math.inf)
+                continue
+            r = stamped.value
+            forces.append(math.nan if r is None else cal.apply(r.reading_N))
+            ages.append(stamped.age_s(now))
+        return forces, ages
+
     def raise_if_failed(self) -> None:
         """Raise the :class:`SensorError` that stopped the sampler, if any."""
         if self.failure is not None:

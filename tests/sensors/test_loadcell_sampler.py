@@ -46,6 +46,8 @@ def test_samples_carry_arrival_time_age_and_stale_flag():
     )
     (s,) = cells.latest()
     assert math.isnan(s.force_N) and s.age_s == math.inf and s.stale and s.seq == 0
+    (f,), (a,) = cells.latest_forces()
+    assert math.isnan(f) and a == math.inf
     with cells:
         port.write(format_line(1.0))  # 1 kg
         cells.wait_for_samples(1, timeout_s=5.0)
@@ -62,6 +64,12 @@ def test_samples_carry_arrival_time_age_and_stale_flag():
         assert (s.t_s, s.age_s, s.stale) == (50.3, 0.0, False)
         forces, ages = forces_and_ages(cells.latest())
         assert forces.tolist() == [pytest.approx(2.0 * (2 * KG - 1.0))] and ages.tolist() == [0.0]
+        # The loop's read: the same force and age, exactly
+        clock.t_s = 50.4
+        assert cells.latest_forces() == (
+            [s.force_N for s in cells.latest()],
+            [s.age_s for s in cells.latest()],
+        )
     assert not cells.running and not port.is_open
 
 

@@ -171,26 +171,68 @@ class TipHistory:
     """
 
     def __init__(self, capacity: int) -> None:
-        self._t = np.full(capacity, -np.inf)
-        self._tip = np.full((capacity, 3), np.nan)
+        # Plain lists of floats: a few dozen entries, looked through every cycle, cost less
+        # than the ten numpy calls on arrays this small (the same doubles, the same results).
+        self._t = [-math.inf] * capacity
+        self._tip = [(math.nan, math.nan, math.nan)] * capacity
         self._i = 0
+        #: Every time added so far was >= the one before (the loop's clock): the entries with
+        #: t >= a bound are then the newest ones, and :meth:`distance` looks at those only.
+        self._ordered = True
 
-    def add(self, t_s: float, tip_mm: np.ndarray) -> None:
-        i = self._i % len(self._t)
-        self._t[i] = t_s
-        self._tip[i] = tip_mm
+    def add(self, t_s: float, tip_mm: np.ndarray | Sequence[float]) -> None:
+        n = len(self._t)
+        i = self._i % n
+        t = float(t_s)
+        if self._i and not t >= self._t[(i - 1) % n]:
+            self._ordered = False
+        self._t[i] = t
+        x, y, z = np.asarray(tip_mm, dtype=float).tolist()
+        self._tip[i] = (x, y, z)
         self._i += 1
+
+    def _window(self, lo: float, hi: float) -> list[int]:
+        """Indices of the entries with ``lo <= t <= hi``: newest first while the times were
+        added in order (stopping at the first older than ``lo``), else by a full scan."""
+        ts = self._t
+        if not self._ordered:
+            return [k for k, t in enumerate(ts) if lo <= t <= hi]
+        n = len(ts)
+        out = []
+        for j in range(min(self._i, n)):
+            k = (self._i - 1 - j) % n
+            t = ts[k]
+            if t < lo:
+                break
+            if t <= hi:
+                out.append(k)
+        if self._i < n and lo == -math.inf:
+            out.extend(range(self._i, n))  # the entries never written (t = -inf) are in it too
+        return out
 
     def distance(
         self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
     ) -> float:
         """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
-        [now - age - lag, now - age + period]; the newest model tip when none is in the window."""
+        [now - age - lag, now - age + period]; the newest model tip when none is in the window.
+        The Euclidean norm as ``np.linalg.norm(d, axis=1)`` computes it for 3-vectors (the
+        squares summed left to right, then the square root), NaN when any distance is NaN
+        (``tests/control/test_tip_history.py`` compares it with numpy's bit for bit)."""
         t_sample = now_s - age_s
-        sel = (self._t >= t_sample - lag_s) & (self._t <= t_sample + period_s)
-        if not sel.any():
-            sel = self._t == self._t.max()
-        d = self._tip[sel] - tip_mm
-        # The Euclidean norm of each row as np.linalg.norm(d, axis=1) computes it (sqrt of the
-        # sum of squares), without its argument handling (this runs every cycle).
-        return float(np.sqrt((d * d).sum(axis=1)).min())
+        lo, hi = t_sample - lag_s, t_sample + period_s
+        ts = self._t
+        sel = self._window(lo, hi)
+        if not sel:
+            newest = max(ts)
+            sel = [k for k, t in enumerate(ts) if t == newest]
+        px, py, pz = np.asarray(tip_mm, dtype=float).tolist()
+        best = math.inf
+        for k in sel:
+            x, y, z = self._tip[k]
+            dx, dy, dz = x - px, y - py, z - pz
+            d = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if d != d:
+                return math.nan  # numpy's min propagates a NaN
+            if d < best:
+                best = d
+        return best

@@ -71,27 +71,35 @@ def check_version(version: NatNetVersion) -> None:
 
 
 class _Reader:
-    """Bounds-checked little-endian reader over one payload."""
+    """Bounds-checked little-endian reader over one payload (the common reads written out on
+    locals: this runs for every field of every frame)."""
+
+    __slots__ = ("data", "end", "pos")
 
     def __init__(self, data: bytes) -> None:
         self.data = data
         self.pos = 0
+        self.end = len(data)
 
     def left(self) -> int:
-        return len(self.data) - self.pos
+        return self.end - self.pos
 
     def take(self, st: struct.Struct) -> tuple:
-        if self.left() < st.size:
-            raise NatNetDecodeError(f"frame cut short: need {st.size} bytes", self.pos)
-        out = st.unpack_from(self.data, self.pos)
-        self.pos += st.size
-        return out
+        pos, size = self.pos, st.size
+        if self.end - pos < size:
+            raise NatNetDecodeError(f"frame cut short: need {size} bytes", pos)
+        self.pos = pos + size
+        return st.unpack_from(self.data, pos)
 
     def i32(self) -> int:
-        return self.take(_I32)[0]
+        pos = self.pos
+        if self.end - pos < 4:
+            raise NatNetDecodeError("frame cut short: need 4 bytes", pos)
+        self.pos = pos + 4
+        return _I32.unpack_from(self.data, pos)[0]
 
     def skip(self, n: int) -> None:
-        if n < 0 or self.left() < n:
+        if n < 0 or self.end - self.pos < n:
             raise NatNetDecodeError(f"frame cut short: need {n} bytes", self.pos)
         self.pos += n
 
@@ -102,10 +110,12 @@ class _Reader:
             raise NatNetDecodeError(f"negative {what} count {n}", self.pos - 4)
         if sized:
             nbytes = self.take(_U32)[0]
-            if nbytes > self.left():
+            if nbytes > self.end - self.pos:
                 raise NatNetDecodeError(f"{what} list size {nbytes} exceeds the frame", self.pos)
-        if n * min_item_bytes > self.left():
-            raise NatNetDecodeError(f"{n} {what} cannot fit in {self.left()} bytes", self.pos)
+        if n * min_item_bytes > self.end - self.pos:
+            raise NatNetDecodeError(
+                f"{n} {what} cannot fit in {self.end - self.pos} bytes", self.pos
+            )
         return n
 
     def cstring(self) -> str:

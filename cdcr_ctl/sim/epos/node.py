@@ -167,10 +167,11 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
         self._now: Callable[[], float] = time.monotonic
         self._params: dict[tuple[int, int], int] = {}
         #: Values derived from parameters (interpolation period, position limits): emptied with
-        #: every parameter write and reset, as :attr:`_params` changes.
+        #: every write of the objects they come from (``objects._DERIVED_FROM``) and every reset.
         self._derived: dict[str, object] = {}
         self._rpdos: dict[int, _Pdo] = {}
         self._tpdos: list[_Pdo] = []
+        self._event_tpdos: list[_Pdo] = []
         self._pdo_dirty = True
         self.node.add_write_callback(self._on_write)
         self.node.add_read_callback(self._on_read)

@@ -58,6 +58,11 @@ _LIVE = (
     epos.ERROR_REGISTER,
 )
 
+#: The objects :attr:`_derived`'s values are computed from (interpolation period:
+#: :attr:`_Objects.interpolation_period_s`; software position limits: ``_limits``): a write to
+#: one of them empties it. A new derived value must add its objects here.
+_DERIVED_FROM = frozenset((epos.INTERPOLATION_PERIOD, epos.SOFTWARE_POSITION_LIMIT))
+
 
 class _Objects:
     """Object reads and writes of :class:`~cdcr_ctl.sim.epos.node.SimEpos`."""
@@ -178,7 +183,9 @@ class _Objects:
         self._apply_write(index, subindex, data)
         if getattr(od, "data_type", None) in NUMBER_TYPES:
             self._params[(index, subindex)] = int(od.decode_raw(data))  # type: ignore[attr-defined]
-        self._derived.clear()
+        if index in _DERIVED_FROM:
+            # Only these feed :attr:`_derived`; a set-point (every SYNC) leaves it as it is.
+            self._derived.clear()
 
     def _apply_write(self, index: int, subindex: int, data: bytes) -> None:
         if 0x1400 <= index <= 0x1BFF:

@@ -49,6 +49,11 @@ class _Pdo:
     )
     #: RPDO: per entry its dictionary object (looked up once; None: not in the dictionary).
     objects: list[Any] | None = None
+    #: Bytes the mapping covers (the sum of the entries' sizes).
+    size: int = 0
+
+    def __post_init__(self) -> None:
+        self.size = sum(n for _, _, n in self.entries)
 
 
 class _PdoService:
@@ -79,6 +84,8 @@ class _PdoService:
                     self._tpdos.append(pdo)
         for cob in self._rpdos:
             self.network.subscribe(cob, self._on_rpdo)
+        #: The event-driven TPDOs (type 254/255), see :meth:`_send_changed_tpdos`.
+        self._event_tpdos = [p for p in self._tpdos if p.transmission >= 254]
         self._pdo_dirty = False
 
     def _operational(self) -> bool:
@@ -92,7 +99,7 @@ class _PdoService:
         pdo = self._rpdos.get(can_id)
         if pdo is None:
             return
-        if len(data) < sum(n for _, _, n in pdo.entries):
+        if len(data) < pdo.size:
             self._fault(PDO_LENGTH_ERROR)
             return
         self.rpdo_count += 1
@@ -181,7 +188,12 @@ class _PdoService:
             def get(index: int = index, sub: int = sub, obj: Any = obj) -> int:
                 return int(self._on_read(index, sub, obj))
 
-            getters.append(get)
+            # The two objects of every feedback TPDO read straight (what _on_read gives them).
+            direct = {
+                epos.STATUSWORD: lambda: self.statusword,
+                epos.POSITION_ACTUAL: lambda: self.position_counts,
+            }
+            getters.append(direct.get(index, get))
             ranges.append((obj.min, obj.max))
         return struct.Struct("<" + "".join(formats)), getters, ranges
 
@@ -207,14 +219,13 @@ class _PdoService:
 
     def _send_changed_tpdos(self) -> None:
         """Event-driven TPDOs (type 254/255): sent when their data changed."""
-        if not self._operational():
+        if not self._event_tpdos or not self._operational():
             return
-        for pdo in self._tpdos:
-            if pdo.transmission >= 254:
-                payload = self._tpdo_payload(pdo)
-                if payload != pdo.last:
-                    pdo.last = payload
-                    self._send(pdo.cob_id, payload)
+        for pdo in self._event_tpdos:
+            payload = self._tpdo_payload(pdo)
+            if payload != pdo.last:
+                pdo.last = payload
+                self._send(pdo.cob_id, payload)
 
     def _on_sync(self, can_id: int, data: bytearray, ts: float) -> None:
         if self.silent:

@@ -109,7 +109,7 @@ class _Stepping:
             e, ev = px - x, pv - v
             a_cmd = pa + kp * e + kd * ev + ki * integral
             i = Jk * a_cmd / kt
-            if abs(i) >= ilim:
+            if i >= ilim or i <= -ilim:  # abs(i) >= ilim without the call
                 i = copysign(ilim, i)
             else:
                 integral += e * h
@@ -125,7 +125,9 @@ class _Stepping:
             pa = 0.0
             px, pv = c_from + vel * csp_t, (vel if csp_t < period else 0.0)
             done += 1
-            err = abs(px - x)
+            err = px - x
+            if err < 0.0:
+                err = -err  # abs(px - x) without the call
             actual = x + offset
             if (unbounded or err <= window) and lo1 <= actual <= hi1 and sw_lo < x < sw_hi:
                 if err > max_err:

@@ -95,6 +95,13 @@ class ModbusLoadCellSim(PtySim):
         #: Read requests (fc 3/4) decoded before, by their frame bytes (performance only: the
         #: master polls each cell with the same frame).
         self._reads: dict[bytes, tuple[int, ModbusPDU]] = {}
+        #: Per read block (address, count): (value word, offset in the block) of the value's
+        #: words inside it (looked up once per block shape; the same for every slave).
+        self._value_slots: dict[tuple[int, int], list[tuple[int, int]]] = {}
+        #: Cell index of each slave address (the first cell with it, as ``slaves.index``).
+        self._cell_index: dict[int, int] = {}
+        for i, s in enumerate(self.slaves):
+            self._cell_index.setdefault(s, i)
         super().__init__(
             tensions,
             len(self.slaves),
@@ -155,19 +162,25 @@ class ModbusLoadCellSim(PtySim):
     def _read_registers(self, slave: int, address: int, count: int) -> list[int] | None:
         """Registers ``address`` .. ``address + count - 1`` of ``slave`` (in range), the value
         measured now; None when the reading drops out."""
-        rm = self.register_map
-        regs = list(self.registers[slave][address : address + count])
-        span = range(address, address + count)
-        vwords = 2 if rm.value_type == "int32" else 1
-        vregs = range(rm.value_register, rm.value_register + vwords)
-        if any(r in span for r in vregs):
-            force = self.feed.measure(self.slaves.index(slave))
+        regs = self.registers[slave][address : address + count]  # a copy
+        slots = self._value_slots.get((address, count))
+        if slots is None:
+            rm = self.register_map
+            vwords = 2 if rm.value_type == "int32" else 1
+            span = range(address, address + count)
+            slots = [
+                (k, r - address)
+                for k, r in enumerate(range(rm.value_register, rm.value_register + vwords))
+                if r in span
+            ]
+            self._value_slots[(address, count)] = slots
+        if slots:
+            force = self.feed.measure(self._cell_index[slave])
             if force is None:
                 return None
             words = self._value_words(self.counts(slave, force))
-            for r, w in zip(vregs, words, strict=True):
-                if r in span:
-                    regs[r - address] = w
+            for k, offset in slots:
+                regs[offset] = words[k]
         return regs
 
     def _read_reply(self, request: ModbusPDU, dev_id: int) -> bytes | None:
