@@ -10,16 +10,19 @@ Determinism holds: the same positions go to the worker in the same order, and ea
 taken at a fixed cycle (the next period's start), never "whenever it is ready".
 
 **The hand-off.** The drive counts go to the worker and the solved state comes back through
-shared memory (:class:`_Shared`: int64 counts, float64 state; exact, no pickling), and each side
-wakes the other with a semaphore (a futex). Not through a pipe: a pipe's write wakes its reader
-as a *synchronous* wake-up (the kernel's hint that the writer is about to sleep and the reader
-should take its CPU), so the Linux scheduler put the worker on the loop thread's CPU, where the
-two took turns instead of running side by side: measured on this 2-core machine, the worker
-started its solve on the CPU of the thread that had just submitted in 92-98 % of the solves
-(``sched_getcpu`` in both, 3 runs of the planar bend), and the wall per cycle was close to the
-sum of the two processes' CPU. A semaphore's wake-up carries no such hint, so the worker goes to
-an idle CPU when there is one. A state that is not a dataclass of fixed-shape float64 arrays
-(none of the designs' truths today) falls back to the pipe, pickled.
+shared memory (:class:`_Shared`: int64 counts, float64 state; exact, nothing pickled), and each
+side wakes the other with a semaphore (a futex): one wake-up of the worker per solve (measured:
+992-1000 for the planar bend's 999 solves). Through the pipe used before, the loop's process
+woke the worker 1617-1719 times for them and paid a pickle and an unpickle a solve; and a
+pipe's write wakes its reader as a *synchronous* wake-up (the kernel's hint that the writer is
+about to sleep), which makes the scheduler favour the writer's CPU for the reader even though
+the loop thread goes on running.
+Measured with ``perf sched record`` on the 2-core machine at load average 6-7 (README,
+"Lock-step simulation"): the worker still ran on the loop thread's CPU after 90-100 % of its
+wake-ups either way, because the other CPU was busy too (other jobs, and in a lock-step run
+itself the run-log writer process and the next run's spare writer starting); the semaphore
+takes away the hint, not the other CPU's load. A state that is not a dataclass of fixed-shape
+float64 arrays (none of the designs' truths today) falls back to the pipe, pickled.
 """
 
 from __future__ import annotations
