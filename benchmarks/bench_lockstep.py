@@ -48,6 +48,31 @@ def proc_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def thread_sched(tid: int) -> tuple[float, float, int, int]:
+    """(s on a CPU, s runnable but waiting for one, voluntary and involuntary context switches)
+    of thread ``tid`` of this process so far (``/proc/self/task/<tid>/``)."""
+    try:
+        with open(f"/proc/self/task/{tid}/schedstat") as f:
+            run_ns, wait_ns = (int(v) for v in f.read().split()[:2])
+        with open(f"/proc/self/task/{tid}/status") as f:
+            status = f.read()
+    except OSError:
+        return 0.0, 0.0, 0, 0
+    vol = int(status.split("voluntary_ctxt_switches:")[1].split()[0])
+    invol = int(status.split("nonvoluntary_ctxt_switches:")[1].split()[0])
+    return run_ns * 1e-9, wait_ns * 1e-9, vol, invol
+
+
+def threads_sched(skip: int) -> tuple[float, int]:
+    """CPU (s) and voluntary switches (wake-ups) of this process's threads other than ``skip``."""
+    cpu, wakes = 0.0, 0
+    for name in os.listdir("/proc/self/task"):
+        if int(name) != skip:
+            run_s, _, vol, _ = thread_sched(int(name))
+            cpu, wakes = cpu + run_s, wakes + vol
+    return cpu, wakes
+
+
 def children_cpu_s() -> float:
     """User + system CPU (s) of the children reaped so far."""
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -141,6 +166,8 @@ def main() -> None:
                 spare0 = probe.spare_pid()
                 spare_cpu0 = proc_cpu_s(spare0) if spare0 else 0.0
                 kids0 = children_cpu_s()
+                tid = loop._thread.native_id
+                lt0, ot0 = thread_sched(tid), threads_sched(tid)
                 w0, c0 = time.perf_counter(), time.process_time()
                 run = s.run(traj, f"bench{i}", args.compensation)
                 wall, cpu = time.perf_counter() - w0, time.process_time() - c0
@@ -148,6 +175,8 @@ def main() -> None:
                 spare = probe.spare_pid()
                 spare_cpu = proc_cpu_s(spare) - (spare_cpu0 if spare == spare0 else 0.0)
                 cycles_wall = probe.last - probe.first
+                lt = [b - a for a, b in zip(lt0, thread_sched(tid), strict=True)]
+                ot = [b - a for a, b in zip(ot0, threads_sched(tid), strict=True)]
                 n = rig.clock.cycles - cyc0
                 sim_s = rig.clock.now() - t_sim0
                 p = {k: v - parts0[k] for k, v in rig.cpu_breakdown_s().items()}
@@ -183,6 +212,21 @@ def main() -> None:
                     f" us); CPU {every * us:.0f} us in all, "
                     + ", ".join(f"{k} {v * us:.0f}" for k, v in per)
                 )
+                # Outside the cycles (log start and close) the loop thread sleeps, idle; in them
+                # it is on a CPU, waiting for one, or sleeping (a hand-off, the truth's result).
+                slept = max(0.0, cycles_wall - lt[0] - lt[1])
+                print(
+                    f"  loop thread: on a CPU {lt[0]:.2f} s, runnable but not running {lt[1]:.2f} s"
+                    f", sleeping during the cycles ~{slept:.2f} s (their wall less the two); "
+                    f"{lt[2]} voluntary and {lt[3]} involuntary context switches; the process's "
+                    f"other threads {ot[0] * us:.0f} us CPU and {ot[1] / max(n, 1):.2f} wake-ups "
+                    "a cycle"
+                )
+                if s.rig.truth_proc is not None and i == 0:
+                    print(
+                        f"  pids: loop process {os.getpid()}, truth worker "
+                        f"{s.rig.truth_proc._proc.pid} (benchmarks/lockstep_placement.py)"
+                    )
                 if args.no_parts:
                     continue
                 print(f"  CPU per simulated cycle ({1e3 / ctl.control.rate_hz:.0f} ms period):")
