@@ -53,9 +53,9 @@ def test_two_lockstep_runs_with_one_seed_give_byte_identical_samples(tmp_path):
 
 
 def test_truth_states_cross_the_worker_pipe_exactly():
-    """The truth worker sends solved states as nested float lists (sim/lockstep/truthproc.py):
-    rebuilt, every array is the same class, shape, dtype and bits; other states pass as they
-    are."""
+    """A state that cannot go through shared memory crosses the truth worker's pipe as nested
+    float lists (sim/lockstep/truthproc.py): rebuilt, every array is the same class, shape,
+    dtype and bits; other states pass as they are."""
     import pickle
     from dataclasses import fields
 
@@ -71,3 +71,58 @@ def test_truth_states_cross_the_worker_pipe_exactly():
         assert (a.shape, a.dtype, a.tobytes()) == (b.shape, b.dtype, b.tobytes()), f.name
     other = {"not": "a dataclass of arrays"}
     assert to_wire(other) is other and from_wire(other, truth.state) is other
+
+
+def test_truth_states_cross_shared_memory_exactly():
+    """The truth worker's solved state crosses in shared memory (sim/lockstep/truthproc.py):
+    rebuilt, every array is the same class, shape, dtype and bits; a state of other shapes
+    is refused by name."""
+    import multiprocessing
+    from dataclasses import fields, replace
+
+    from cdcr_ctl.errors import RigError
+    from cdcr_ctl.sim.design_truth import make_truth
+    from cdcr_ctl.sim.lockstep.truthproc import _Shared, state_shapes
+
+    truth = make_truth(load_sim_config(TRUTH))
+    state = truth.step([1234, -800, -600])
+    shapes = state_shapes(state)
+    assert shapes is not None and state_shapes({"not": "a dataclass"}) is None
+    n = sum(int(np.prod(s)) for s in shapes)
+    ctx = multiprocessing.get_context("spawn")
+    sh = _Shared(ctx.RawArray("q", 6), ctx.RawArray("d", 1 + n), shapes)
+    sh.put_state(state)
+    back = sh.get_state(truth.state)
+    assert type(back) is type(state)
+    for f in fields(state):
+        a, b = getattr(state, f.name), getattr(back, f.name)
+        assert (a.shape, a.dtype, a.tobytes()) == (b.shape, b.dtype, b.tobytes()), f.name
+    with pytest.raises(RigError, match="tip_mm"):
+        sh.put_state(replace(state, tip_mm=np.zeros(4)))
+
+
+@pytest.mark.timeout(120)
+def test_truth_worker_solves_what_the_local_truth_solves():
+    """TruthProcess: the counts go to the worker and its solve comes back into the local truth
+    bit for bit (the same solves in the same order as a truth solving here), failures and
+    steps counted; close() ends the worker."""
+    from cdcr_ctl.sim.design_truth import make_truth
+    from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
+
+    loaded = load_sim_config(TRUTH)
+    here, local = make_truth(loaded), make_truth(loaded)
+    proc = TruthProcess(str(loaded.path), local)
+    try:
+        for counts in ([0, 0, 0], [1234, -800, -600], [2500, -1500, -1200], [2600, -1550, -1250]):
+            want = here.step(counts)
+            proc.submit(counts)
+            assert proc.pending
+            proc.collect()
+            got = local.state
+            assert not proc.pending and local.steps == here.steps
+            for name in ("tip_mm", "R_tip", "tension_base_N", "tension_actuator_N", "psi"):
+                assert getattr(got, name).tobytes() == getattr(want, name).tobytes(), name
+        assert local.failures == here.failures == 0 and proc.cpu_s > 0
+    finally:
+        proc.close()
+    assert not proc._proc.is_alive()
