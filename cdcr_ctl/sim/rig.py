@@ -213,7 +213,7 @@ class SimRig:
         """The truth at ``physics_rate_hz`` on the drives' positions.
 
         With ``truth_worker`` the solve runs in a process of its own (:class:`TruthProcess`) and
-        this thread waits for it in a pipe read, without the interpreter lock. The truth is the
+        this thread waits for it on a semaphore, without the interpreter lock. The truth is the
         simulator's only heavy computation; in this process it held the lock for most of a
         core's worth of small numpy steps and filled the garbage collector's generations, and
         the stand-in devices' threads (the drives' SYNC answers and heartbeats, the load cells,
