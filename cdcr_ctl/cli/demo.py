@@ -116,8 +116,9 @@ def _cli(*args: str) -> list[str]:
 
 
 def set_session_nice(pid: int, nice: int) -> None:
-    """Give process ``pid``, the leader of a session of its own, the nice level ``nice``: its
-    own (threads it starts later inherit it) and its session's autogroup's.
+    """Give process ``pid``, the leader of a session of its own, the nice level ``nice`` (threads
+    it starts later inherit it) and its session's autogroup the caller's autogroup level plus
+    ``nice`` (a session of its own starts at 0 and would escape a caller running lower).
 
     With the kernel's autogroup on (``/proc/sys/kernel/sched_autogroup_enabled``, the default
     of desktop and many server kernels, and of this machine), the scheduler first shares the CPU
@@ -128,10 +129,21 @@ def set_session_nice(pid: int, nice: int) -> None:
     drives' TPDOs and heartbeats stopped for 0.25-0.33 s, and the daemon tripped ("heartbeat
     lost", "no TPDO from any drive"). Each step is skipped where not permitted (a nice level
     below 0 needs root or CAP_SYS_NICE) or not there (no autogroup)."""
-    with contextlib.suppress(PermissionError, ProcessLookupError):
-        os.setpriority(os.PRIO_PROCESS, pid, nice)
-    with contextlib.suppress(OSError):
-        Path(f"/proc/{pid}/autogroup").write_text(f"{nice}\n")
+    if nice:
+        with contextlib.suppress(PermissionError, ProcessLookupError):
+            os.setpriority(os.PRIO_PROCESS, pid, nice)
+    group = autogroup_nice() + nice
+    if group:
+        with contextlib.suppress(OSError):
+            Path(f"/proc/{pid}/autogroup").write_text(f"{group}\n")
+
+
+def autogroup_nice(pid: int | str = "self") -> int:
+    """The nice level of process ``pid``'s autogroup (0 where the kernel has none)."""
+    try:
+        return int(Path(f"/proc/{pid}/autogroup").read_text().split()[-1])
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 @contextlib.contextmanager
@@ -141,7 +153,8 @@ def running(
     """Start ``cmd`` with output to ``log_path``; on exit SIGTERM it (then SIGKILL after 10 s).
 
     With ``ready``, wait until a line containing it appears on stdout (the sim's JSON line).
-    ``nice``: the process's nice level, set before it is waited for (ignored where not permitted).
+    ``nice``: the process's nice level, and its session's relative to this one's
+    (:func:`set_session_nice`), set before it is waited for (ignored where not permitted).
     """
     log = log_path.open("w")
     proc = subprocess.Popen(
@@ -151,8 +164,7 @@ def running(
         text=True,
         start_new_session=True,
     )
-    if nice:
-        set_session_nice(proc.pid, nice)
+    set_session_nice(proc.pid, nice)
     try:
         if ready:
             assert proc.stdout is not None

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from cdcr_ctl.cli.demo import SIM_NICE, running
+from cdcr_ctl.cli.demo import SIM_NICE, autogroup_nice, running
 
 
 def test_running_sets_the_nice_level(tmp_path):
@@ -18,7 +18,7 @@ def test_running_sets_the_nice_level(tmp_path):
     cmd = [sys.executable, "-c", "import time; print('ready', flush=True); time.sleep(30)"]
     with running(cmd, tmp_path / "p.log", ready="ready", nice=SIM_NICE) as proc:
         assert os.getpriority(os.PRIO_PROCESS, proc.pid) == SIM_NICE
-        autogroup = Path(f"/proc/{proc.pid}/autogroup")
-        if autogroup.exists():  # its session's share against other sessions' (set_session_nice)
-            assert autogroup.read_text().split()[-1] == str(SIM_NICE)
+        if Path(f"/proc/{proc.pid}/autogroup").exists():
+            # Its session's share against other sessions', relative to this one's.
+            assert autogroup_nice(proc.pid) == autogroup_nice() + SIM_NICE
     assert SIM_NICE < 0
