@@ -1,15 +1,14 @@
 """Fixtures and collection rules for every test directory.
 
-Two phases (``scripts/test``): ``--unit rest`` with two pytest-xdist workers, then ``--unit
-wallclock`` in one process with nothing beside it.
+``--unit``: ``wallclock`` or ``rest`` runs one part of the suite (``scripts/test`` runs all in
+one process; README "CI time" has what splitting it gave).
 
 - ``wallclock``: tests marked ``realtime`` (the simulated rig and the daemon as processes on
   the wall clock: stand-in hardware, heartbeats, stop latency, kills) and the drive-layer files
   whose simulated nodes run in the test's process on the wall clock (:data:`WALLCLOCK_FILES`).
   Beside a second worker under ``stress-ng --cpu 2`` they tripped (session 9: five real-time
-  tests, "heartbeat lost"), serially they pass: so they run alone, one after the other;
-- ``rest``: everything else, whose outcome does not hang on the wall clock. It runs on two
-  workers as below.
+  tests, "heartbeat lost"), serially they pass: they need the machine to themselves;
+- ``rest``: everything else, whose outcome does not hang on the wall clock.
 
 Within a run with workers (``pytest -n 2 --dist loadgroup``, whatever ``--unit``):
 
@@ -98,7 +97,7 @@ def pytest_addoption(parser):
         choices=UNITS,
         default="all",
         help="run only the wall-clock tests (realtime-marked, WALLCLOCK_FILES), only the rest, "
-        "or all (default); scripts/test runs rest on two workers, then wallclock alone",
+        "or all (default)",
     )
 
 
