@@ -86,6 +86,13 @@ class SimRig:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> SimRig:
+        if self.truth_worker:
+            # First, while this process has no other thread: forked then, the worker starts
+            # with this process's imports (spawned, ~1.5 s of its own, which every rig start
+            # of the system tests paid).
+            alone = threading.active_count() == 1
+            method = "fork" if alone and os.name == "posix" else "spawn"
+            self._truth_proc = TruthProcess(str(self.loaded.path), self.truth, method)
         from cdcr_ctl.sim.epos.rig import SimDriveBus  # the simulated EPOS nodes on their bus
 
         noise = self.loaded.sim.noise
@@ -126,8 +133,11 @@ class SimRig:
             else None,
         )
         self.drives.start()
-        if self.truth_worker:
-            self._truth_proc = TruthProcess(str(self.loaded.path), self.truth)
+        if self._truth_proc is not None:
+            # The worker's first solve, at the drives' present positions: the world is solved
+            # from the moment this returns (``cdcr-ctl sim`` then says it is ready).
+            self._truth_proc.submit(self.drives.actual_positions())
+            self._truth_proc.collect()
         self._thread = threading.Thread(target=self._physics, name="sim-physics", daemon=True)
         self._thread.start()
         return self

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import multiprocessing
 import os
+import signal
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -131,6 +132,7 @@ def _worker(
 ) -> None:
     """Solve each request (drive counts in shared memory), answer through shared memory (or the
     pipe when ``shapes`` is None); stop on request number -1 or when the parent is gone."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a forked worker has the parent's handlers
     truth = make_truth(load_sim_config(sim_path))
     sh = _Shared(ints, floats, shapes)
     iv, fv = sh.ints, sh.floats
@@ -160,8 +162,10 @@ class TruthProcess:
     the same world in this process, whose ``cell_tensions``/``tip_pose`` the sensors read, and
     whose state gives the layout of the shared memory)."""
 
-    def __init__(self, sim_path: str, local: Any) -> None:
-        ctx = multiprocessing.get_context("spawn")
+    def __init__(self, sim_path: str, local: Any, start_method: str = "spawn") -> None:
+        """``start_method``: ``spawn`` (a new interpreter, ~1.5 s of imports), or ``fork`` for a
+        caller with no other thread yet (the worker then starts in milliseconds)."""
+        ctx = multiprocessing.get_context(start_method)
         self.local = local
         self.n_drives = len(local.counts_per_mm)
         shapes = state_shapes(local.state)
@@ -226,6 +230,9 @@ class TruthProcess:
         self._proc.join(2.0)
         if self._proc.is_alive():
             self._proc.terminate()
+            self._proc.join(1.0)
+        if self._proc.is_alive():
+            self._proc.kill()
             self._proc.join(1.0)
         self._conn.close()
 
