@@ -16,6 +16,7 @@ import pytest
 import serial
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from modbus_ref import ref_crc16_modbus
 from pymodbus.pdu import ExceptionResponse
 
 from cdcr_ctl.config.loadcells import ModbusRegisterMap
@@ -41,16 +42,6 @@ from cdcr_ctl.sim.loadcells import ModbusLoadCellSim, SensorNoise
 H = bytes.fromhex
 MAP = ModbusRegisterMap()  # int32 value at 0, decimals at 2, kg: one 3-register read
 KG = G_M_PER_S2
-
-
-def ref_crc16_modbus(data: bytes) -> bytes:
-    """CRC-16/MODBUS from its definition, appended low byte first."""
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 0xFF, crc >> 8])
 
 
 def test_reference_crc_matches_catalogue_and_recorded_frames():

@@ -1,11 +1,13 @@
 """The simulated Modbus transmitter's register-read replies, built with one ``struct`` and
 pymodbus's CRC (the lock-step rig's hot path), byte for byte against the frame pymodbus builds
-from the response PDU, and against a CRC-16/MODBUS written here from its definition (poly 0xA001
-reflected, init 0xFFFF, low byte first), so pymodbus is not trusted to check pymodbus."""
+from the response PDU, and against a CRC-16/MODBUS written from its definition
+(``modbus_ref.py``, checked against the catalogue in ``test_loadcell_modbus.py``), so pymodbus
+is not trusted to check pymodbus."""
 
 from __future__ import annotations
 
 import pytest
+from modbus_ref import ref_crc16_modbus
 from pymodbus.pdu.register_message import (
     ReadHoldingRegistersResponse,
     ReadInputRegistersResponse,
@@ -14,19 +16,6 @@ from pymodbus.pdu.register_message import (
 from cdcr_ctl.config.loadcells import ModbusRegisterMap
 from cdcr_ctl.sensors.loadcell_modbus import ReadPlan, build_read_request
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim
-
-
-def _crc16_modbus(data: bytes) -> bytes:
-    crc = 0xFFFF
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes((crc & 0xFF, crc >> 8))
-
-
-def test_reference_crc_matches_the_catalogue_check_value():
-    assert _crc16_modbus(b"123456789") == (0x4B37).to_bytes(2, "little")
 
 
 @pytest.mark.parametrize("value_type", ["int32", "int16"])
@@ -50,7 +39,7 @@ def test_read_reply_is_the_frame_pymodbus_builds(value_type, fc, force_N):
                 expected = sim._framer.buildFrame(cls(registers=regs, dev_id=slave))
                 assert frame == expected
                 body = bytes([slave, fc, 2 * count]) + b"".join(r.to_bytes(2, "big") for r in regs)
-                assert frame == body + _crc16_modbus(body)
+                assert frame == body + ref_crc16_modbus(body)
         assert sim.stats.requests == 8
     finally:
         sim.stop()

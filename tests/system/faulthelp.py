@@ -120,7 +120,8 @@ def start_moving_run(work: Path, name: str, seconds: float = 8.0, seed: int = 0)
     :data:`START_ATTEMPTS` runs; any other early end fails at once."""
     rate = 0.6 / (seconds / 4)
     traj = tj.go_and_return(theta_max_rad=0.6, rate_rad_s=rate, phi_rad=0.4 + seed)
-    for attempt in range(1, START_ATTEMPTS + 1):
+    attempt = 1
+    while True:
         res = call(
             work, "trajectory", name=name, samples=traj.rows(), compensation="model", log=True
         )
@@ -132,7 +133,7 @@ def start_moving_run(work: Path, name: str, seconds: float = 8.0, seed: int = 0)
             raise AssertionError(f"{name} ended early (run {attempt}): {early}")
         warnings.warn(f"{name}: run {attempt} tripped before any injection: {early}", stacklevel=2)
         make_ready(work)
-    raise AssertionError("unreachable")
+        attempt += 1
 
 
 def _wait_under_way(work: Path, res: dict, name: str) -> dict | None:
