@@ -2,7 +2,7 @@
 each part, over the Qi et al. 2023 planar bend (0 -> 90 deg at pi/10 rad/s) at the rig's 250 Hz.
 
     .venv/bin/python benchmarks/bench_lockstep.py [--sim-config config/sim/qi2023-truth.yaml]
-        [--compensation model] [--repeat 1] [--truth-inline] [--no-parts]
+        [--compensation model] [--repeat 1] [--truth-inline] [--no-parts] [--cpus auto]
 
 One process: the controller's loop, drive layer (CANopen), Modbus RTU reader and NatNet parser,
 the simulated EPOS nodes, transmitters, tracker and truth (cdcr_ctl.sim.lockstep). Parts:
@@ -32,6 +32,7 @@ from pathlib import Path
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.session import LockstepSession
 from cdcr_ctl.sim.simconfig import load_sim_config
 
@@ -134,13 +135,20 @@ def main() -> None:
         help="Speed factor only: do not time the simulated parts (the per-part CPU clock reads, "
         "~1.5 us each, some 20 per cycle, are themselves a cost); as experiments and tests run",
     )
+    ap.add_argument(
+        "--cpus",
+        default="auto",
+        help="Loop thread and truth worker CPUs, as `cdcr-ctl sim --lockstep --cpus` (default "
+        "auto: the first two allowed; none: the scheduler places them)",
+    )
     args = ap.parse_args()
+    placement = Placement.parse(args.cpus)
     loaded = load_sim_config(args.sim_config)
     ctl = load_rig_config(loaded.rig_path)
     traj = tj.planar_bend(theta_max_rad=math.pi / 2, rate_rad_s=math.pi / 10)
     with tempfile.TemporaryDirectory() as tmp:
         s = LockstepSession.open(
-            loaded, ctl, loaded.rig_path, tmp, truth_process=not args.truth_inline
+            loaded, ctl, loaded.rig_path, tmp, not args.truth_inline, placement
         )
         try:
             s.rig.measure_cpu(not args.no_parts)
@@ -194,7 +202,10 @@ def main() -> None:
                     f"run {run.name}: {run.state}, {n} cycles = {sim_s:.2f} s simulated "
                     f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f})"
                 )
-                print(f"  truth {'inline' if args.truth_inline else 'in a worker process'}")
+                print(
+                    f"  truth {'inline' if args.truth_inline else 'in a worker process'}; "
+                    f"{s.rig.placement.describe()}"
+                )
                 print(
                     f"  wall {wall:.2f} s -> speed factor {sim_s / wall:.1f}x real time "
                     f"(cycles {cycles_wall:.2f} s -> {sim_s / cycles_wall:.1f}x); CPU "

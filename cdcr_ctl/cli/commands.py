@@ -125,6 +125,13 @@ def _one_process_daemon(cfg: Any, path: Path) -> str:
     help="Lock-step: run the daemon (--config, default the simulator's rig) in this process on "
     "simulated time, as fast as the CPU allows (cdcr_ctl.sim.lockstep). Default: real time.",
 )
+@click.option(
+    "--cpus",
+    default="auto",
+    show_default=True,
+    help="With --lockstep: the CPUs of the loop thread and the truth worker: auto (the first "
+    "two allowed), none, LOOP,WORKER, or job:I (the I-th pair, for sessions side by side).",
+)
 @click.option("--verbose", "-v", is_flag=True)
 @click.pass_obj
 def sim(
@@ -133,6 +140,7 @@ def sim(
     duration_s: float | None,
     faults_path: str | None,
     lockstep: bool,
+    cpus: str,
     verbose: bool,
 ) -> None:
     """Run the simulated rig of SIM_CONFIG in this process until SIGTERM/SIGINT.
@@ -154,9 +162,11 @@ def sim(
         if faults_path or duration_s is not None:
             raise click.UsageError("--lockstep runs until shutdown; --faults is real time only")
         from cdcr_ctl.cli.lockstep import serve_lockstep
+        from cdcr_ctl.sim.lockstep.placement import Placement
 
+        placement = Placement.parse(cpus)
         ctl = obj.config or str(load_sim_config(sim_config).rig_path)
-        reason = serve_lockstep(sim_config, ctl, obj._socket)
+        reason = serve_lockstep(sim_config, ctl, obj._socket, placement)
         click.echo(f"lock-step daemon stopped: {reason}", err=True)
         return
     loaded = load_sim_config(sim_config)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import shutil
 import time
 from datetime import UTC, datetime
@@ -45,9 +46,17 @@ def _experiments(quick: bool) -> dict[str, Any]:
     }
 
 
-def _session(sim_path: Path, rig_path: Path, log_dir: Path, tag: str, lockstep: bool = False):
+def _session(
+    sim_path: Path,
+    rig_path: Path,
+    log_dir: Path,
+    tag: str,
+    lockstep: bool = False,
+    cpus: str = "auto",
+):
     """Context manager: simulator + daemon subprocesses for one config, enabled and homed
-    (``lockstep``: one process, the daemon on the simulator's simulated clock)."""
+    (``lockstep``: one process, the daemon on the simulator's simulated clock, its loop thread
+    and truth worker placed by ``cpus``: ``sim --cpus``)."""
     import contextlib
 
     from cdcr_ctl.cli.demo import _cli, running, wait_for_socket
@@ -60,7 +69,9 @@ def _session(sim_path: Path, rig_path: Path, log_dir: Path, tag: str, lockstep: 
         with contextlib.ExitStack() as procs:
             if lockstep:
                 log = log_dir / f"lockstep-{tag}.log"
-                cmd = _cli("--config", str(rig_path), "sim", str(sim_path), "--lockstep")
+                cmd = _cli(
+                    "--config", str(rig_path), "sim", str(sim_path), "--lockstep", "--cpus", cpus
+                )
                 d = procs.enter_context(running(cmd, log, ready='"ready"'))
             else:
                 log = log_dir / f"daemon-{tag}.log"
@@ -236,14 +247,24 @@ def experiments_cmd(
     rows: list[dict[str, Any]] = []
     t_start = time.monotonic()
 
+    # Each of the ``jobs`` sessions running at once holds a slot: its lock-step loop and truth
+    # worker go on the slot's pair of CPUs (sim --cpus job:SLOT), so the loops spread out.
+    slots: queue.SimpleQueue[int] = queue.SimpleQueue()
+    for slot in range(jobs):
+        slots.put(slot)
+
     def in_session(tag: str, ovl: Path | None, body):
         """``body(sock)`` on a fresh simulated rig of its own (work dir, ports, socket)."""
         w = work / tag
         w.mkdir(parents=True, exist_ok=True)
         rig_i, sim_i = make_session(sim_config.resolve(), w, runs)
         ctl_i = _controller_config(w, "ctl.yaml", rig_i, reversal_band_mm, ovl)
-        with _session(sim_i, ctl_i, session, tag, lockstep) as sock:
-            return body(sock)
+        slot = slots.get()
+        try:
+            with _session(sim_i, ctl_i, session, tag, lockstep, f"job:{slot}") as sock:
+                return body(sock)
+        finally:
+            slots.put(slot)
 
     try:
         # 1. nominal controller: calibration sweep (and, optionally, nominal compensation)

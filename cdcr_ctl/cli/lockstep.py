@@ -16,10 +16,18 @@ from pathlib import Path
 
 import click
 
+from cdcr_ctl.sim.lockstep.placement import Placement
 
-def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: str | None) -> str:
+
+def serve_lockstep(
+    sim_config: str | Path,
+    ctl_config: str | Path,
+    socket_path: str | None,
+    placement: Placement | None = None,
+) -> str:
     """Build the lock-step rig of ``sim_config`` with the controller config ``ctl_config``,
-    serve the daemon until SIGTERM/SIGINT or ``shutdown``; returns why it stopped."""
+    serve the daemon until SIGTERM/SIGINT or ``shutdown``; returns why it stopped.
+    ``placement``: the CPUs of the loop thread and the truth worker (default: the first two)."""
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.config.build_model import build_model
     from cdcr_ctl.control import trajectory
@@ -40,7 +48,7 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
     # The loop runs on simulated time: in lock-step it outpaces the disk, so a full run-log ring
     # makes it wait for the writer (no row may be dropped: the logs are the same on every run).
     sinks = RunLogFactory.from_config(cfg, path, on_full="wait")
-    rig = LockstepRig.open(loaded, cfg, str(path))
+    rig = LockstepRig.open(loaded, cfg, str(path), placement=placement)
     assert rig.drives is not None
     io = RigIO(rig.drives, rig.tensions, rig.tip, close=rig.close, attitude=rig.attitude)
     attach_attitude(model, io)
@@ -67,6 +75,7 @@ def serve_lockstep(sim_config: str | Path, ctl_config: str | Path, socket_path: 
                 "clock": "lockstep",
                 "socket": cfg.daemon.socket_path,
                 "rate_hz": cfg.control.rate_hz,
+                "placement": rig.placement.describe(),
             }
         )
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from syshelp import TRUTH
 from cdcr_ctl.analysis import tip_errors
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.sim.lockstep.placement import Placement, allowed_cpus
 from cdcr_ctl.sim.lockstep.session import LockstepSession
 from cdcr_ctl.sim.simconfig import load_sim_config
 
@@ -21,20 +24,27 @@ from cdcr_ctl.sim.simconfig import load_sim_config
 BEND = tj.planar_bend(theta_max_rad=math.radians(40), rate_rad_s=0.5)
 
 
-def _run(tmp_path, tag: str, comp: str = "model"):
+def _run(tmp_path, tag: str, comp: str = "model", placement: Placement | None = None):
     loaded = load_sim_config(TRUTH)
     ctl = load_rig_config(loaded.rig_path)
-    with LockstepSession.open(loaded, ctl, loaded.rig_path, tmp_path / tag) as s:
+    with LockstepSession.open(loaded, ctl, loaded.rig_path, tmp_path / tag, True, placement) as s:
         run = s.run(BEND, f"bend-{comp}", comp)
         clock = s.rig.clock
+        p = s.rig.placement
+        if p.loop_cpu is not None:
+            # Pinned where the placement says: the loop thread and the truth worker.
+            assert os.sched_getaffinity(s.loop._thread.native_id) == {p.loop_cpu}
+            assert os.sched_getaffinity(s.rig.truth_proc.pid) == {p.worker_cpu}
         return run, clock.cycles, s.rig.truth_steps, s.rig.tracker.frames
 
 
 @pytest.mark.multicore
 @pytest.mark.timeout(300)
 def test_two_lockstep_runs_with_one_seed_give_byte_identical_samples(tmp_path):
+    # The first pinned as by default (loop thread and truth worker on CPUs of their own where
+    # there are two), the second not pinned: where the work runs changes nothing it computes.
     run_a, cycles_a, truth_a, frames_a = _run(tmp_path, "a")
-    run_b, cycles_b, truth_b, frames_b = _run(tmp_path, "b")
+    run_b, cycles_b, truth_b, frames_b = _run(tmp_path, "b", placement=Placement())
     assert run_a.state == run_b.state == "completed"
     a = (tmp_path / "a" / run_a.log_dir.split("/")[-1] / "samples.csv").read_bytes()
     b = (tmp_path / "b" / run_b.log_dir.split("/")[-1] / "samples.csv").read_bytes()
@@ -126,3 +136,20 @@ def test_truth_worker_solves_what_the_local_truth_solves():
     finally:
         proc.close()
     assert not proc._proc.is_alive()
+
+
+def test_placement_parses_and_rotates_over_the_allowed_cpus():
+    cpus = allowed_cpus()
+    assert Placement.parse("none") == Placement()
+    if len(cpus) >= 2:
+        assert Placement.parse("auto") == Placement(cpus[0], cpus[1])
+        # Sessions side by side: job i's loop on the i-th CPU, its worker on the next.
+        assert Placement.parse("job:1") == Placement(cpus[1], cpus[2 % len(cpus)])
+        assert Placement.parse(f"{cpus[1]},{cpus[0]}") == Placement(cpus[1], cpus[0])
+    else:
+        assert Placement.parse("auto") == Placement()
+    for bad in ("fast", "0", "job:x", "0,1,2"):
+        with pytest.raises(ConfigError, match="cpus"):
+            Placement.parse(bad)
+    with pytest.raises(ConfigError, match="not one of"):
+        Placement.parse(f"{max(cpus, default=0) + 1},{max(cpus, default=0) + 2}")

@@ -51,6 +51,9 @@ class SimClock:
         #: some: a caller waiting for a run's end waits on this, not polling the loop.
         self.idle = threading.Event()
         self._closed = False
+        #: Called once, on the loop thread, before its first cycle (the rig pins that thread
+        #: to its CPU there: :mod:`.placement`), or None.
+        self.thread_setup: Callable[[], None] | None = None
 
     def now(self) -> float:
         """Simulated time (s) of the present cycle: ``t0_s`` + cycles so far times the period."""
@@ -59,6 +62,9 @@ class SimClock:
     def wait(self) -> tuple[float, float]:
         """Wait for work (never for time), advance the world one period; (deadline, 0). The
         first cycle is at ``t0_s`` and advances nothing."""
+        if self.thread_setup is not None:
+            setup, self.thread_setup = self.thread_setup, None
+            setup()
         busy = self.busy
         if busy is not None and not busy():
             self.idle.set()

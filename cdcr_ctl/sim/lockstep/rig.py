@@ -61,6 +61,7 @@ from cdcr_ctl.sim.lockstep.attitude import AttitudeSchedule, open_lockstep_attit
 from cdcr_ctl.sim.lockstep.canlink import CanLink, no_cpu_clock
 from cdcr_ctl.sim.lockstep.clock import SimClock
 from cdcr_ctl.sim.lockstep.joystick import JoystickSchedule
+from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
@@ -94,6 +95,7 @@ class LockstepRig:
         ctl: RigConfig,
         ctl_file: str = "",
         truth_process: bool = True,
+        placement: Placement | None = None,
     ) -> None:
         rig = loaded.rig
         if ctl.sensors.attitude is not None and rig.sensors.attitude is None:
@@ -118,6 +120,10 @@ class LockstepRig:
         self.ctl = ctl
         self.ctl_file = ctl_file
         self.clock = SimClock(1.0 / ctl.control.rate_hz, advance=self.advance, t0_s=PRIME_S)
+        #: Where the loop thread and the truth worker run (:mod:`.placement`; default: the
+        #: first two CPUs this process may use).
+        self.placement = Placement.rotated(0) if placement is None else placement
+        self.clock.thread_setup = self.placement.pin_this_thread
         self.truth = make_truth(loaded)
         self.physics_period_s = 1.0 / loaded.sim.physics_rate_hz
         self._physics_next_s = 0.0
@@ -154,12 +160,18 @@ class LockstepRig:
 
     @classmethod
     def open(
-        cls, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "", truth_process: bool = True
+        cls,
+        loaded: LoadedSim,
+        ctl: RigConfig,
+        ctl_file: str = "",
+        truth_process: bool = True,
+        placement: Placement | None = None,
     ) -> LockstepRig:
         """Build the world, boot the nodes, open and configure the controller's drives and
         sensors (nothing is enabled); closed again if any step fails. ``truth_process``: solve
-        the truth in a worker process, one period behind (:mod:`.truthproc`)."""
-        rig = cls(loaded, ctl, ctl_file, truth_process)
+        the truth in a worker process, one period behind (:mod:`.truthproc`); ``placement``:
+        the CPUs of the loop thread and that worker (:mod:`.placement`)."""
+        rig = cls(loaded, ctl, ctl_file, truth_process, placement)
         try:
             rig._open(ctl_file)
         except BaseException:
@@ -298,6 +310,7 @@ class LockstepRig:
         if self._truth_process:
             self.truth_proc = TruthProcess(str(self.loaded.path), self.truth)
             self._closers.append(self.truth_proc.close)
+            self.placement.pin_worker(self.truth_proc.pid)
             self.truth_proc.submit(self._solved_counts)  # the worker's truth starts alike
             self.truth_proc.collect()
         for sched in (self.loadcells, self.tracker, self.attitude_schedule):

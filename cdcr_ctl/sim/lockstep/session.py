@@ -23,6 +23,7 @@ from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.rig import LockstepRig
 from cdcr_ctl.sim.simconfig import LoadedSim
 
@@ -47,13 +48,14 @@ class LockstepSession:
         ctl_path: str | Path,
         log_dir: str | Path,
         truth_process: bool = True,
+        placement: Placement | None = None,
     ) -> None:
         self.cfg = ctl
         self.model = build_model(ctl, source=str(ctl_path))
         # The loop runs on simulated time: a full run-log ring makes it wait for the writer (no
         # row may be dropped: the logs must be the same on every run, whatever the load).
         self.sinks = RunLogFactory.from_config(ctl, ctl_path, base_dir=log_dir, on_full="wait")
-        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process)
+        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process, placement)
         assert self.rig.drives is not None
         self.drives = self.rig.drives
         attach = getattr(self.model, "attach_attitude", None)
@@ -90,8 +92,9 @@ class LockstepSession:
         ctl_path: str | Path,
         log_dir: str | Path,
         truth_process: bool = True,
+        placement: Placement | None = None,
     ) -> LockstepSession:
-        s = cls(loaded, ctl, ctl_path, log_dir, truth_process)
+        s = cls(loaded, ctl, ctl_path, log_dir, truth_process, placement)
         try:
             s.loop.start()
             s.drives.enable()

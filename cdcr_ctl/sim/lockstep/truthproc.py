@@ -187,6 +187,11 @@ class TruthProcess:
         self.pending = False
         self.cpu_s = 0.0
 
+    @property
+    def pid(self) -> int:
+        """The worker's process id."""
+        return int(self._proc.pid or 0)
+
     def submit(self, counts: Sequence[int]) -> None:
         """Start solving for ``counts`` (a result must not be pending)."""
         iv = self._sh.ints
