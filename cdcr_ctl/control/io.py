@@ -167,6 +167,11 @@ class DriveGroupPort:
             for f in self.group.feedback()
         ]
 
+    def positions(self) -> list[int]:
+        """The drives' positions (counts) of :meth:`feedback`, without its records (the loop's
+        read every cycle)."""
+        return [f.position_counts for f in self.group.feedback()]
+
     def first_fault(self) -> tuple[str, str] | None:
         return self.group.first_fault()
 

@@ -31,7 +31,8 @@ class DrivePort(Protocol):
         """Send one cycle's position targets (counts) and the SYNC that applies them."""
 
     def feedback(self) -> list[DriveState]:
-        """Latest feedback per drive; never blocks."""
+        """Latest feedback per drive; never blocks. (A port may also offer ``positions()``:
+        the ``position_counts`` of each, which the loop then reads every cycle instead.)"""
 
     def first_fault(self) -> tuple[str, str] | None:
         """(cause, text) of the first drive/bus fault seen since the last reset, or None."""
