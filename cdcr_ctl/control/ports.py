@@ -55,7 +55,9 @@ class DrivePort(Protocol):
 
 class TensionPort(Protocol):
     def latest(self) -> tuple[np.ndarray, np.ndarray]:
-        """(force_N per cable, age_s per cable); NaN force where a cell has no sample."""
+        """(force_N per cable, age_s per cable); NaN force where a cell has no sample. (A port
+        may also offer ``latest_lists()``: the same values as two lists of floats, which the
+        loop then reads every cycle instead.)"""
 
     def close(self) -> None: ...
 

@@ -214,7 +214,7 @@ class ControlLoop(LoopCommands):
         m0 = clock()
         self._take_pending(now)
         positions = self._positions()
-        force_N, force_age = self.tensions.latest()
+        force_l, age_l = self._tensions()
         tip_mm, tip_age = self.tip_port.latest()
 
         # Setpoint
@@ -232,7 +232,7 @@ class ControlLoop(LoopCommands):
         mode = self._mode
         mode_changed = mode != self._mode_applied
         self._mode_applied = mode
-        measured = force_N if mode == "measured" else None
+        measured = np.array(force_l, dtype=float) if mode == "measured" else None
         try:
             q_cmd = self.model.q_command(psi, q_nom, self._model_state, mode, measured)
         except ModelError as exc:
@@ -277,7 +277,6 @@ class ControlLoop(LoopCommands):
                     now, tip_l, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s
                 )
         moving = run is not None and run.state == "running"
-        force_l = floats(force_N)
         trip = self.supervisor.check_cycle(
             t_s,
             # Real time since the last command: after a late cycle the step is larger but so
@@ -286,7 +285,7 @@ class ControlLoop(LoopCommands):
             q_l,
             self._q_cmd.tolist(),
             force_l,
-            floats(force_age),
+            age_l,
             tip_err,
             tip_age,
             moving,
@@ -363,6 +362,15 @@ class ControlLoop(LoopCommands):
         if fast is not None:
             return fast()
         return [f.position_counts for f in self.drives.feedback()]
+
+    def _tensions(self) -> tuple[list[float], list[float]]:
+        """The cables' tensions (N) and their ages (s) as lists: the port's ``latest_lists()``
+        where it has one (the same floats as its ``latest()``, without the arrays)."""
+        fast = getattr(self.tensions, "latest_lists", None)
+        if fast is not None:
+            return fast()
+        force_N, force_age = self.tensions.latest()
+        return floats(force_N), floats(force_age)
 
     def _offset_command(self, q_cmd: Any) -> list[float]:
         """The model's command plus the cable offset (mm), the offset first ramped a step towards
