@@ -44,13 +44,17 @@ class LoadCellTension:
         self._order = [int(i) for i in order]
 
     def latest(self) -> tuple[np.ndarray, np.ndarray]:
-        # Plain lists per cable, one array each: the loop calls this every cycle, and numpy's
-        # indexing and where() on three values cost more than the values; the sampler's force
-        # and age alone, not its whole samples.
-        forces, ages = self.sampler.latest_forces()
-        f = [forces[i] if i >= 0 else math.nan for i in self._order]
-        a = [ages[i] if i >= 0 else math.inf for i in self._order]
+        f, a = self.latest_lists()
         return np.array(f, dtype=float), np.array(a, dtype=float)
+
+    def latest_lists(self) -> tuple[list[float], list[float]]:
+        """:meth:`latest` as lists of floats (the loop's read every cycle: numpy's indexing and
+        where() on three values cost more than the values); the sampler's force and age alone,
+        not its whole samples."""
+        forces, ages = self.sampler.latest_forces()
+        f = [float(forces[i]) if i >= 0 else math.nan for i in self._order]
+        a = [float(ages[i]) if i >= 0 else math.inf for i in self._order]
+        return f, a
 
     def close(self) -> None:
         self.sampler.close()
@@ -166,6 +170,11 @@ class DriveGroupPort:
             DriveState(f.position_counts, f.state.value, text, now - f.t_s)
             for f in self.group.feedback()
         ]
+
+    def positions(self) -> list[int]:
+        """The drives' positions (counts) of :meth:`feedback`, without its records (the loop's
+        read every cycle)."""
+        return [f.position_counts for f in self.group.feedback()]
 
     def first_fault(self) -> tuple[str, str] | None:
         return self.group.first_fault()

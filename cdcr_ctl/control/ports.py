@@ -31,7 +31,8 @@ class DrivePort(Protocol):
         """Send one cycle's position targets (counts) and the SYNC that applies them."""
 
     def feedback(self) -> list[DriveState]:
-        """Latest feedback per drive; never blocks."""
+        """Latest feedback per drive; never blocks. (A port may also offer ``positions()``:
+        the ``position_counts`` of each, which the loop then reads every cycle instead.)"""
 
     def first_fault(self) -> tuple[str, str] | None:
         """(cause, text) of the first drive/bus fault seen since the last reset, or None."""
@@ -54,7 +55,9 @@ class DrivePort(Protocol):
 
 class TensionPort(Protocol):
     def latest(self) -> tuple[np.ndarray, np.ndarray]:
-        """(force_N per cable, age_s per cable); NaN force where a cell has no sample."""
+        """(force_N per cable, age_s per cable); NaN force where a cell has no sample. (A port
+        may also offer ``latest_lists()``: the same values as two lists of floats, which the
+        loop then reads every cycle instead.)"""
 
     def close(self) -> None: ...
 

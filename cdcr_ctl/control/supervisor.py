@@ -94,11 +94,69 @@ class Supervisor:
 
     def check(self, c: CycleCheck) -> Trip | None:
         """The most severe new trip of this cycle (None when all is well or already latched)."""
-        found = self._find(c)
+        found = self._find(
+            c.t_s,
+            c.dt_s,
+            c.q_cmd_mm,
+            c.q_prev_mm,
+            c.tension_N,
+            c.tension_age_s,
+            c.tip_error_mm,
+            c.tip_age_s,
+            c.moving,
+        )
         for extra in self.extra_checks:
             trip = extra(c)
             if trip is not None:
                 found.append(trip)
+        return self._settle(found)
+
+    def check_cycle(
+        self,
+        t_s: float,
+        dt_s: float,
+        q_cmd_mm: Sequence[float],
+        q_prev_mm: Sequence[float],
+        tension_N: Sequence[float] = (),
+        tension_age_s: Sequence[float] = (),
+        tip_error_mm: float = math.nan,
+        tip_age_s: float = math.inf,
+        moving: bool = True,
+    ) -> Trip | None:
+        """:meth:`check` of ``CycleCheck(t_s, dt_s, ...)`` (the same fields, the same result and
+        latching); the record is made only for the :attr:`extra_checks` (the loop's every cycle
+        without them makes none), with copies of the lists (the caller keeps using its own)."""
+        found = self._find(
+            t_s,
+            dt_s,
+            q_cmd_mm,
+            q_prev_mm,
+            tension_N,
+            tension_age_s,
+            tip_error_mm,
+            tip_age_s,
+            moving,
+        )
+        if self.extra_checks:
+            c = CycleCheck(
+                t_s,
+                dt_s,
+                list(q_cmd_mm),
+                list(q_prev_mm),
+                list(tension_N),
+                list(tension_age_s),
+                tip_error_mm,
+                tip_age_s,
+                moving,
+            )
+            for extra in self.extra_checks:
+                trip = extra(c)
+                if trip is not None:
+                    found.append(trip)
+        return self._settle(found)
+
+    def _settle(self, found: list[Trip]) -> Trip | None:
+        """Latch the worst of this cycle's ``found`` trips (see :meth:`check`)."""
         if not found:
             self.cycle_worst = None
             return None
@@ -130,48 +188,58 @@ class Supervisor:
         """Operator acknowledges the trip; the history is kept."""
         self.trip = None
 
-    def _find(self, c: CycleCheck) -> list[Trip]:
+    def _find(
+        self,
+        t_s: float,
+        dt_s: float,
+        q_cmd_mm: Sequence[float],
+        q_prev_mm: Sequence[float],
+        tension_N: Sequence[float],
+        tension_age_s: Sequence[float],
+        tip_error_mm: float,
+        tip_age_s: float,
+        moving: bool,
+    ) -> list[Trip]:
+        """The limits the cycle's values (the fields of :class:`CycleCheck`) violate."""
         lim = self.limits
         out: list[Trip] = []
         lo, hi = lim.cable_displacement_mm
         vmax = lim.cable_velocity_mm_s
-        for k, q in enumerate(c.q_cmd_mm):
+        for k, q in enumerate(q_cmd_mm):
             if not math.isfinite(q):
-                out.append(
-                    Trip(f"command_invalid:cable{k + 1}", Reaction.HALT, f"q_cmd={q}", c.t_s)
-                )
+                out.append(Trip(f"command_invalid:cable{k + 1}", Reaction.HALT, f"q_cmd={q}", t_s))
             elif q < lo or q > hi:
                 out.append(
                     Trip(
                         f"displacement_limit:cable{k + 1}",
                         Reaction.HOLD,
                         f"q_cmd {q:.3f} mm outside [{lo}, {hi}] mm",
-                        c.t_s,
+                        t_s,
                     )
                 )
-            if c.dt_s > 0 and k < len(c.q_prev_mm) and math.isfinite(q):
-                v = abs(q - c.q_prev_mm[k]) / c.dt_s
+            if dt_s > 0 and k < len(q_prev_mm) and math.isfinite(q):
+                v = abs(q - q_prev_mm[k]) / dt_s
                 if v > vmax:
                     out.append(
                         Trip(
                             f"velocity_limit:cable{k + 1}",
                             Reaction.HALT,
                             f"{v:.1f} mm/s above {vmax} mm/s",
-                            c.t_s,
+                            t_s,
                         )
                     )
         if self.use_tension:
             t_lo, t_hi = lim.tension_N
-            for k, (f, age) in enumerate(zip(c.tension_N, c.tension_age_s, strict=False)):
+            for k, (f, age) in enumerate(zip(tension_N, tension_age_s, strict=False)):
                 if not (age <= lim.sensor_timeout_s):
-                    if not c.moving:
+                    if not moving:
                         continue  # idle: reported in status, tripped on only while moving
                     out.append(
                         Trip(
                             f"stale_tension:cable{k + 1}",
                             Reaction.HALT,
                             f"load-cell sample {age:.3f} s old (limit {lim.sensor_timeout_s} s)",
-                            c.t_s,
+                            t_s,
                         )
                     )
                     continue
@@ -181,38 +249,38 @@ class Supervisor:
                             f"tension_high:cable{k + 1}",
                             Reaction.QUICK_STOP,
                             f"{f:.2f} N above {t_hi} N",
-                            c.t_s,
+                            t_s,
                         )
                     )
-                elif f < t_lo and c.moving:
+                elif f < t_lo and moving:
                     out.append(
                         Trip(
                             f"tension_low:cable{k + 1}",
                             Reaction.HOLD,
                             f"{f:.2f} N below {t_lo} N (slack)",
-                            c.t_s,
+                            t_s,
                         )
                     )
         if self.use_tracker:
-            if not (c.tip_age_s <= lim.sensor_timeout_s):
-                if not c.moving:
+            if not (tip_age_s <= lim.sensor_timeout_s):
+                if not moving:
                     return out
                 out.append(
                     Trip(
                         "stale_tracker",
                         Reaction.HALT,
-                        f"tracker sample {c.tip_age_s:.3f} s old (limit {lim.sensor_timeout_s} s)",
-                        c.t_s,
+                        f"tracker sample {tip_age_s:.3f} s old (limit {lim.sensor_timeout_s} s)",
+                        t_s,
                     )
                 )
-            elif c.tip_error_mm > lim.tracker_divergence_mm:
+            elif tip_error_mm > lim.tracker_divergence_mm:
                 out.append(
                     Trip(
                         "tracker_divergence",
                         Reaction.HALT,
-                        f"tip {c.tip_error_mm:.1f} mm from model"
+                        f"tip {tip_error_mm:.1f} mm from model"
                         f" (limit {lim.tracker_divergence_mm} mm)",
-                        c.t_s,
+                        t_s,
                     )
                 )
         return out

@@ -83,3 +83,42 @@ def test_external_fault_and_disabled_sensors():
     assert s.check(check(tension_N=[], tip_age_s=math.inf)) is None
     trip = s.external("emcy:node2:0x8611", Reaction.QUICK_STOP, "following error", 2.0)
     assert trip.reaction is Reaction.QUICK_STOP and s.trip is trip
+
+
+def test_check_cycle_is_check_of_the_record():
+    # The loop's check_cycle (no record made without extra checks) against check(CycleCheck):
+    # the same trips, latching, escalation and history over a sequence of cycles.
+    import random
+
+    rng = random.Random(7)
+    vals = [0.0, 5.0, 9.99, 10.5, -11.0, math.nan, math.inf]
+    seen = []
+
+    def extra(c):
+        seen.append(c)
+        return None
+
+    for with_extra in (False, True):
+        a, b = sup(), sup()
+        if with_extra:
+            a.add_check(extra)
+            b.add_check(extra)
+        for cycle in range(400):
+            kw = dict(
+                t_s=cycle * 0.001,
+                dt_s=rng.choice([0.001, 0.0, 0.004]),
+                q_cmd_mm=[rng.choice(vals) for _ in range(3)],
+                q_prev_mm=[rng.choice(vals) for _ in range(3)],
+                tension_N=[rng.choice([5.0, 0.1, 45.0, math.nan]) for _ in range(3)],
+                tension_age_s=[rng.choice([0.01, 0.5, math.inf]) for _ in range(3)],
+                tip_error_mm=rng.choice([1.0, 20.0, math.nan]),
+                tip_age_s=rng.choice([0.01, 0.5, math.inf]),
+                moving=rng.random() < 0.7,
+            )
+            if cycle % 50 == 0:
+                a.reset()
+                b.reset()
+            assert a.check(CycleCheck(**kw)) == b.check_cycle(**kw)
+            assert a.cycle_worst == b.cycle_worst and a.trip == b.trip
+        assert a.history == b.history and a.later_trips == b.later_trips
+    assert seen and seen[0] == seen[1]

@@ -85,9 +85,16 @@ def test_distance_is_numpys_bit_for_bit(capacity, cycles, sample, age_s, lag_s, 
         h.add(t, np.array(tip))
         ts[k % capacity], tips[k % capacity] = t, tip
     now = max(cycles - 1, 0) * 0.004
-    got = h.distance(now, np.array(sample), age_s, lag_s, 0.004)
     ref = _numpy_distance(ts, tips, now, np.array(sample), age_s, lag_s, 0.004)
-    assert (np.isnan(got) and np.isnan(ref)) or got == ref
+    # The in-order pass (least squared distance, one root), the sample as an array and as the
+    # loop passes it (a list), and the window-and-root scan it falls back on.
+    t_sample = now - age_s
+    for got in (
+        h.distance(now, np.array(sample), age_s, lag_s, 0.004),
+        h.distance(now, list(sample), age_s, lag_s, 0.004),
+        h._distance_scan(t_sample - lag_s, t_sample + 0.004, *sample),
+    ):
+        assert (np.isnan(got) and np.isnan(ref)) or got == ref
 
 
 def test_times_out_of_order_fall_back_to_the_full_scan():

@@ -34,6 +34,7 @@ from cdcr_ctl.control.loop.records import (
 )
 from cdcr_ctl.control.loop.rows import CycleRow, RowLayout
 from cdcr_ctl.control.loop.slew import MeasuredSlew
+from cdcr_ctl.control.loop.vectors import actual_mm, added, floats, has_gap, target_counts
 from cdcr_ctl.control.ports import (
     DrivePort,
     RobotModelPort,
@@ -42,7 +43,7 @@ from cdcr_ctl.control.ports import (
     TipPort,
 )
 from cdcr_ctl.control.stopflag import StopFlag
-from cdcr_ctl.control.supervisor import CycleCheck, Reaction, Supervisor, Trip
+from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.control.timing import BetweenCycles, Ticker, raise_loop_priority
 from cdcr_ctl.errors import ModelError
 
@@ -207,11 +208,13 @@ class ControlLoop(LoopCommands):
             log.exception("reacting to a failed cycle failed")
 
     def _cycle(self, t_s: float, now: float, lateness_s: float) -> None:
+        # The per-cable values are handled as Python floats (:mod:`.vectors`: the same float64
+        # operations numpy did on the (K,) arrays); the loop's state keeps its arrays.
         clock = time.perf_counter
         m0 = clock()
         self._take_pending(now)
-        fb = self.drives.feedback()
-        force_N, force_age = self.tensions.latest()
+        positions = self._positions()
+        force_l, age_l = self._tensions()
         tip_mm, tip_age = self.tip_port.latest()
 
         # Setpoint
@@ -229,7 +232,7 @@ class ControlLoop(LoopCommands):
         mode = self._mode
         mode_changed = mode != self._mode_applied
         self._mode_applied = mode
-        measured = force_N if mode == "measured" else None
+        measured = np.array(force_l, dtype=float) if mode == "measured" else None
         try:
             q_cmd = self.model.q_command(psi, q_nom, self._model_state, mode, measured)
         except ModelError as exc:
@@ -261,45 +264,31 @@ class ControlLoop(LoopCommands):
             # and let it ramp out instead of jumping (and tripping the velocity limit).
             self._q_offset = self._q_cmd - q_cmd
             self._q_offset_target = np.zeros_like(self._q_offset)
-        # Offsets ramp at up to half the velocity limit, and only within what the model's own
-        # step this cycle leaves of COMMAND_STEP_FRACTION of the limit: a model that rate-limits
-        # its own compensation (the universal-joint arm's dead zone) and the offset ramp must not
-        # add up to more than the limit the supervisor enforces.
-        gap = self._q_offset_target - self._q_offset
-        if gap.any():
-            v_dt = self.cfg.cable_velocity_mm_s * self.cfg.period_s
-            ramp = OFFSET_RAMP_FRACTION * v_dt
-            budget = COMMAND_STEP_FRACTION * v_dt
-            base = q_cmd + self._q_offset - self._q_cmd  # this cycle's step without the ramp
-            lo = np.minimum(np.maximum(-ramp, -budget - base), 0.0)
-            hi = np.maximum(np.minimum(ramp, budget - base), 0.0)
-            self._q_offset += np.clip(gap, lo, hi)
-        q_cmd = q_cmd + self._q_offset
+        q_l = self._offset_command(q_cmd)
         m2 = clock()
 
         # Limits
+        tip_l = floats(tip_mm)
         tip_err = math.nan  # no tracker (sample): nothing to compare the model tip with
         if self.supervisor.use_tracker:
             self._tips.add(now, self.model.tip(psi))
-            if np.isfinite(tip_mm).all():
+            if all(math.isfinite(v) for v in tip_l):
                 tip_err = self._tips.distance(
-                    now, tip_mm, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s
+                    now, tip_l, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s
                 )
         moving = run is not None and run.state == "running"
-        trip = self.supervisor.check(
-            CycleCheck(
-                t_s=t_s,
-                # Real time since the last command: after a late cycle the step is larger but so
-                # is the time it covers (the velocity limit is on mm/s, not mm per cycle).
-                dt_s=max(now - self._t_last_cmd, self.cfg.period_s),
-                q_cmd_mm=q_cmd.tolist(),
-                q_prev_mm=self._q_cmd.tolist(),
-                tension_N=force_N.tolist(),
-                tension_age_s=force_age.tolist(),
-                tip_error_mm=tip_err,
-                tip_age_s=tip_age,
-                moving=moving,
-            )
+        trip = self.supervisor.check_cycle(
+            t_s,
+            # Real time since the last command: after a late cycle the step is larger but so
+            # is the time it covers (the velocity limit is on mm/s, not mm per cycle).
+            max(now - self._t_last_cmd, self.cfg.period_s),
+            q_l,
+            self._q_cmd.tolist(),
+            force_l,
+            age_l,
+            tip_err,
+            tip_age,
+            moving,
         )
         fault = self.drives.first_fault()
         if fault is not None and not self._stopped_drives:
@@ -310,7 +299,7 @@ class ControlLoop(LoopCommands):
             self._react(trip)
         worst = self.supervisor.cycle_worst
         if worst is not None and worst.reaction >= Reaction.HOLD:
-            q_cmd = self._q_cmd.copy()  # never send a command that violates a limit
+            q_l = self._q_cmd.tolist()  # never send a command that violates a limit
             psi = self._psi_cmd
             self._absorb_step = True
         if run is not None and run.state == "running" and t_run >= run.duration_s:
@@ -322,19 +311,18 @@ class ControlLoop(LoopCommands):
             targets = None
         elif self._stopped_drives:
             # Drives are quick-stopped: follow the actual positions so re-enabling does not jump.
-            targets = [f.position_counts for f in fb]
+            targets = list(positions)
         else:
-            targets = np.rint(self.home_counts + q_cmd * self.cfg.counts_per_mm).astype(np.int64)
-            targets = targets.tolist()
+            targets = target_counts(q_l, self.home_counts, self.cfg.counts_per_mm)
         if targets is not None:
             self.drives.send_cycle(targets)
-        self._q_prev, self._q_cmd, self._psi_cmd = self._q_cmd, q_cmd, psi
+        self._q_prev, self._q_cmd, self._psi_cmd = self._q_cmd, np.array(q_l, dtype=float), psi
         self._t_last_cmd = now
         m4 = clock()
 
         # Log: the row keeps this cycle's numbers; the writer thread makes the columns.
-        q_act = self._q_act_mm(fb)
-        row = self._row(t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event)
+        q_act = actual_mm(positions, self.home_counts, self.cfg.counts_per_mm)
+        row = self._row(t_s, psi, q_nom, q_l, q_act, force_l, tip_l, lateness_s, event)
         self._last_row = row
         for sink in (self._sink, self._manual_sink):
             if sink is None:
@@ -367,6 +355,40 @@ class ControlLoop(LoopCommands):
             self._end_after_cycle = None
         self.counters._stages((m0, m1, m2, m3, m4, clock()))
 
+    def _positions(self) -> list[int]:
+        """The drives' positions (counts), cable order: the port's ``positions()`` where it has
+        one (the same values as its ``feedback()``, without the per-drive records)."""
+        fast = getattr(self.drives, "positions", None)
+        if fast is not None:
+            return fast()
+        return [f.position_counts for f in self.drives.feedback()]
+
+    def _tensions(self) -> tuple[list[float], list[float]]:
+        """The cables' tensions (N) and their ages (s) as lists: the port's ``latest_lists()``
+        where it has one (the same floats as its ``latest()``, without the arrays)."""
+        fast = getattr(self.tensions, "latest_lists", None)
+        if fast is not None:
+            return fast()
+        force_N, force_age = self.tensions.latest()
+        return floats(force_N), floats(force_age)
+
+    def _offset_command(self, q_cmd: Any) -> list[float]:
+        """The model's command plus the cable offset (mm), the offset first ramped a step towards
+        its target. Offsets ramp at up to half the velocity limit, and only within what the
+        model's own step this cycle leaves of COMMAND_STEP_FRACTION of the limit: a model that
+        rate-limits its own compensation (the universal-joint arm's dead zone) and the offset
+        ramp must not add up to more than the limit the supervisor enforces."""
+        if has_gap(self._q_offset_target.tolist(), self._q_offset.tolist()):
+            gap = self._q_offset_target - self._q_offset
+            v_dt = self.cfg.cable_velocity_mm_s * self.cfg.period_s
+            ramp = OFFSET_RAMP_FRACTION * v_dt
+            budget = COMMAND_STEP_FRACTION * v_dt
+            base = q_cmd + self._q_offset - self._q_cmd  # this cycle's step without the ramp
+            lo = np.minimum(np.maximum(-ramp, -budget - base), 0.0)
+            hi = np.maximum(np.minimum(ramp, budget - base), 0.0)
+            self._q_offset += np.clip(gap, lo, hi)
+        return added(floats(q_cmd), self._q_offset.tolist())
+
     def _count_run_row(self, run: RunInfo) -> None:
         """The run's share of the global counters, up to the row just logged (see RunInfo)."""
         c = self.counters
@@ -383,9 +405,14 @@ class ControlLoop(LoopCommands):
         run.long_cycles = c.long_cycles - self._run_base[1]
 
     def _row(self, t_s, psi, q_nom, q_cmd, q_act, force_N, tip_mm, lateness_s, event) -> CycleRow:
+        """The cycle's log row; ``q_cmd``, ``q_act``, ``force_N``, ``tip_mm``: lists of floats.
+        The values are those ``np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N,
+        tip_mm))`` made of the arrays, in one fresh array (later cycles may reuse the arrays
+        they were given)."""
         layout = self._row_layout
-        # One fresh array: later cycles may reuse the arrays they were given.
-        values = np.concatenate((np.ravel(psi), q_nom, q_cmd, q_act, force_N, tip_mm))
+        values = np.array(
+            floats(psi) + floats(q_nom) + q_cmd + q_act + force_N + tip_mm, dtype=float
+        )
         if self._row_event:
             event = f"{self._row_event}; {event}" if event else self._row_event
             self._row_event = ""

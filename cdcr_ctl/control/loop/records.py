@@ -143,11 +143,14 @@ class LoopCounters:
         """Add one cycle's stage times from its ``len(STAGES) + 1`` perf_counter marks."""
         self._marks = marks
         total, worst = self.stage_s, self.stage_max_us
-        for name, t0, t1 in zip(STAGES, marks, marks[1:], strict=False):
+        t0 = marks[0]
+        for name, t1 in zip(STAGES, marks[1:], strict=False):
             dt = t1 - t0
+            t0 = t1
             total[name] += dt
-            if dt * 1e6 > worst[name]:
-                worst[name] = dt * 1e6
+            us = dt * 1e6
+            if us > worst[name]:
+                worst[name] = us
 
     def _long(self, wall_s: float, cpu_s: float) -> None:
         """Add one long cycle: its wall and CPU time, and its stages (its marks, as given to
@@ -211,21 +214,57 @@ class TipHistory:
         return out
 
     def distance(
-        self, now_s: float, tip_mm: np.ndarray, age_s: float, lag_s: float, period_s: float
+        self,
+        now_s: float,
+        tip_mm: np.ndarray | list[float],
+        age_s: float,
+        lag_s: float,
+        period_s: float,
     ) -> float:
         """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
         [now - age - lag, now - age + period]; the newest model tip when none is in the window.
         The Euclidean norm as ``np.linalg.norm(d, axis=1)`` computes it for 3-vectors (the
         squares summed left to right, then the square root), NaN when any distance is NaN
-        (``tests/control/test_tip_history.py`` compares it with numpy's bit for bit)."""
+        (``tests/control/test_tip_history.py`` compares it with numpy's bit for bit).
+
+        Times added in order (the loop's clock) take one pass over the newest entries, the
+        squared distances compared and one square root taken (the square root is monotonic:
+        the same float as the least root); else :meth:`_distance_scan`."""
+        px, py, pz = tip_mm if type(tip_mm) is list else np.asarray(tip_mm, dtype=float).tolist()
         t_sample = now_s - age_s
         lo, hi = t_sample - lag_s, t_sample + period_s
+        ts, i = self._t, self._i
+        n = len(ts)
+        if not self._ordered or (i < n and lo == -math.inf):
+            return self._distance_scan(lo, hi, px, py, pz)
+        tips = self._tip
+        best = math.inf
+        found = False
+        for j in range(min(i, n)):
+            k = (i - 1 - j) % n
+            t = ts[k]
+            if t < lo:
+                break
+            if t <= hi:
+                found = True
+                x, y, z = tips[k]
+                dx, dy, dz = x - px, y - py, z - pz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 != d2:
+                    return math.nan  # numpy's min propagates a NaN
+                if d2 < best:
+                    best = d2
+        if not found:
+            return self._distance_scan(lo, hi, px, py, pz)
+        return math.sqrt(best)
+
+    def _distance_scan(self, lo: float, hi: float, px: float, py: float, pz: float) -> float:
+        """:meth:`distance` by :meth:`_window` and a root per entry (the general way)."""
         ts = self._t
         sel = self._window(lo, hi)
         if not sel:
             newest = max(ts)
             sel = [k for k, t in enumerate(ts) if t == newest]
-        px, py, pz = np.asarray(tip_mm, dtype=float).tolist()
         best = math.inf
         for k in sel:
             x, y, z = self._tip[k]
