@@ -26,6 +26,7 @@ from pymodbus.pdu.register_message import (
 from cdcr_ctl.config.loadcells import ModbusRegisterMap
 from cdcr_ctl.sensors.loadcell import from_newtons
 from cdcr_ctl.sensors.loadcell_modbus import spec_silence_s
+from cdcr_ctl.sensors.loadcell_reply import crc16
 from cdcr_ctl.sim.loadcells.feed import CAPACITY_N, OVERLOAD_FRACTION, SensorNoise, Tensions
 from cdcr_ctl.sim.loadcells.pty import PtySim
 
@@ -100,6 +101,8 @@ class ModbusLoadCellSim(PtySim):
         self._value_slots: dict[tuple[int, int], list[tuple[int, int]]] = {}
         #: Cell index of each slave address (the first cell with it, as ``slaves.index``).
         self._cell_index: dict[int, int] = {}
+        #: Reply head and registers by register count (device, function, byte count, words).
+        self._reply_structs: dict[int, struct.Struct] = {}
         for i, s in enumerate(self.slaves):
             self._cell_index.setdefault(s, i)
         super().__init__(
@@ -185,15 +188,18 @@ class ModbusLoadCellSim(PtySim):
 
     def _read_reply(self, request: ModbusPDU, dev_id: int) -> bytes | None:
         """The reply frame to a register read (fc 3/4) within the registers, built with one
-        ``struct`` and pymodbus's CRC: the bytes pymodbus's ``buildFrame`` makes of the
-        response PDU (device, function, byte count, registers big-endian, CRC), without the
-        PDU object. None when the reading drops out."""
+        ``struct`` and pymodbus's CRC (its value, two bytes a step: ``crc16``): the bytes pymodbus's
+        ``buildFrame`` makes of the response PDU (device, function, byte count, registers
+        big-endian, CRC), without the PDU object. None when the reading drops out."""
         regs = self._read_registers(dev_id, request.address, request.count)
         if regs is None:
             return None
         n = len(regs)
-        body = struct.pack(f">BBB{n}H", dev_id, request.function_code, 2 * n, *regs)
-        return body + FramerRTU.compute_CRC(body).to_bytes(2, "big")
+        st = self._reply_structs.get(n)
+        if st is None:
+            st = self._reply_structs[n] = struct.Struct(f">BBB{n}H")
+        body = st.pack(dev_id, request.function_code, 2 * n, *regs)
+        return body + crc16(body).to_bytes(2, "big")
 
     def _write_register(self, slave: int, register: int, value: int) -> None:
         rm = self.register_map
