@@ -329,26 +329,23 @@ class ModbusLoadCellBus:
         Raises :class:`SensorError` when the port fails (disconnect).
         """
         slave = self.slaves[index]
+        plan = self.plan
         known = self._decimals[index]
-        if self.plan.decimals_offset is None and known is None:
+        off = plan.decimals_offset
+        if off is None and known is None:
             known = self._read_decimals(index)
             if known is None:
                 return None
-        pdu = self._transact(
-            index, self._requests[index], self.plan.function_code, self.plan.reply_bytes
-        )
+        pdu = self._transact(index, self._requests[index], plan.function_code, plan.reply_bytes)
         if pdu is None:
             return None
         regs = list(pdu.registers)
-        if len(regs) != self.plan.count:
-            return self._reject(
-                index, f"slave {slave}: {len(regs)} registers, asked {self.plan.count}"
-            )
-        off = self.plan.decimals_offset
+        if len(regs) != plan.count:
+            return self._reject(index, f"slave {slave}: {len(regs)} registers, asked {plan.count}")
         decimals = regs[off] if off is not None else known if known is not None else -1
         if not 0 <= decimals <= MAX_DECIMALS:
             return self._reject(index, f"slave {slave}: decimals register says {decimals}")
-        words = regs[self.plan.value_offset : self.plan.value_offset + self.plan.value_words]
+        words = regs[plan.value_offset : plan.value_offset + plan.value_words]
         raw = registers_to_int(words, self.register_map.value_type)
         self.stats.frames_ok += 1
         return decode_reading(raw, decimals, self.register_map)

@@ -184,15 +184,39 @@ class TrackerTransform:
         self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`tip_in_base`: (body position in tracker units, R_tracker_body)."""
-        if self.aligned:
-            p_mm = np.asarray(p_tip_base_mm, dtype=float)
-            rows = _rows(R_base_tip)
-            if p_mm.shape == (3,) and rows is not None:
-                p = p_mm.tolist()
-                if _identity_exact([*p, *rows[0], *rows[1], *rows[2]]):
-                    return np.array([v / self.mm_per_unit for v in p]), np.array(rows)
+        got = self._aligned_body(p_tip_base_mm, R_base_tip)
+        if got is not None:
+            return np.array(got[0]), np.array(got[1])
         R_tb = self.R_base_tracker.T @ np.asarray(R_base_tip, dtype=float) @ self.R_body_tip.T
         p_tracker_mm = self.R_base_tracker.T @ (
             np.asarray(p_tip_base_mm, dtype=float) - self.t_base_tracker_mm
         )
         return (p_tracker_mm - R_tb @ self.t_body_tip_mm) / self.mm_per_unit, R_tb
+
+    def body_in_tracker_floats(
+        self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
+    ) -> tuple[list[float], list[list[float]]]:
+        """:meth:`body_in_tracker` as Python floats (the same doubles): the position and the
+        three rows of R_tracker_body."""
+        got = self._aligned_body(p_tip_base_mm, R_base_tip)
+        if got is not None:
+            return got
+        p, R = self.body_in_tracker(p_tip_base_mm, R_base_tip)
+        return p.tolist(), R.tolist()
+
+    def _aligned_body(
+        self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
+    ) -> tuple[list[float], list[list[float]]] | None:
+        """:meth:`body_in_tracker` of an aligned transform as floats where its products with
+        identities and zeros give back their operands exactly (only the scale applied); None
+        where the numpy formula must decide (tests/sensors/test_tracker_aligned.py)."""
+        if not self.aligned:
+            return None
+        p_mm = np.asarray(p_tip_base_mm, dtype=float)
+        rows = _rows(R_base_tip)
+        if p_mm.shape != (3,) or rows is None:
+            return None
+        p = p_mm.tolist()
+        if not _identity_exact([*p, *rows[0], *rows[1], *rows[2]]):
+            return None
+        return [v / self.mm_per_unit for v in p], rows

@@ -214,15 +214,13 @@ class SimNatNetServer(_ServerThread):
         """The body's pose sampled now: (position in tracker units, quaternion xyzw), or None
         when the truth failed (counted, logged)."""
         try:
-            p, R = self.sampler.sample()
+            p, rows = self.sampler.sample_floats()
         except Exception:
             self.truth_errors += 1
             log.exception("sim natnet: truth callable failed")
             return None
-        if p is None or R is None:
-            return None
-        x, y, z = np.asarray(p, dtype=float).tolist()
-        qx, qy, qz, qw = quaternion_xyzw(np.asarray(R, dtype=float).tolist())
+        x, y, z = p
+        qx, qy, qz, qw = quaternion_xyzw(rows)
         return (x, y, z), (qx, qy, qz, qw)
 
     def _ticks(self, now: float, transmit_s: float | None) -> tuple[int, int]:
