@@ -85,6 +85,9 @@ EXCEPTION_TEXT = {
 
 R = TypeVar("R")
 
+#: What a failing port raises (a transport error: :class:`SensorError`).
+_PORT_ERRORS = (serial.SerialException, OSError)
+
 _INT_LIMITS = {"int16": (-(2**15), 2**15 - 1), "int32": (-(2**31), 2**31 - 1)}
 _BITS = {"int16": 16, "int32": 32}
 
@@ -413,14 +416,20 @@ class ModbusLoadCellBus:
         wait = self._quiet_since + self.inter_frame_s - time.monotonic()
         if wait > 0:
             time.sleep(wait)
-        self._io("write", port.write, request)
+        try:  # (self._io written out: this runs for every poll)
+            port.write(request)
+        except _PORT_ERRORS as exc:
+            raise self._failed("write", exc) from exc
         self.traffic.add("tx", request)
         deadline = time.monotonic() + self.response_timeout_s
         buf = bytearray()
         pdu: ModbusPDU | None = None
         start, need = 0, max(1, reply_bytes)  # what scan_reply says of no bytes
         while pdu is None and time.monotonic() < deadline:
-            chunk = self._io("read", port.read, need)
+            try:
+                chunk = port.read(need)
+            except _PORT_ERRORS as exc:
+                raise self._failed("read", exc) from exc
             if chunk:
                 buf += chunk
                 pdu = exact_read_reply(buf, slave, function_code, reply_bytes)
@@ -451,7 +460,10 @@ class ModbusLoadCellBus:
 
     def _discard_input(self) -> None:
         """Drop whatever arrived since the last reply (late replies, noise), counting it."""
-        waiting = self._io("check", getattr, self.port, "in_waiting")
+        try:
+            waiting = self.port.in_waiting
+        except _PORT_ERRORS as exc:
+            raise self._failed("check", exc) from exc
         if waiting:
             junk = self._io("read", self.port.read, waiting)
             self.stats.discarded_bytes += len(junk)
@@ -460,9 +472,13 @@ class ModbusLoadCellBus:
     def _io(self, doing: str, call: Callable[..., R], *args: object) -> R:
         try:
             return call(*args)
-        except (serial.SerialException, OSError) as exc:
-            raise SensorError(
-                self.port_name,
-                f"serial port failed during {doing} (disconnected?): {exc}\n"
-                f"last frames:\n{self.traffic.dump()}",
-            ) from exc
+        except _PORT_ERRORS as exc:
+            raise self._failed(doing, exc) from exc
+
+    def _failed(self, doing: str, exc: BaseException) -> SensorError:
+        """The error of a port that failed during ``doing``, with the last frames."""
+        return SensorError(
+            self.port_name,
+            f"serial port failed during {doing} (disconnected?): {exc}\n"
+            f"last frames:\n{self.traffic.dump()}",
+        )
