@@ -3,9 +3,9 @@
 Framing, CRC and PDU encoding/decoding are pymodbus's (``FramerRTU``, ``DecodePDU``, the register
 PDUs); this module only decides what to ask, reads the reply off an injected pyserial port and
 rejects anything that is not the exact reply to the request just sent. The one frame every poll
-gets, a register-read reply, is checked with pymodbus's CRC and unpacked here with one
-``struct`` into the PDU pymodbus's decoder would build (the same answer, without its per-frame
-class look-ups; :func:`_decode_read_reply`).
+gets, a register-read reply, is checked with pymodbus's CRC (computed two bytes a step) and
+unpacked with one ``struct`` into the PDU pymodbus's decoder would build (the same answer,
+without its per-frame class look-ups; :mod:`~cdcr_ctl.sensors.loadcell_reply`).
 
 Reply hunting: a reply is accepted only if it starts with the polled slave address, carries the
 request's function code (or its exception code), has the expected length and a valid CRC
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import struct
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,15 +34,14 @@ from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.pdu.register_message import (
     ReadHoldingRegistersRequest,
-    ReadHoldingRegistersResponse,
     ReadInputRegistersRequest,
-    ReadInputRegistersResponse,
     WriteSingleRegisterRequest,
 )
 
 from cdcr_ctl.config.loadcells import ModbusRegisterMap
 from cdcr_ctl.errors import SensorError
 from cdcr_ctl.sensors.loadcell import LinkStats, LoadCellReading, TrafficLog, to_newtons
+from cdcr_ctl.sensors.loadcell_reply import READ_REPLY_CLASS, decode_read_reply, exact_read_reply
 
 #: How long to wait for a reply after the request is written (s); overridable per bus.
 RESPONSE_TIMEOUT_S = 0.05
@@ -86,6 +84,9 @@ EXCEPTION_TEXT = {
 }
 
 R = TypeVar("R")
+
+#: What a failing port raises (a transport error: :class:`SensorError`).
+_PORT_ERRORS = (serial.SerialException, OSError)
 
 _INT_LIMITS = {"int16": (-(2**15), 2**15 - 1), "int32": (-(2**31), 2**31 - 1)}
 _BITS = {"int16": 16, "int32": 32}
@@ -209,8 +210,8 @@ def scan_reply(
                 incomplete_seen = True
             continue
         frame = bytes(buf[i : i + size])
-        if size == reply_bytes and buf[i + 1] in _READ_REPLY_CLASS and (size - 5) % 2 == 0:
-            pdu = _decode_read_reply(frame, slave)
+        if size == reply_bytes and buf[i + 1] in READ_REPLY_CLASS and (size - 5) % 2 == 0:
+            pdu = decode_read_reply(frame, slave)
         else:
             pdu = _decode_exact(framer, frame, slave)
         if pdu is None:
@@ -229,28 +230,6 @@ def _decode_exact(framer: FramerRTU, frame: bytes, slave: int) -> ModbusPDU | No
     if pdu is not None:
         pdu.dev_id = dev_id
     return pdu
-
-
-#: Register-read reply PDUs by function code (what pymodbus's client decoder builds).
-_READ_REPLY_CLASS: dict[int, type[ModbusPDU]] = {
-    3: ReadHoldingRegistersResponse,
-    4: ReadInputRegistersResponse,
-}
-
-
-def _decode_read_reply(frame: bytes, slave: int) -> ModbusPDU | None:
-    """:func:`_decode_exact` for a normal register-read reply (function code 3 or 4) whose
-    address, function code, byte count and even length :func:`scan_reply` has checked: the CRC
-    with pymodbus's ``compute_CRC`` (its last two bytes read high byte first, as pymodbus's
-    ``FramerRTU.decode`` reads them), the registers as big-endian words, the PDU of the class
-    pymodbus's decoder builds. The same answer as pymodbus's framer and decoder (None on a bad
-    CRC), without their per-frame class look-ups; the real rig's reader runs it on every poll
-    (``tests/sensors/test_modbus_read_reply.py`` compares the two on every kind of frame)."""
-    end = len(frame) - 2
-    if FramerRTU.compute_CRC(frame[:end]) != (frame[end] << 8) | frame[end + 1]:
-        return None
-    registers = list(struct.unpack(f">{(end - 3) // 2}H", frame[3:end]))
-    return _READ_REPLY_CLASS[frame[1]](dev_id=slave, registers=registers)
 
 
 def registers_to_int(registers: Sequence[int], value_type: str) -> int:
@@ -353,26 +332,23 @@ class ModbusLoadCellBus:
         Raises :class:`SensorError` when the port fails (disconnect).
         """
         slave = self.slaves[index]
+        plan = self.plan
         known = self._decimals[index]
-        if self.plan.decimals_offset is None and known is None:
+        off = plan.decimals_offset
+        if off is None and known is None:
             known = self._read_decimals(index)
             if known is None:
                 return None
-        pdu = self._transact(
-            index, self._requests[index], self.plan.function_code, self.plan.reply_bytes
-        )
+        pdu = self._transact(index, self._requests[index], plan.function_code, plan.reply_bytes)
         if pdu is None:
             return None
         regs = list(pdu.registers)
-        if len(regs) != self.plan.count:
-            return self._reject(
-                index, f"slave {slave}: {len(regs)} registers, asked {self.plan.count}"
-            )
-        off = self.plan.decimals_offset
+        if len(regs) != plan.count:
+            return self._reject(index, f"slave {slave}: {len(regs)} registers, asked {plan.count}")
         decimals = regs[off] if off is not None else known if known is not None else -1
         if not 0 <= decimals <= MAX_DECIMALS:
             return self._reject(index, f"slave {slave}: decimals register says {decimals}")
-        words = regs[self.plan.value_offset : self.plan.value_offset + self.plan.value_words]
+        words = regs[plan.value_offset : plan.value_offset + plan.value_words]
         raw = registers_to_int(words, self.register_map.value_type)
         self.stats.frames_ok += 1
         return decode_reading(raw, decimals, self.register_map)
@@ -435,24 +411,35 @@ class ModbusLoadCellBus:
     ) -> ModbusPDU | None:
         """Send ``request`` and return the matching reply PDU, or None (counted) when none came."""
         slave = self.slaves[index]
+        port = self.port
         self._discard_input()
         wait = self._quiet_since + self.inter_frame_s - time.monotonic()
         if wait > 0:
             time.sleep(wait)
-        self._io("write", lambda: self.port.write(request))
+        try:  # (self._io written out: this runs for every poll)
+            port.write(request)
+        except _PORT_ERRORS as exc:
+            raise self._failed("write", exc) from exc
         self.traffic.add("tx", request)
         deadline = time.monotonic() + self.response_timeout_s
         buf = bytearray()
-        scan = Scan(None, 0, 0, max(1, reply_bytes), 0)  # what scan_reply says of no bytes
-        while scan.pdu is None and time.monotonic() < deadline:
-            chunk = self._io("read", lambda need=scan.need: self.port.read(need))
+        pdu: ModbusPDU | None = None
+        start, need = 0, max(1, reply_bytes)  # what scan_reply says of no bytes
+        while pdu is None and time.monotonic() < deadline:
+            try:
+                chunk = port.read(need)
+            except _PORT_ERRORS as exc:
+                raise self._failed("read", exc) from exc
             if chunk:
                 buf += chunk
-                scan = scan_reply(buf, slave, function_code, reply_bytes, self._framer)
+                pdu = exact_read_reply(buf, slave, function_code, reply_bytes)
+                if pdu is None:
+                    scan = scan_reply(buf, slave, function_code, reply_bytes, self._framer)
+                    pdu, start, need = scan.pdu, scan.start, scan.need
         self._quiet_since = time.monotonic()
         if buf:
             self.traffic.add("rx", bytes(buf))
-        if scan.pdu is None:
+        if pdu is None:
             if not buf:
                 self.stats.timeouts += 1
                 self.last_problem[index] = f"slave {slave}: no reply in {self.response_timeout_s} s"
@@ -461,30 +448,37 @@ class ModbusLoadCellBus:
                 self.stats.discarded_bytes += len(buf)
                 self.last_problem[index] = f"slave {slave}: no valid reply in {bytes(buf).hex(' ')}"
             return None
-        self.stats.discarded_bytes += scan.start
-        if isinstance(scan.pdu, ExceptionResponse):
-            code = scan.pdu.exception_code
+        self.stats.discarded_bytes += start
+        if isinstance(pdu, ExceptionResponse):
+            code = pdu.exception_code
             self.stats.exceptions += 1
             self.last_problem[index] = (
                 f"slave {slave}: exception {code} ({EXCEPTION_TEXT.get(code, 'unknown')})"
             )
             return None
-        return scan.pdu
+        return pdu
 
     def _discard_input(self) -> None:
         """Drop whatever arrived since the last reply (late replies, noise), counting it."""
-        waiting = self._io("check", lambda: self.port.in_waiting)
+        try:
+            waiting = self.port.in_waiting
+        except _PORT_ERRORS as exc:
+            raise self._failed("check", exc) from exc
         if waiting:
-            junk = self._io("read", lambda: self.port.read(waiting))
+            junk = self._io("read", self.port.read, waiting)
             self.stats.discarded_bytes += len(junk)
             self.traffic.add("rx", junk)
 
-    def _io(self, doing: str, call: Callable[[], R]) -> R:
+    def _io(self, doing: str, call: Callable[..., R], *args: object) -> R:
         try:
-            return call()
-        except (serial.SerialException, OSError) as exc:
-            raise SensorError(
-                self.port_name,
-                f"serial port failed during {doing} (disconnected?): {exc}\n"
-                f"last frames:\n{self.traffic.dump()}",
-            ) from exc
+            return call(*args)
+        except _PORT_ERRORS as exc:
+            raise self._failed(doing, exc) from exc
+
+    def _failed(self, doing: str, exc: BaseException) -> SensorError:
+        """The error of a port that failed during ``doing``, with the last frames."""
+        return SensorError(
+            self.port_name,
+            f"serial port failed during {doing} (disconnected?): {exc}\n"
+            f"last frames:\n{self.traffic.dump()}",
+        )

@@ -120,6 +120,9 @@ class LoadCellSampler:
         )
         self._stop = threading.Event()
         self._published = threading.Condition()
+        #: Threads in :meth:`wait_for_samples` (counted under ``_published`` before their first
+        #: look at the samples, so a publish that reads 0 here happened before that look).
+        self._waiters = 0
         self._thread: threading.Thread | None = None
         self.failure: SensorError | None = None
 
@@ -247,18 +250,26 @@ class LoadCellSampler:
         ``timeout_s`` (s), the sampler's :class:`SensorError` if it failed meanwhile."""
         deadline = time.monotonic() + timeout_s
         with self._published:
-            while True:
-                self.raise_if_failed()
-                seqs = [h.stamped.seq if h.stamped else 0 for h in self._holders]
-                if min(seqs) >= count:
-                    return
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise RigTimeoutError(
-                        f"{self.port_name}: load cells have {seqs} samples after {timeout_s} s, "
-                        f"wanted {count} each; link stats {self.stats}"
-                    )
-                self._published.wait(min(left, 0.05))
+            self._waiters += 1
+            try:
+                self._wait_for(count, timeout_s, deadline)
+            finally:
+                self._waiters -= 1
+
+    def _wait_for(self, count: int, timeout_s: float, deadline: float) -> None:
+        """:meth:`wait_for_samples`' loop (``_published`` held)."""
+        while True:
+            self.raise_if_failed()
+            seqs = [h.stamped.seq if h.stamped else 0 for h in self._holders]
+            if min(seqs) >= count:
+                return
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RigTimeoutError(
+                    f"{self.port_name}: load cells have {seqs} samples after {timeout_s} s, "
+                    f"wanted {count} each; link stats {self.stats}"
+                )
+            self._published.wait(min(left, 0.05))
 
     def calibration(self, index: int) -> Calibration:
         return self._cals[index]
@@ -302,8 +313,9 @@ class LoadCellSampler:
         its own schedule (the lock-step simulator, without :meth:`start`) does it too."""
         for index, reading in readings:
             self._holders[index].publish(reading, t_s)
-        with self._published:
-            self._published.notify_all()
+        if self._waiters:  # nobody waits: no one to wake (see ``_waiters``)
+            with self._published:
+                self._published.notify_all()
 
     # -- the thread ---------------------------------------------------------------------
 

@@ -1,9 +1,9 @@
 """Modbus RTU reader: the register-read reply decoded with one ``struct``
-(``loadcell_modbus._decode_read_reply``) and the words-to-integer conversion
-(``registers_to_int``) give what pymodbus's own framer, decoder and ``convert_from_registers`` give,
-for every frame a poll can see: good replies, flipped bits anywhere (CRC or body), both function
-codes, int16 and int32 words. pymodbus is the reference here on purpose: the reader used it for
-these frames before and must answer the same."""
+(``loadcell_reply.decode_read_reply``, and ``exact_read_reply`` before the scanner) and the
+words-to-integer conversion (``registers_to_int``) give what pymodbus's own framer, decoder and
+``convert_from_registers`` give, for every frame a poll can see: good replies, flipped bits anywhere
+(CRC or body), both function codes, int16 and int32 words. pymodbus is the reference here on
+purpose: the reader used it for these frames before and must answer the same."""
 
 from __future__ import annotations
 
@@ -14,12 +14,8 @@ from pymodbus.framer import FramerRTU
 from pymodbus.pdu import DecodePDU
 
 from cdcr_ctl.sensors import loadcell_modbus
-from cdcr_ctl.sensors.loadcell_modbus import (
-    _decode_exact,
-    _decode_read_reply,
-    registers_to_int,
-    scan_reply,
-)
+from cdcr_ctl.sensors.loadcell_modbus import _decode_exact, registers_to_int, scan_reply
+from cdcr_ctl.sensors.loadcell_reply import decode_read_reply, exact_read_reply
 
 
 def _frame(slave: int, fc: int, registers: list[int]) -> bytes:
@@ -56,12 +52,17 @@ def test_read_reply_decodes_as_pymodbus_does(slave, fc, registers, flip):
         pos = 3 + flip[0] % (len(frame) - 3)
         frame[pos] ^= 1 << flip[1]
     frame = bytes(frame)
-    fast = _decode_read_reply(frame, slave)
+    fast = decode_read_reply(frame, slave)
     assert _same(fast, _pymodbus(frame, slave))
     assert (fast is None) == (flip is not None)  # CRC-16 catches every single-bit error
     # and through the scanner the reader calls (which takes the fast path for these frames)
     scan = scan_reply(frame, slave, fc, len(frame))
     assert _same(scan.pdu, fast)
+    # and the reader's check before the scanner: the scanner's answer, or None to ask it
+    exact = exact_read_reply(bytearray(frame), slave, fc, len(frame))
+    assert _same(exact, scan.pdu)
+    assert exact_read_reply(bytearray(frame), slave, fc, len(frame) + 2) is None
+    assert exact_read_reply(bytearray(frame), slave ^ 1, fc, len(frame)) is None
 
 
 def test_the_scanner_decodes_register_replies_on_the_fast_path(monkeypatch):
@@ -69,9 +70,9 @@ def test_the_scanner_decodes_register_replies_on_the_fast_path(monkeypatch):
 
     def fast(frame, slave):
         calls.append(frame)
-        return _decode_read_reply(frame, slave)
+        return decode_read_reply(frame, slave)
 
-    monkeypatch.setattr(loadcell_modbus, "_decode_read_reply", fast)
+    monkeypatch.setattr(loadcell_modbus, "decode_read_reply", fast)
     frame = _frame(1, 3, [0, 4876, 2])
     scan = scan_reply(b"\x00\x17" + frame, 1, 3, len(frame))
     assert calls == [frame] and list(scan.pdu.registers) == [0, 4876, 2]

@@ -174,11 +174,15 @@ class FrameOfData:
 
     def server_latency_s(self, clock_hz: int | None) -> float | None:
         """Seconds from camera mid-exposure to transmission by the server, or None if unknown."""
-        if not clock_hz or self.stamp_transmit < self.stamp_mid_exposure:
-            return None
-        if self.stamp_mid_exposure == 0:
-            return None
-        return (self.stamp_transmit - self.stamp_mid_exposure) / clock_hz
+        return server_latency_s(self.stamp_mid_exposure, self.stamp_transmit, clock_hz)
+
+
+def server_latency_s(mid_exposure: int, transmit: int, clock_hz: int | None) -> float | None:
+    """Seconds from the camera mid-exposure stamp to the transmit stamp (ticks of a ``clock_hz``
+    clock), or None when unknown (no clock rate, no mid-exposure stamp, stamps out of order)."""
+    if not clock_hz or transmit < mid_exposure or mid_exposure == 0:
+        return None
+    return (transmit - mid_exposure) / clock_hz
 
 
 # -- messages -------------------------------------------------------------------------------

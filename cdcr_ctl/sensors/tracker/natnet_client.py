@@ -25,6 +25,8 @@ from cdcr_ctl.sensors.natnet import (
     parse_server_info,
     split_message,
 )
+from cdcr_ctl.sensors.natnet.messages import server_latency_s
+from cdcr_ctl.sensors.natnet.single import read_single_body_frame
 from cdcr_ctl.sensors.sample import Clock
 from cdcr_ctl.sensors.tracker.frames import TrackerTransform, rotation_from_quaternion
 from cdcr_ctl.sensors.tracker.reader import (
@@ -143,6 +145,19 @@ class NatNetTracker(TipTracker):
             self.stats.foreign += 1
             self.stats.discarded_bytes += len(data)
             return
+        if self.version is not None:
+            # The common frame (one rigid body, nothing else) read in one struct: the values
+            # the general decoder gives (natnet.single), else the general path below.
+            one = read_single_body_frame(data, self.version)
+            if one is not None:
+                pose = (
+                    ((one.x, one.y, one.z), (one.qx, one.qy, one.qz, one.qw))
+                    if one.body_id == self.rigid_body_id and one.body_params & 0x01
+                    else None
+                )
+                stamps = (one.timestamp_s, one.stamp_mid_exposure, one.stamp_transmit)
+                self._accept(one.frame_number, pose, stamps, t)
+                return
         try:
             message_id, payload = split_message(data)
         except NatNetDecodeError as exc:
@@ -182,31 +197,53 @@ class NatNetTracker(TipTracker):
         except NatNetDecodeError as exc:
             self._bad(data, str(exc))
             return
+        body = frame.rigid_body(self.rigid_body_id)
+        pose = (
+            (body.position, body.orientation_xyzw)
+            if body is not None and body.tracking_valid
+            else None
+        )
+        stamps = (frame.timestamp_s, frame.stamp_mid_exposure, frame.stamp_transmit)
+        self._accept(frame.frame_number, pose, stamps, t_rx)
+
+    def _accept(
+        self,
+        frame_number: int,
+        pose: tuple[tuple[float, ...], tuple[float, ...]] | None,
+        stamps: tuple[float, int, int],
+        t_rx: float,
+    ) -> None:
+        """A decoded frame: ``pose`` = (position in tracker units, quaternion xyzw) of the body
+        when the frame has it tracked, else None; ``stamps`` = (server timestamp s,
+        mid-exposure ticks, transmit ticks); received at ``t_rx`` (s, reader clock)."""
         last = self._last_frame
-        if last is not None and 0 <= last - frame.frame_number < REORDER_WINDOW_FRAMES:
+        if last is not None and 0 <= last - frame_number < REORDER_WINDOW_FRAMES:
             self.stats.out_of_order += 1
             return
-        self._last_frame = frame.frame_number
+        self._last_frame = frame_number
         self._alive(t_rx)
-        body = frame.rigid_body(self.rigid_body_id)
-        if body is None or not body.tracking_valid:
+        if pose is None:
             self._occluded()
             return
+        position, orientation = pose
         try:
-            R = rotation_from_quaternion(body.orientation_xyzw)
+            R = rotation_from_quaternion(orientation)
         except ValueError:
             self._occluded()
             return
-        if not all(math.isfinite(v) for v in body.position):
+        x, y, z = position
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             self._occluded()
             return
-        latency = frame.server_latency_s(self.server_info.clock_hz if self.server_info else None)
+        timestamp_s, mid, transmit = stamps
+        info = self.server_info
+        latency = server_latency_s(mid, transmit, info.clock_hz if info else None)
         self._publish(
-            body.position,
+            position,
             R,
             has_rotation=True,
-            frame=frame.frame_number,
-            tracker_time_s=frame.timestamp_s,
+            frame=frame_number,
+            tracker_time_s=timestamp_s,
             latency_s=latency if latency is not None and latency < 1.0 else 0.0,
             t_rx=t_rx,
         )

@@ -20,6 +20,9 @@ CAPACITY_N = 10.0 * G_M_PER_S2
 #: The transmitter reports overload above this fraction of capacity.
 OVERLOAD_FRACTION = 1.1
 
+#: Gaussian draws taken from the generator at once when nothing else draws from it.
+NOISE_BLOCK = 256
+
 
 Tensions = Callable[[], Sequence[float]]
 
@@ -73,6 +76,11 @@ class TensionFeed:
             raise ValueError(f"{len(self.drift_N_per_s)} drift rates for {n_cells} cells")
         #: Per cell: (extra tension N, until clock s) of an injected spike (a snagged cable).
         self._spikes: dict[int, tuple[float, float]] = {}
+        #: Noise drawn ahead, in blocks (only without dropouts: then the generator draws nothing
+        #: else, and ``rng.normal(0, s, n)`` gives the n numbers n calls ``rng.normal(0, s)``
+        #: give, in the same order: numpy's ``random_normal`` per element either way).
+        self._ahead: list[float] = []
+        self._batched = not noise.dropout
 
     def spike(self, index: int, add_N: float, duration_s: float) -> None:
         """Fault hook: cell ``index`` reads ``add_N`` (N) more than the truth for
@@ -94,5 +102,15 @@ class TensionFeed:
         if spike is not None and now < spike[1]:
             value += spike[0]
         if self.noise.noise_N:
-            value += float(self.rng.normal(0.0, self.noise.noise_N))
+            value += self._draw()
         return value
+
+    def _draw(self) -> float:
+        """The next ``rng.normal(0.0, noise_N)`` (N)."""
+        if not self._batched:
+            return float(self.rng.normal(0.0, self.noise.noise_N))
+        if not self._ahead:
+            block = self.rng.normal(0.0, self.noise.noise_N, NOISE_BLOCK).tolist()
+            block.reverse()
+            self._ahead = block
+        return self._ahead.pop()

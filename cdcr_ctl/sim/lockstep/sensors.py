@@ -22,7 +22,6 @@ from collections.abc import Callable
 
 from cdcr_ctl.sensors.loadcell_modbus import READ_REQUEST_BYTES, ModbusLoadCellBus, char_time_s
 from cdcr_ctl.sensors.loadcell_sampler import LoadCellSampler
-from cdcr_ctl.sensors.natnet import FrameOfData, pack_frame_of_data
 from cdcr_ctl.sensors.tracker import NatNetTracker
 from cdcr_ctl.sim.loadcells import ModbusLoadCellSim
 from cdcr_ctl.sim.lockstep.canlink import no_cpu_clock
@@ -109,7 +108,8 @@ class TrackerSchedule:
         self.server = server
         self.reader = reader
         self.next_s = 0.0
-        self._queue: collections.deque[tuple[float, FrameOfData]] = collections.deque()
+        #: (receipt time s, datagram) of the frames made and not yet delivered.
+        self._queue: collections.deque[tuple[float, bytes]] = collections.deque()
         self._source = server.data_address
         self.cpu_s = 0.0
         self.cpu_clock: Callable[[], float] = no_cpu_clock  # time.thread_time to measure
@@ -122,11 +122,10 @@ class TrackerSchedule:
         server = self.server
         while self.next_s <= t1:
             t_rx = self.next_s + server.latency_s
-            self._queue.append((t_rx, server.make_frame(self.next_s, transmit_s=t_rx)))
+            self._queue.append((t_rx, server.make_datagram(self.next_s, transmit_s=t_rx)))
             self.next_s += server.period_s
         while self._queue and self._queue[0][0] <= t1:
-            t_rx, frame = self._queue.popleft()
-            data = pack_frame_of_data(frame, server.version)
+            t_rx, data = self._queue.popleft()
             self.reader.handle_datagram(data, self._source, t_rx)
             self.frames += 1
         self.cpu_s += self.cpu_clock() - c0

@@ -49,18 +49,26 @@ class TruthSampler:
 
     def sample(self) -> tuple[np.ndarray, np.ndarray]:
         """(body position in tracker units, R_tracker_body) now."""
+        p, rows = self.sample_floats()
+        return np.array(p), np.array(rows)
+
+    def sample_floats(self) -> tuple[list[float], list[list[float]]]:
+        """:meth:`sample` as Python floats (the same doubles: the noise added as numpy adds
+        it, one IEEE division and addition per coordinate): the position and R's three rows."""
         got = self.truth()
         if isinstance(got, tuple):
             R, p_mm = np.asarray(got[0], dtype=float), np.asarray(got[1], dtype=float)
         else:
             R, p_mm = np.eye(3), np.asarray(got, dtype=float)
+        mpu = self.transform.mm_per_unit
         if self.truth_frame == "base":
-            p_units, R_tb = self.transform.body_in_tracker(p_mm, R)
+            p_units, rows = self.transform.body_in_tracker_floats(p_mm, R)
         else:
-            p_units, R_tb = p_mm / self.transform.mm_per_unit, R
+            p_units, rows = (p_mm / mpu).tolist(), R.tolist()
         if self.noise_mm > 0:
-            p_units = p_units + self.rng.normal(0.0, self.noise_mm, 3) / self.transform.mm_per_unit
-        return p_units, R_tb
+            noise = self.rng.normal(0.0, self.noise_mm, 3).tolist()
+            p_units = [a + n / mpu for a, n in zip(p_units, noise, strict=True)]
+        return p_units, rows
 
 
 def true_transform(

@@ -35,7 +35,9 @@ from cdcr_ctl.sensors.natnet import (
     pack_server_info,
     split_message,
 )
-from cdcr_ctl.sensors.tracker import TrackerTransform, quaternion_from_rotation
+from cdcr_ctl.sensors.natnet.single import SingleBodyFrame, pack_single_body_frame
+from cdcr_ctl.sensors.tracker import TrackerTransform
+from cdcr_ctl.sensors.tracker.frames import quaternion_xyzw
 from cdcr_ctl.sim.tracker.feed import Truth, TruthSampler
 from cdcr_ctl.sim.tracker.server import LOOP_WAIT_S, _ServerThread, require_loopback
 
@@ -44,6 +46,8 @@ log = logging.getLogger("cdcr_ctl.sim.tracker")
 
 #: Ticks per second of the simulated server's high-resolution clock (Motive's is QPC-based).
 SIM_CLOCK_HZ = 10_000_000
+#: Mean marker error the simulated server reports for a tracked body (tracker units).
+MEAN_ERROR_UNITS = 0.0002
 #: A unicast client that sent neither NAT_CONNECT nor a keep-alive for this long is dropped (s).
 SUBSCRIBER_TIMEOUT_S = 5.0
 
@@ -157,23 +161,9 @@ class SimNatNetServer(_ServerThread):
                 RigidBodyPose(self.rigid_body_id, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), 0.0, False)
             )
         elif not occluded:
-            try:
-                p, R = self.sampler.sample()
-            except Exception:
-                self.truth_errors += 1
-                log.exception("sim natnet: truth callable failed")
-                p, R = None, None
-            if p is not None and R is not None:
-                q = quaternion_from_rotation(R)
-                bodies.append(
-                    RigidBodyPose(
-                        self.rigid_body_id,
-                        (float(p[0]), float(p[1]), float(p[2])),
-                        (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
-                        0.0002,
-                        True,
-                    )
-                )
+            pose = self._pose()
+            if pose is not None:
+                bodies.append(RigidBodyPose(self.rigid_body_id, *pose, MEAN_ERROR_UNITS, True))
         markers: tuple[MarkerSet, ...] = ()
         labeled: tuple[LabeledMarker, ...] = ()
         if self.include_markers and bodies:
@@ -184,17 +174,60 @@ class SimNatNetServer(_ServerThread):
                 LabeledMarker((self.rigid_body_id << 16) | (i + 1), pt, 0.008, 0x04, 0.0001)
                 for i, pt in enumerate(pts)
             )
-        ticks = int(now * SIM_CLOCK_HZ)
+        ticks, transmit = self._ticks(now, transmit_s)
         return FrameOfData(
             frame_number=self.frame_number,
             rigid_bodies=tuple(bodies),
             timestamp_s=now - self._t0,
             stamp_mid_exposure=ticks,
             stamp_data_received=ticks,
-            stamp_transmit=ticks if transmit_s is None else int(transmit_s * SIM_CLOCK_HZ),
+            stamp_transmit=transmit,
             marker_sets=markers,
             labeled_markers=labeled,
         )
+
+    def make_datagram(self, now: float, transmit_s: float | None = None) -> bytes:
+        """``pack_frame_of_data(self.make_frame(now, transmit_s), self.version)``: the same
+        frame and bytes, packed in one struct when it holds the tracked body alone (no dropout
+        draw, no occlusion, no markers; ``tests/sensors/test_natnet_single.py``)."""
+        if self._occluded or self.dropout > 0 or self.include_markers:
+            return pack_frame_of_data(self.make_frame(now, transmit_s), self.version)
+        self.frame_number += 1
+        pose = self._pose()
+        ticks, transmit = self._ticks(now, transmit_s)
+        timestamp = now - self._t0
+        if pose is None:  # the truth failed: a frame without bodies
+            frame = FrameOfData(self.frame_number, (), timestamp, ticks, ticks, transmit)
+            return pack_frame_of_data(frame, self.version)
+        (x, y, z), (qx, qy, qz, qw) = pose
+        one = SingleBodyFrame(
+            self.frame_number,
+            self.rigid_body_id,
+            *(x, y, z, qx, qy, qz, qw),
+            MEAN_ERROR_UNITS,
+            1,
+            *(0, 0, timestamp, ticks, ticks, transmit, 0),
+        )
+        return pack_single_body_frame(self.version, one)
+
+    def _pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | None:
+        """The body's pose sampled now: (position in tracker units, quaternion xyzw), or None
+        when the truth failed (counted, logged)."""
+        try:
+            p, rows = self.sampler.sample_floats()
+        except Exception:
+            self.truth_errors += 1
+            log.exception("sim natnet: truth callable failed")
+            return None
+        x, y, z = p
+        qx, qy, qz, qw = quaternion_xyzw(rows)
+        return (x, y, z), (qx, qy, qz, qw)
+
+    def _ticks(self, now: float, transmit_s: float | None) -> tuple[int, int]:
+        """(mid-exposure, transmit) stamps of a frame at ``now`` sent at ``transmit_s`` (s; None:
+        at ``now``), in ticks of :data:`SIM_CLOCK_HZ`."""
+        ticks = int(now * SIM_CLOCK_HZ)
+        return ticks, ticks if transmit_s is None else int(transmit_s * SIM_CLOCK_HZ)
 
     # -- loop -------------------------------------------------------------------------------
 
