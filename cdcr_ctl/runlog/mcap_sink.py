@@ -15,6 +15,12 @@ streaming reader and stops at the cut.
 Nothing here runs on the real-time thread: rows reach :meth:`McapSink.write_rows` from the
 writer thread's drain, CAN frames reach :class:`CanTap` as a deque append from whatever thread
 sent or received them and are written at the next drain.
+
+Imports: no numpy and no python-can (the run-log writer process, which makes the sink, starts
+without them: ~0.1 s of CPU each). :class:`CanTap` is a python-can listener by its protocol
+(``on_message_received``, called as ``listener(msg)``, ``stop``), which python-can's ``Notifier``
+and the project's traffic log take; the ``/tip/model`` message comes with the ``model_tip`` the
+caller gives (:class:`cdcr_ctl.runlog.model_tip.ModelTip`, numpy), when there is a model.
 """
 
 from __future__ import annotations
@@ -27,13 +33,16 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-import can
 import yaml
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cdcr_ctl import __version__
 from cdcr_ctl.runlog import streams
-from cdcr_ctl.runlog.streams import RowStreams, TipFromPsi
+from cdcr_ctl.runlog.streams import RowStreams
+
+#: ``model_tip(d, cycle, S)``: the ``/tip/model`` message of row ``d`` (a mapping of the
+#: columns), or None (see :class:`cdcr_ctl.runlog.model_tip.ModelTip`).
+ModelTipSource = Callable[[Mapping[str, Any], int, int], "dict[str, Any] | None"]
 
 RUN_MCAP = "run.mcap"
 RUN_YAML = "run.yaml"  # the writer's name for it (the writer imports this module, not back)
@@ -53,15 +62,17 @@ YIELD_EVERY_ROWS = 4
 CAN_QUEUE_FRAMES = 200_000
 
 
-class CanTap(can.Listener):
-    """A python-can listener that queues frames for ``/can``; cheap on the caller's thread."""
+class CanTap:
+    """A python-can listener (by protocol, see the module docstring) that queues frames for
+    ``/can``; cheap on the caller's thread."""
 
     def __init__(self, max_frames: int = CAN_QUEUE_FRAMES) -> None:
         self.queue: collections.deque[tuple] = collections.deque()
         self.max_frames = max_frames
         self.dropped = 0
 
-    def on_message_received(self, msg: can.Message) -> None:
+    def on_message_received(self, msg: Any) -> None:
+        """One ``can.Message``, queued as a tuple (dropped and counted beyond the bound)."""
         if len(self.queue) >= self.max_frames:
             self.dropped += 1
             return
@@ -78,6 +89,8 @@ class CanTap(can.Listener):
             )
         )
 
+    __call__ = on_message_received  # python-can calls a listener with the message
+
     def stop(self) -> None:  # python-can API; nothing to release
         pass
 
@@ -86,9 +99,9 @@ class McapSink:
     """Writes one ``run.mcap``. Not thread-safe: one thread (the run-log writer's) calls it.
 
     ``attachments``: file name -> text (the configs). ``start_metadata``: string map stored as
-    metadata ``run_start``. ``tip_from_psi`` (optional): the model's tip of a commanded pose (see
-    :func:`cdcr_ctl.runlog.streams.model_tip_message`), written every ``model_tip_every``
-    cycles. Raises OSError if the file cannot be created.
+    metadata ``run_start``. ``model_tip`` (optional): the ``/tip/model`` message of a row (see
+    :class:`cdcr_ctl.runlog.model_tip.ModelTip`), written every ``model_tip_every`` cycles.
+    Raises OSError if the file cannot be created.
     """
 
     def __init__(
@@ -98,13 +111,13 @@ class McapSink:
         *,
         attachments: Mapping[str, str] | None = None,
         start_metadata: Mapping[str, str] | None = None,
-        tip_from_psi: TipFromPsi | None = None,
+        model_tip: ModelTipSource | None = None,
         model_tip_every: int = 1,
         opener: Callable[[Path], IO[bytes]] | None = None,
     ) -> None:
         self.path = Path(path)
         self.rows = RowStreams(tuple(columns))
-        self.tip_from_psi = tip_from_psi
+        self.model_tip = model_tip
         self.model_tip_every = max(1, int(model_tip_every))
         self.can_tap = CanTap()
         self.messages = 0
@@ -158,11 +171,9 @@ class McapSink:
             index = self.rows_written
             for topic, msg in self.rows.encoded(d, index):
                 self._add(topic, log_ns, msg)
-            if self.tip_from_psi is not None and S and index % self.model_tip_every == 0:
+            if self.model_tip is not None and S and index % self.model_tip_every == 0:
                 cyc = d.get("cycle")
-                tip = streams.model_tip_message(
-                    d, int(cyc) if cyc is not None else index, S, self.tip_from_psi
-                )
+                tip = self.model_tip(d, int(cyc) if cyc is not None else index, S)
                 if tip is not None:
                     self._add(streams.TIP_MODEL, log_ns, tip)
             self.rows_written += 1
@@ -228,12 +239,14 @@ def yaml_metadata(text: str) -> dict[str, str]:
 
 class McapSinkFactory:
     """The run-log writer's ``second_sink``: a :class:`McapSink` at ``<run_dir>/run.mcap`` with
-    the config copies as attachments and the starting ``run.yaml`` as metadata ``run_start``."""
+    the config copies as attachments and the starting ``run.yaml`` as metadata ``run_start``;
+    ``model_tip`` (:class:`~cdcr_ctl.runlog.model_tip.ModelTip`) for ``/tip/model``, written at
+    most every :func:`~cdcr_ctl.runlog.streams.model_tip_every` cycles of ``rate_hz``."""
 
     def __init__(
-        self, tip_from_psi: TipFromPsi | None = None, rate_hz: float | None = None
+        self, model_tip: ModelTipSource | None = None, rate_hz: float | None = None
     ) -> None:
-        self.tip_from_psi = tip_from_psi
+        self.model_tip = model_tip
         self.model_tip_every = streams.model_tip_every(rate_hz)
 
     def __call__(self, run_dir: Path, columns: list[str], files: dict[str, str]) -> McapSink:
@@ -244,6 +257,6 @@ class McapSinkFactory:
             columns,
             attachments=files,
             start_metadata=meta,
-            tip_from_psi=self.tip_from_psi,
+            model_tip=self.model_tip,
             model_tip_every=self.model_tip_every,
         )

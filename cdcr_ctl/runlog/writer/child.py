@@ -30,7 +30,7 @@ from typing import Any
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, lateness_cell_us, t_cell
-from cdcr_ctl.runlog.writer.ring import (
+from cdcr_ctl.runlog.writer.ringmap import (
     DONE,
     FAILED,
     ORDER_NAMES,
@@ -41,7 +41,7 @@ from cdcr_ctl.runlog.writer.ring import (
     SLOT_HEAD,
     W_HIGH,
     W_START,
-    SharedRing,
+    RingMap,
     publish_writer_counts,
 )
 from cdcr_ctl.runlog.writer.thread import RunLogWriter
@@ -57,13 +57,14 @@ PARENT_GONE = "the daemon process ended with the run open (the writer process dr
 class RingDrain:
     """Moves rows from the ring to ``writer`` in column order (numbers back to Python values)."""
 
-    def __init__(self, ring: SharedRing, writer: RunLogWriter, columns: list[str]) -> None:
+    def __init__(self, ring: RingMap, writer: RunLogWriter, columns: list[str]) -> None:
         self.ring, self.writer = ring, writer
         num_cols = [c for c in columns if c not in TEXT_COLUMNS]
         text = [c for c in columns if c in TEXT_COLUMNS]
         self.text_pos = columns.index(text[0]) if text else -1
         self.int_pos = [j for j, c in enumerate(num_cols) if c in INT_COLUMNS]
         self.cap = ring.layout.rows
+        self.row_floats = ring.layout.row_floats
         self.n = len(num_cols)
         self.num_cols = num_cols
         self._by_names: list[int] | None = None
@@ -78,17 +79,17 @@ class RingDrain:
 
     def rows(self) -> int:
         """Hand every published row to the writer; the number moved."""
-        hdr = self.ring.hdr
-        tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
+        hdr = self.ring.hq
+        tail, head = hdr[ROW_TAIL], hdr[ROW_HEAD]
         if not self.drained:
             self.drained = True
             hdr[W_START] = head - tail  # the start's backlog, apart from the steady state
         elif head - tail > hdr[W_HIGH]:
             hdr[W_HIGH] = head - tail
-        nums, write, n = self.ring.nums, self.writer.write, self.n
+        f64, rf, write, n = self.ring.f64, self.row_floats, self.writer.write, self.n
         for seq in range(tail, head):
             slot = seq % self.cap
-            raw: list[Any] = nums[slot].tolist()
+            raw: list[Any] = f64[slot * rf : (slot + 1) * rf].tolist()
             order, n_text = raw[0], int(raw[1])
             if order == ORDER_NAMES:
                 # The loop's time and lateness come unrounded (s): rounded here, by the rule
@@ -118,7 +119,7 @@ class RingDrain:
             tap.queue.extend(frames)
 
     def publish(self) -> None:
-        s, hdr = self.writer.stats, self.ring.hdr
+        s, hdr = self.writer.stats, self.ring.hq
         publish_writer_counts(hdr, s, s.dropped - self.upstream)
         if self.writer.failure is not None and not hdr[FAILED]:
             self.ring.set_failure(self.writer.failure)
@@ -160,7 +161,7 @@ def main(run_nice: int | None = None) -> int:
         fd = spec["fd"]
     else:  # a spare, started before the ring existed
         fd = os.open(f"/proc/{spec['parent_pid']}/fd/{spec['fd']}", os.O_RDWR)
-    ring = SharedRing(spec["layout"], fd)
+    ring = RingMap(spec["layout"], fd)
     parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone
     failures: list[str] = []
     try:
@@ -190,7 +191,7 @@ def main(run_nice: int | None = None) -> int:
         ring.set_failure(text)
         log.error("run log not started: %s", text)
         return 1
-    ring.hdr[READY] = 1
+    ring.hq[READY] = 1
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
     reason, outcome = PARENT_GONE, "aborted"
@@ -208,9 +209,9 @@ def main(run_nice: int | None = None) -> int:
         # again at once rather than let the ring fill while this process sleeps.
         if moved < max(1, drain.cap // 4):
             time.sleep(period)
-    drain.upstream = int(ring.hdr[ROW_DROPPED])
+    drain.upstream = ring.hq[ROW_DROPPED]
     writer._dropped += drain.upstream  # rows the loop's side refused count in run.yaml too
     writer.close(reason, outcome=outcome)
     drain.publish()
-    ring.hdr[DONE] = 1
+    ring.hq[DONE] = 1
     return 0 if writer.failure is None else 2

@@ -13,12 +13,12 @@ import io
 import logging
 import math
 import os
+import sys
 import time
 from collections.abc import Mapping
 from dataclasses import asdict
 from typing import Any
 
-import numpy as np
 import yaml
 
 from cdcr_ctl.runlog.mcap_sink import RUN_YAML
@@ -44,14 +44,19 @@ _repr = float.__repr__
 
 
 def _cell(value: Any) -> str:
-    """One CSV field: exact float text (``repr``), empty for None/NaN, text without newlines."""
+    """One CSV field: exact float text (``repr``), empty for None/NaN, text without newlines.
+
+    numpy's bool and integer scalars as Python's. numpy is not imported for that (the writer
+    process runs without it): a numpy scalar exists only once numpy is loaded, so it is looked
+    up in ``sys.modules``."""
     if value is None:
         return ""
     if isinstance(value, str):
         return value.replace("\r", " ").replace("\n", " ")
-    if isinstance(value, bool | np.bool_):
+    np = sys.modules.get("numpy")
+    if isinstance(value, bool) or (np is not None and isinstance(value, np.bool_)):
         return "1" if value else "0"
-    if isinstance(value, int | np.integer):
+    if isinstance(value, int) or (np is not None and isinstance(value, np.integer)):
         return str(int(value))
     try:
         f = float(value)
