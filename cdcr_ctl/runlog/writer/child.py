@@ -12,7 +12,9 @@ maps the shared ring from the inherited descriptor, makes an ordinary
 and CAN frames to that writer, publishes its counters and any write error in the shared header,
 and ends when
 
-- the loop's process asks it to close: drains the ring, closes the run with the given outcome;
+- the loop's process asks it to close: drains the ring, closes the run with the given outcome.
+  The request also wakes it (:class:`Wake`: a byte on its stdin, which it waits on between
+  drains), so a run's close does not wait for the drain period;
 - the loop's process is gone (its parent changed: SIGKILL, a crash): drains what the ring holds
   and closes the run with outcome ``aborted``, so the files end whole.
 """
@@ -23,9 +25,9 @@ import logging
 import math
 import os
 import pickle
+import select
 import struct
 import sys
-import time
 from typing import Any
 
 from cdcr_ctl.errors import RigError
@@ -136,15 +138,50 @@ class RingDrain:
         return moved
 
 
+class Wake:
+    """Waits between drains on the stdin pipe from the loop's process (after the settings, it
+    writes one byte there with its close request, see
+    :meth:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter.close`); its end (the loop's
+    process gone) wakes too. Once at its end, a plain sleep."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.open = True
+
+    def wait(self, timeout_s: float) -> None:
+        """Return after ``timeout_s`` or at once when woken."""
+        if not self.open:
+            select.select([], [], [], timeout_s)
+            return
+        ready, _, _ = select.select([self.fd], [], [], timeout_s)
+        if ready:
+            try:
+                self.open = bool(os.read(self.fd, 64))
+            except OSError:
+                self.open = False
+
+
+def _read_exact(fd: int, n: int) -> bytes:
+    """``n`` bytes from ``fd`` (fewer at its end), unbuffered: nothing after them is read
+    ahead (the wake byte that may follow is :class:`Wake`'s)."""
+    out = b""
+    while len(out) < n:
+        chunk = os.read(fd, n - len(out))
+        if not chunk:
+            break
+        out += chunk
+    return out
+
+
 def main(run_nice: int | None = None) -> int:
     """The writer process: wait for the settings, then write the run at ``run_nice`` (the
     spare waited at a lower priority, see :data:`~cdcr_ctl.runlog.writer.spawn.SPARE_NICE`)."""
-    raw = sys.stdin.buffer
-    head = raw.read(8)
+    stdin = sys.stdin.fileno()
+    head = _read_exact(stdin, 8)
     if len(head) < 8:
         return 0  # a spare whose factory went away: nothing to write
     (n,) = struct.unpack("<Q", head)
-    spec = pickle.loads(raw.read(n))
+    spec = pickle.loads(_read_exact(stdin, n))
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     if run_nice is not None:
         try:
@@ -194,6 +231,7 @@ def main(run_nice: int | None = None) -> int:
     ring.hq[READY] = 1
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
+    wake = Wake(stdin)
     reason, outcome = PARENT_GONE, "aborted"
     while True:
         request = ring.close_request()
@@ -208,7 +246,7 @@ def main(run_nice: int | None = None) -> int:
         # period (a loop on simulated time waiting for room, or one catching up), so drain
         # again at once rather than let the ring fill while this process sleeps.
         if moved < max(1, drain.cap // 4):
-            time.sleep(period)
+            wake.wait(period)
     drain.upstream = ring.hq[ROW_DROPPED]
     writer._dropped += drain.upstream  # rows the loop's side refused count in run.yaml too
     writer.close(reason, outcome=outcome)
