@@ -38,6 +38,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from cdcr_ctl import __version__
 from cdcr_ctl.runlog import streams
+from cdcr_ctl.runlog.mcap_chunk import MessageAppender
 from cdcr_ctl.runlog.streams import RowStreams
 
 #: ``model_tip(d, cycle, S)``: the ``/tip/model`` message of row ``d`` (a mapping of the
@@ -141,18 +142,16 @@ class McapSink:
             sid = self._w.register_schema(name, "jsonschema", streams.schema_bytes(topic))
             self._channels[topic] = self._w.register_channel(topic, "json", sid)
         self._seq: collections.Counter[str] = collections.Counter()
+        #: ``Writer.add_message``, a record in one store (:mod:`cdcr_ctl.runlog.mcap_chunk`).
+        self._append = MessageAppender(self._w)
         self.flush()
 
     # ------------------------------------------------------------------ writing
     def _add(self, topic: str, log_time_ns: int, msg: Mapping[str, Any] | bytes) -> None:
-        self._seq[topic] += 1
-        self._w.add_message(
-            self._channels[topic],
-            log_time=log_time_ns,
-            data=msg if isinstance(msg, bytes) else streams.encode(msg),
-            publish_time=log_time_ns,
-            sequence=self._seq[topic],
-        )
+        seq = self._seq[topic] + 1
+        self._seq[topic] = seq
+        data = msg if isinstance(msg, bytes) else streams.encode(msg)
+        self._append(self._channels[topic], log_time_ns, data, log_time_ns, seq)
         self.messages += 1
 
     def write_rows(self, rows: Iterable[Mapping[str, Any] | Sequence[Any]]) -> None:
