@@ -123,6 +123,9 @@ class McapSink:
         self.can_tap = CanTap()
         self.messages = 0
         self.rows_written = 0
+        #: Rows encoded between two releases of the GIL (0: never; the run-log writer process
+        #: has no real-time thread to give it to).
+        self.yield_every = YIELD_EVERY_ROWS
         self._epoch_ns: int | None = None
         self._file = opener(self.path) if opener else open(self.path, "xb")  # noqa: SIM115
         self._w = Writer(
@@ -176,7 +179,7 @@ class McapSink:
                 if tip is not None:
                     self._add(streams.TIP_MODEL, log_ns, tip)
             self.rows_written += 1
-            if n % YIELD_EVERY_ROWS == 0:
+            if self.yield_every and n % self.yield_every == 0:
                 time.sleep(0)
         self.write_can()
 

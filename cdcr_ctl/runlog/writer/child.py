@@ -220,6 +220,7 @@ def main(run_nice: int | None = None) -> int:
             on_failure=failures.append,
             require_empty=False,
             files_made=bool(spec.get("files_made")),
+            yield_gil=False,  # no real-time thread in this process to give the GIL to
         )
     except (RigError, OSError, ValueError) as exc:
         text = str(exc)

@@ -68,12 +68,16 @@ def _cell(value: Any) -> str:
 class RunFileFormats:
     """CSV rows, run.yaml and vanish checks (mixin of the run-log writer)."""
 
+    #: Rows between two releases of the GIL while encoding (0: never, see ``yield_gil`` of
+    #: :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter`).
+    _yield_every = YIELD_EVERY_ROWS
+
     def _encode(self, rows: list[Any], raw: bool = False) -> bytes:
         """CSV text of ``rows``. Gives up the GIL every :data:`YIELD_EVERY_ROWS` rows so the
         real-time thread never waits long for it while a batch is formatted."""
         buf = io.StringIO()
         writerow = csv.writer(buf, lineterminator="\n").writerow
-        cols = self.columns
+        cols, every = self.columns, self._yield_every
         for n, row in enumerate(rows, start=1):
             if raw:
                 writerow(row)
@@ -100,7 +104,7 @@ class RunFileFormats:
             writerow(
                 [(_repr(v) if v == v else "") if type(v) is float else _cell(v) for v in values]
             )
-            if n % YIELD_EVERY_ROWS == 0:
+            if every and n % every == 0:
                 time.sleep(0)
         return buf.getvalue().encode("utf-8")
 
