@@ -40,6 +40,7 @@ class MessageAppender:
             chunk: Any = writer._Writer__chunk_builder  # type: ignore[attr-defined]
             self._stats: Any = writer._Writer__statistics  # type: ignore[attr-defined]
             self._maybe_close = writer._Writer__maybe_finalize_chunk  # type: ignore[attr-defined]
+            self._chunk_size: int = writer._Writer__chunk_size  # type: ignore[attr-defined]
             fast = chunk is not None and all(
                 hasattr(chunk, a)
                 for a in ("record_writer", "message_indices", "num_messages", "message_end_time")
@@ -83,4 +84,5 @@ class MessageAppender:
             )
         )
         buf.write(data)
-        self._maybe_close()
+        if buf.tell() > self._chunk_size:  # the writer's own test, which it then repeats
+            self._maybe_close()

@@ -257,7 +257,13 @@ class RowStreams:
         nm = self._names
 
         def arr(key: str) -> str:
-            return ",".join([_num_text(g(c)) for c in nm[key]])
+            # _num_text inlined for finite floats (almost every value): the same text.
+            return ",".join(
+                [
+                    _float_text(v) if type(v) is float and v - v == 0.0 else _num_text(v)
+                    for v in map(g, nm[key])
+                ]
+            )
 
         out = [
             (

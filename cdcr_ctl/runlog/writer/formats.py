@@ -65,6 +65,23 @@ def _cell(value: Any) -> str:
     return "" if math.isnan(f) else repr(f)
 
 
+def csv_line(cells: list[str]) -> str | None:
+    """The CSV line (``\\n`` at its end) of ``cells`` when no field needs quoting, as the
+    ``csv`` module writes it: no delimiter, quote, CR or LF in any field, and not one empty
+    field alone (which it quotes); else None. ~0.5 us a row against ~7 us for ``writerow``
+    (the floats' text never needs quoting; a test holds the two equal)."""
+    line = ",".join(cells)
+    if (
+        line.count(",") != len(cells) - 1
+        or '"' in line
+        or "\n" in line
+        or "\r" in line
+        or line == ""
+    ):
+        return None
+    return line + "\n"
+
+
 class RunFileFormats:
     """CSV rows, run.yaml and vanish checks (mixin of the run-log writer)."""
 
@@ -74,9 +91,12 @@ class RunFileFormats:
 
     def _encode(self, rows: list[Any], raw: bool = False) -> bytes:
         """CSV text of ``rows``. Gives up the GIL every :data:`YIELD_EVERY_ROWS` rows so the
-        real-time thread never waits long for it while a batch is formatted."""
+        real-time thread never waits long for it while a batch is formatted. A row none of
+        whose fields needs quoting (:func:`csv_line`) is joined directly, else written by the
+        ``csv`` module."""
         buf = io.StringIO()
         writerow = csv.writer(buf, lineterminator="\n").writerow
+        write = buf.write
         cols, every = self.columns, self._yield_every
         for n, row in enumerate(rows, start=1):
             if raw:
@@ -101,9 +121,12 @@ class RunFileFormats:
                         )
                     values = (values + [None] * len(cols))[: len(cols)]
             # Fast path for plain floats (almost every field), _cell for the rest.
-            writerow(
-                [(_repr(v) if v == v else "") if type(v) is float else _cell(v) for v in values]
-            )
+            cells = [(_repr(v) if v == v else "") if type(v) is float else _cell(v) for v in values]
+            line = csv_line(cells)
+            if line is None:
+                writerow(cells)
+            else:
+                write(line)
             if every and n % every == 0:
                 time.sleep(0)
         return buf.getvalue().encode("utf-8")
