@@ -48,7 +48,7 @@ from cdcr_ctl.control.loop import GIL_SWITCH_INTERVAL_S
 from cdcr_ctl.daemon.planner import Planner
 from cdcr_ctl.daemon.planning import plan_jog, plan_lead
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, sample_columns
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 from cdcr_ctl.runlog.writer.process import DEFAULT_CAN_FRAMES
 from cdcr_ctl.runlog.writer.ring import RingLayout, SharedRing
 

@@ -140,7 +140,7 @@ def lost_latency(trials: int) -> list[float]:
     from cdcr_ctl.control import trajectory
     from cdcr_ctl.control.ports import DriveState, NoTension, NoTip
     from cdcr_ctl.daemon.service import Daemon, RigIO
-    from cdcr_ctl.runlog.writer import RunLogFactory
+    from cdcr_ctl.runlog.writer.factory import RunLogFactory
     from cdcr_ctl.sim.joystick import JoystickFrame, NetworkJoystickServer, ScriptedJoystick
 
     class IdealDrives:

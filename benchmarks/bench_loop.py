@@ -59,6 +59,7 @@ from cdcr_ctl.drives.busload import cycle_load, pdo_cycle_frames
 from cdcr_ctl.drives.group import open_drive_group
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
+from cdcr_ctl.runlog.model_tip import ModelTip
 from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata, new_run_dir
 from cdcr_ctl.runlog.writer import spawn as spawn_mod
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
@@ -211,7 +212,7 @@ class RunLogBench:
 
     def __init__(self, args, loop, group, model, work: str) -> None:
         self.kind = args.runlog
-        second = McapSinkFactory(model.tip, args.rate) if self.kind == "mcap" else None
+        second = McapSinkFactory(ModelTip(model.tip), args.rate) if self.kind == "mcap" else None
         meta = RunMetadata(name=f"bench-{self.kind}", rate_hz=args.rate)
         self.writer_kind = getattr(args, "writer", "thread")
         self.rate = args.rate

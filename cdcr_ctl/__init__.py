@@ -15,8 +15,8 @@ Production modules never import it.
 
 from cdcr_ctl.blas import one_blas_thread
 
-# One BLAS thread in every process that imports the package (why, and why threadpoolctl rather
-# than OPENBLAS_NUM_THREADS: cdcr_ctl/blas.py).
+# One BLAS thread in every process that imports the package, whatever was imported before or
+# after it (why and how: cdcr_ctl/blas.py; numpy and scipy are not imported here).
 one_blas_thread()
 
 __version__ = "0.1.0"

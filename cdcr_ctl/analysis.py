@@ -17,7 +17,7 @@ import yaml
 from cdcr_ctl.config.loader import validate_mapping
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.runlog import Run, load_run
+from cdcr_ctl.runlog.reader import Run, load_run
 from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML as EFFECTIVE_CONFIG
 
 

@@ -55,9 +55,8 @@ from cdcr_ctl.errors import ModelError  # noqa: E402
 from cdcr_ctl.model.compensation import MODES  # noqa: E402
 from cdcr_ctl.model.effects import rotation_from_rotvec  # noqa: E402
 from cdcr_ctl.model.params import Effects  # noqa: E402
-from cdcr_ctl.runlog import RunLogWriter, RunMetadata, sample_columns  # noqa: E402
-from cdcr_ctl.runlog.columns import group_of  # noqa: E402
-from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML  # noqa: E402
+from cdcr_ctl.runlog.columns import group_of, sample_columns  # noqa: E402
+from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML, RunLogWriter, RunMetadata  # noqa: E402
 from cdcr_ctl.sim.simconfig import load_sim_config  # noqa: E402
 from cdcr_ctl.sim.truth import TruthModel  # noqa: E402
 

@@ -40,7 +40,7 @@ import gc
 import pytest
 from xdist.scheduler import LoadScopeScheduling
 
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
 #: The work unit of the tests marked ``realtime`` or ``multicore``.
 RIG_GROUP = "rig"

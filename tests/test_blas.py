@@ -1,5 +1,7 @@
-"""The BLAS thread policy (cdcr_ctl/blas.py): one thread once cdcr_ctl is imported, even when
-numpy was loaded first, numpy's BLAS and scipy's; an explicit OPENBLAS_NUM_THREADS is left alone."""
+"""The BLAS thread policy (cdcr_ctl/blas.py): one thread for numpy's BLAS and scipy's once
+cdcr_ctl is imported, whichever of numpy, scipy and cdcr_ctl came first, in the process and in
+the processes it starts; an explicit OPENBLAS_NUM_THREADS is left alone; cdcr_ctl itself loads
+no BLAS."""
 
 from __future__ import annotations
 
@@ -7,29 +9,59 @@ import os
 import subprocess
 import sys
 
-PROBE = (
-    "import numpy\n"  # numpy (and OpenBLAS) first, as pytest or a notebook may do
-    "import cdcr_ctl\n"
-    "import scipy.optimize\n"  # scipy's own OpenBLAS too
+import pytest
+
+#: Import orders: numpy (and its OpenBLAS) first as pytest or a notebook may do, scipy's own
+#: OpenBLAS (scipy.linalg) before or after the package, the package first.
+ORDERS = {
+    "numpy_first": ("numpy", "cdcr_ctl", "scipy.linalg"),
+    "numpy_scipy_first": ("numpy", "scipy.linalg", "cdcr_ctl"),
+    "package_first": ("cdcr_ctl", "numpy", "scipy.linalg"),
+    "package_then_scipy": ("cdcr_ctl", "scipy.optimize"),
+}
+
+REPORT = (
     "from threadpoolctl import threadpool_info\n"
-    "assert len([i for i in threadpool_info() if i['user_api'] == 'blas']) >= 2\n"
-    "print(sorted({i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'}))\n"
+    "blas = [i for i in threadpool_info() if i['user_api'] == 'blas']\n"
+    "assert len(blas) >= 2, blas\n"  # numpy's and scipy's
+    "print(sorted({i['num_threads'] for i in blas}))\n"
 )
 
 
-def _blas_threads(env_value: str | None) -> str:
+def _run(code: str, env_value: str | None) -> str:
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     if env_value is not None:
         env["OPENBLAS_NUM_THREADS"] = env_value
     out = subprocess.run(
-        [sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, check=True
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True
     )
     return out.stdout.strip()
 
 
-def test_one_blas_thread_after_numpy_loaded_first():
-    assert _blas_threads(None) == "[1]"
+def _probe(order: tuple[str, ...]) -> str:
+    return "".join(f"import {m}\n" for m in order) + REPORT
 
 
-def test_explicit_environment_is_respected():
-    assert _blas_threads("2") == "[2]"
+@pytest.mark.parametrize("order", ORDERS.values(), ids=ORDERS.keys())
+def test_one_blas_thread_in_every_import_order(order):
+    assert _run(_probe(order), None) == "[1]"
+
+
+@pytest.mark.parametrize("order", ORDERS.values(), ids=ORDERS.keys())
+def test_explicit_environment_is_respected(order):
+    assert _run(_probe(order), "2") == "[2]"
+
+
+def test_processes_started_by_the_package_get_one_thread_too():
+    child = _probe(("numpy", "scipy.linalg"))  # no cdcr_ctl there: the environment does it
+    code = (
+        "import subprocess, sys\nimport cdcr_ctl\n"
+        f"print(subprocess.run([sys.executable, '-c', {child!r}], capture_output=True, "
+        "text=True, check=True).stdout.strip())\n"
+    )
+    assert _run(code, None) == "[1]"
+
+
+def test_the_package_loads_no_blas():
+    code = "import sys\nimport cdcr_ctl\nprint(sorted({'numpy', 'scipy'} & set(sys.modules)))\n"
+    assert _run(code, None) == "[]"

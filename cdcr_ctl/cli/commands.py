@@ -82,7 +82,7 @@ def _one_process_daemon(cfg: Any, path: Path) -> str:
     from cdcr_ctl.control.io import open_rig_io
     from cdcr_ctl.control.timing import try_realtime
     from cdcr_ctl.daemon.service import Daemon
-    from cdcr_ctl.runlog.writer import RunLogFactory
+    from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
     model = build_model(cfg, source=str(path))
     # The run log's /tip/model: a model instance of its own (the writer thread's, not the loop's).
@@ -271,8 +271,8 @@ def tip_error_summary(run_dir: str) -> dict[str, Any]:
 def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     """Plot a logged run: tip path vs command, tip error, cable displacements, tensions."""
     from cdcr_ctl.analysis import tip_from_psi_for_run
-    from cdcr_ctl.runlog import load_run
     from cdcr_ctl.runlog.plots import plot_run
+    from cdcr_ctl.runlog.reader import load_run
 
     run = load_run(run_dir)
     files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))

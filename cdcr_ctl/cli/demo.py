@@ -421,8 +421,8 @@ def format_table(rows: list[dict[str, Any]]) -> str:
 
 def _plots(runs: Path) -> None:
     from cdcr_ctl.analysis import tip_from_psi_for_run
-    from cdcr_ctl.runlog import load_run
     from cdcr_ctl.runlog.plots import plot_run
+    from cdcr_ctl.runlog.reader import load_run
 
     for run_dir in sorted(p for p in runs.iterdir() if p.is_dir()):
         run = load_run(run_dir)

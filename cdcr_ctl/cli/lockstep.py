@@ -33,7 +33,7 @@ def serve_lockstep(
     from cdcr_ctl.control import trajectory
     from cdcr_ctl.control.ports import attach_attitude
     from cdcr_ctl.daemon.service import Daemon, RigIO
-    from cdcr_ctl.runlog.writer import RunLogFactory
+    from cdcr_ctl.runlog.writer.factory import RunLogFactory
     from cdcr_ctl.sim.lockstep.rig import LockstepRig
     from cdcr_ctl.sim.simconfig import load_sim_config
 

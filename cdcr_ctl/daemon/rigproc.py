@@ -55,7 +55,7 @@ from cdcr_ctl.daemon.outcome import encode_outcome as _encode
 from cdcr_ctl.daemon.outcome import outcome
 from cdcr_ctl.daemon.planner import Planner
 from cdcr_ctl.daemon.service import Daemon
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
 log = logging.getLogger(__name__)
 

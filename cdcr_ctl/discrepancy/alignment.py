@@ -38,7 +38,7 @@ from cdcr_ctl.model.effects import ModelSpec, with_cable_play
 from cdcr_ctl.model.kinematics import tip_position_fast
 from cdcr_ctl.model.params import Effects
 from cdcr_ctl.model.routing import cable_matrix_x
-from cdcr_ctl.runlog import Run, load_run
+from cdcr_ctl.runlog.reader import Run, load_run
 from cdcr_ctl.runlog.writer import CONFIG_YAML, EFFECTIVE_CONFIG_YAML
 
 #: Switches of :class:`Effects` a run may record under ``run.yaml`` ``extra.model_effects``.

@@ -39,7 +39,7 @@ from cdcr_ctl.identify.keypoints import (
     report_lines,
 )
 from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind
-from cdcr_ctl.runlog import load_run
+from cdcr_ctl.runlog.reader import load_run
 
 
 def is_keypoint_log(run_dir: str | Path) -> bool:

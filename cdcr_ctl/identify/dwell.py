@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.runlog import Run
+from cdcr_ctl.runlog.reader import Run
 
 #: Default hold dropped at the start of each dwell before averaging (s).
 SETTLE_S = 0.3

@@ -66,7 +66,7 @@ def _save(fig: Figure, path: Path) -> Path:
 def _load(log_dir: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t_s, tracked tip (N, 3), commanded tip (N, 3)) of one run."""
     from cdcr_ctl.analysis import tip_from_psi_for_run
-    from cdcr_ctl.runlog import load_run
+    from cdcr_ctl.runlog.reader import load_run
 
     run = load_run(log_dir)
     cmd = tip_from_psi_for_run(run)(run.psi_cmd())

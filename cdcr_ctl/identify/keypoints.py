@@ -50,7 +50,7 @@ from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, RunRows
 from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.model.identification import ParamRef
 from cdcr_ctl.model.params import Effects, RobotParams
-from cdcr_ctl.runlog import load_run
+from cdcr_ctl.runlog.reader import load_run
 
 #: Fraction of each run's time span held out (the end of the run).
 HOLDOUT_FRACTION = 0.3

@@ -32,7 +32,7 @@ from cdcr_ctl.identify.keypoints import (
 )
 from cdcr_ctl.identify.logkind import KINDS, detect_kind
 from cdcr_ctl.model.params import RobotParams
-from cdcr_ctl.runlog import load_run
+from cdcr_ctl.runlog.reader import load_run
 
 LOG_KINDS = ("auto", *KINDS, "pulls")
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify.dwell import DwellPoint, assign_friction_states
-from cdcr_ctl.runlog import Run
+from cdcr_ctl.runlog.reader import Run
 
 KINDS = ("loadcell", "tip", "keypoint")
 #: Median row spacing (s) from which a log counts as quasi-static keypoints (a control loop

@@ -27,7 +27,7 @@ from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.identify.dwell import DwellPoint, extract_dwells
 from cdcr_ctl.identify.estimator import Estimate, FitOptions, Identification, identify
 from cdcr_ctl.identify.parameters import plan_parameters
-from cdcr_ctl.runlog import load_run
+from cdcr_ctl.runlog.reader import load_run
 
 
 def dwell_points(run_dirs: Sequence[str | Path]) -> tuple[list[DwellPoint], list[str]]:

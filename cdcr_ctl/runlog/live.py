@@ -45,6 +45,7 @@ from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.model import kinematics
 from cdcr_ctl.runlog import streams
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, phi_cmd, sample_columns, theta_cmd
+from cdcr_ctl.runlog.model_tip import model_tip_message
 from cdcr_ctl.runlog.streams import RowStreams, TipFromPsi
 
 log = logging.getLogger(__name__)
@@ -240,7 +241,7 @@ class LiveView:
             self.published += 1
         S = self.rows.counts[0]
         if self.tip_from_psi is not None and S:
-            tip = streams.model_tip_message(d, n, S, self.tip_from_psi)
+            tip = model_tip_message(d, n, S, self.tip_from_psi)
             if tip is not None:
                 self._channels[streams.TIP_MODEL].log(tip, log_time=now)
         if self.backbone is not None and S and tick % self.scene_every == 0:

@@ -15,6 +15,12 @@ streaming reader and stops at the cut.
 Nothing here runs on the real-time thread: rows reach :meth:`McapSink.write_rows` from the
 writer thread's drain, CAN frames reach :class:`CanTap` as a deque append from whatever thread
 sent or received them and are written at the next drain.
+
+Imports: no numpy and no python-can (the run-log writer process, which makes the sink, starts
+without them: ~0.1 s of CPU each). :class:`CanTap` is a python-can listener by its protocol
+(``on_message_received``, called as ``listener(msg)``, ``stop``), which python-can's ``Notifier``
+and the project's traffic log take; the ``/tip/model`` message comes with the ``model_tip`` the
+caller gives (:class:`cdcr_ctl.runlog.model_tip.ModelTip`, numpy), when there is a model.
 """
 
 from __future__ import annotations
@@ -27,13 +33,17 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-import can
 import yaml
 from mcap.writer import CompressionType, IndexType, Writer
 
 from cdcr_ctl import __version__
 from cdcr_ctl.runlog import streams
-from cdcr_ctl.runlog.streams import RowStreams, TipFromPsi
+from cdcr_ctl.runlog.mcap_chunk import MessageAppender
+from cdcr_ctl.runlog.streams import RowStreams
+
+#: ``model_tip(d, cycle, S)``: the ``/tip/model`` message of row ``d`` (a mapping of the
+#: columns), or None (see :class:`cdcr_ctl.runlog.model_tip.ModelTip`).
+ModelTipSource = Callable[[Mapping[str, Any], int, int], "dict[str, Any] | None"]
 
 RUN_MCAP = "run.mcap"
 RUN_YAML = "run.yaml"  # the writer's name for it (the writer imports this module, not back)
@@ -53,15 +63,17 @@ YIELD_EVERY_ROWS = 4
 CAN_QUEUE_FRAMES = 200_000
 
 
-class CanTap(can.Listener):
-    """A python-can listener that queues frames for ``/can``; cheap on the caller's thread."""
+class CanTap:
+    """A python-can listener (by protocol, see the module docstring) that queues frames for
+    ``/can``; cheap on the caller's thread."""
 
     def __init__(self, max_frames: int = CAN_QUEUE_FRAMES) -> None:
         self.queue: collections.deque[tuple] = collections.deque()
         self.max_frames = max_frames
         self.dropped = 0
 
-    def on_message_received(self, msg: can.Message) -> None:
+    def on_message_received(self, msg: Any) -> None:
+        """One ``can.Message``, queued as a tuple (dropped and counted beyond the bound)."""
         if len(self.queue) >= self.max_frames:
             self.dropped += 1
             return
@@ -78,6 +90,8 @@ class CanTap(can.Listener):
             )
         )
 
+    __call__ = on_message_received  # python-can calls a listener with the message
+
     def stop(self) -> None:  # python-can API; nothing to release
         pass
 
@@ -86,9 +100,9 @@ class McapSink:
     """Writes one ``run.mcap``. Not thread-safe: one thread (the run-log writer's) calls it.
 
     ``attachments``: file name -> text (the configs). ``start_metadata``: string map stored as
-    metadata ``run_start``. ``tip_from_psi`` (optional): the model's tip of a commanded pose (see
-    :func:`cdcr_ctl.runlog.streams.model_tip_message`), written every ``model_tip_every``
-    cycles. Raises OSError if the file cannot be created.
+    metadata ``run_start``. ``model_tip`` (optional): the ``/tip/model`` message of a row (see
+    :class:`cdcr_ctl.runlog.model_tip.ModelTip`), written every ``model_tip_every`` cycles.
+    Raises OSError if the file cannot be created.
     """
 
     def __init__(
@@ -98,17 +112,20 @@ class McapSink:
         *,
         attachments: Mapping[str, str] | None = None,
         start_metadata: Mapping[str, str] | None = None,
-        tip_from_psi: TipFromPsi | None = None,
+        model_tip: ModelTipSource | None = None,
         model_tip_every: int = 1,
         opener: Callable[[Path], IO[bytes]] | None = None,
     ) -> None:
         self.path = Path(path)
         self.rows = RowStreams(tuple(columns))
-        self.tip_from_psi = tip_from_psi
+        self.model_tip = model_tip
         self.model_tip_every = max(1, int(model_tip_every))
         self.can_tap = CanTap()
         self.messages = 0
         self.rows_written = 0
+        #: Rows encoded between two releases of the GIL (0: never; the run-log writer process
+        #: has no real-time thread to give it to).
+        self.yield_every = YIELD_EVERY_ROWS
         self._epoch_ns: int | None = None
         self._file = opener(self.path) if opener else open(self.path, "xb")  # noqa: SIM115
         self._w = Writer(
@@ -128,18 +145,16 @@ class McapSink:
             sid = self._w.register_schema(name, "jsonschema", streams.schema_bytes(topic))
             self._channels[topic] = self._w.register_channel(topic, "json", sid)
         self._seq: collections.Counter[str] = collections.Counter()
+        #: ``Writer.add_message``, a record in one store (:mod:`cdcr_ctl.runlog.mcap_chunk`).
+        self._append = MessageAppender(self._w)
         self.flush()
 
     # ------------------------------------------------------------------ writing
     def _add(self, topic: str, log_time_ns: int, msg: Mapping[str, Any] | bytes) -> None:
-        self._seq[topic] += 1
-        self._w.add_message(
-            self._channels[topic],
-            log_time=log_time_ns,
-            data=msg if isinstance(msg, bytes) else streams.encode(msg),
-            publish_time=log_time_ns,
-            sequence=self._seq[topic],
-        )
+        seq = self._seq[topic] + 1
+        self._seq[topic] = seq
+        data = msg if isinstance(msg, bytes) else streams.encode(msg)
+        self._append(self._channels[topic], log_time_ns, data, log_time_ns, seq)
         self.messages += 1
 
     def write_rows(self, rows: Iterable[Mapping[str, Any] | Sequence[Any]]) -> None:
@@ -158,15 +173,13 @@ class McapSink:
             index = self.rows_written
             for topic, msg in self.rows.encoded(d, index):
                 self._add(topic, log_ns, msg)
-            if self.tip_from_psi is not None and S and index % self.model_tip_every == 0:
+            if self.model_tip is not None and S and index % self.model_tip_every == 0:
                 cyc = d.get("cycle")
-                tip = streams.model_tip_message(
-                    d, int(cyc) if cyc is not None else index, S, self.tip_from_psi
-                )
+                tip = self.model_tip(d, int(cyc) if cyc is not None else index, S)
                 if tip is not None:
                     self._add(streams.TIP_MODEL, log_ns, tip)
             self.rows_written += 1
-            if n % YIELD_EVERY_ROWS == 0:
+            if self.yield_every and n % self.yield_every == 0:
                 time.sleep(0)
         self.write_can()
 
@@ -228,12 +241,14 @@ def yaml_metadata(text: str) -> dict[str, str]:
 
 class McapSinkFactory:
     """The run-log writer's ``second_sink``: a :class:`McapSink` at ``<run_dir>/run.mcap`` with
-    the config copies as attachments and the starting ``run.yaml`` as metadata ``run_start``."""
+    the config copies as attachments and the starting ``run.yaml`` as metadata ``run_start``;
+    ``model_tip`` (:class:`~cdcr_ctl.runlog.model_tip.ModelTip`) for ``/tip/model``, written at
+    most every :func:`~cdcr_ctl.runlog.streams.model_tip_every` cycles of ``rate_hz``."""
 
     def __init__(
-        self, tip_from_psi: TipFromPsi | None = None, rate_hz: float | None = None
+        self, model_tip: ModelTipSource | None = None, rate_hz: float | None = None
     ) -> None:
-        self.tip_from_psi = tip_from_psi
+        self.model_tip = model_tip
         self.model_tip_every = streams.model_tip_every(rate_hz)
 
     def __call__(self, run_dir: Path, columns: list[str], files: dict[str, str]) -> McapSink:
@@ -244,6 +259,6 @@ class McapSinkFactory:
             columns,
             attachments=files,
             start_metadata=meta,
-            tip_from_psi=self.tip_from_psi,
+            model_tip=self.model_tip,
             model_tip_every=self.model_tip_every,
         )

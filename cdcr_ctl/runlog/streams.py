@@ -26,7 +26,9 @@ topic              schema               fields                                  
 Every message carries ``t_s`` (loop time, s) and ``cycle`` (loop cycle counter) so a reader
 joins the channels by cycle. ``/tip/model`` is written every :func:`model_tip_every` cycles
 (at most :data:`MODEL_TIP_MAX_HZ`): the forward kinematics of some designs costs more than a
-cycle can spare, and the writer thread must keep up with the loop.
+cycle can spare, and the writer thread must keep up with the loop. Its message is made in
+:mod:`cdcr_ctl.runlog.model_tip` (numpy), apart: this module imports no numpy, so the run-log
+writer process starts without it.
 """
 
 from __future__ import annotations
@@ -36,8 +38,6 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from cdcr_ctl.runlog.columns import (
     LOOP_EXTRA_COLUMNS,
@@ -257,7 +257,13 @@ class RowStreams:
         nm = self._names
 
         def arr(key: str) -> str:
-            return ",".join([_num_text(g(c)) for c in nm[key]])
+            # _num_text inlined for finite floats (almost every value): the same text.
+            return ",".join(
+                [
+                    _float_text(v) if type(v) is float and v - v == 0.0 else _num_text(v)
+                    for v in map(g, nm[key])
+                ]
+            )
 
         out = [
             (
@@ -321,26 +327,6 @@ class RowStreams:
         if self._extra:
             out.append((EXTRA, {**head, "values": {c: _clean(g(c)) for c in self._extra}}))
         return out
-
-
-def model_tip_message(
-    d: Mapping[str, Any], cycle: int, S: int, tip_from_psi: TipFromPsi
-) -> dict[str, Any] | None:
-    """``/tip/model`` of one row: ``tip_from_psi`` (commanded (θ, φ) per segment, shape (S, 2),
-    rad -> tip in the base frame, shape (3,), mm) and the distance to the tracked tip (mm).
-    None when the command is incomplete or the model fails."""
-    try:
-        psi = np.array([[float(d[theta_cmd(i)]), float(d[phi_cmd(i)])] for i in range(1, S + 1)])
-        if not np.isfinite(psi).all():
-            return None
-        tip = np.asarray(tip_from_psi(psi), dtype=float).reshape(3)
-    except Exception:  # a pose the model cannot place: no model tip this cycle
-        return None
-    tracked = np.array([_clean(d.get(c)) for c in TIP_COLUMNS], dtype=float)  # None -> NaN
-    err = float(np.linalg.norm(tracked - tip)) if np.isfinite(tracked).all() else None
-    x, y, z = (float(v) for v in tip)
-    return {"t_s": _clean(d.get(TIME)), "cycle": cycle, "x_mm": x, "y_mm": y, "z_mm": z,
-            "error_mm": err}  # fmt: skip
 
 
 def encode(msg: Mapping[str, Any]) -> bytes:

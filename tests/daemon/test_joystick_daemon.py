@@ -31,7 +31,7 @@ from cdcr_ctl.daemon.joystick import JOYSTICK_LOST, check_session_config
 from cdcr_ctl.daemon.service import Daemon, RigIO
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.runlog import load_run
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 from cdcr_ctl.sensors.joystick import DEFAULT_RANGE
 from cdcr_ctl.sim.joystick import JoystickFrame, NetworkJoystickServer, ScriptedJoystick
 

@@ -14,7 +14,8 @@ from cdcr_ctl.config.loader import load_rig_config
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, load_run, sample_columns
 from cdcr_ctl.runlog.mcap_sink import RUN_MCAP, McapSinkFactory
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.model_tip import ModelTip
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
 ROOT = Path(__file__).resolve().parents[2]
 COLS = sample_columns(1, 3, ("cycle", "lateness_us", "event"))
@@ -32,7 +33,7 @@ def test_the_writer_writes_both_files_from_the_same_rows(tmp_path):
         COLS,
         RunMetadata(name="both", rate_hz=1000.0),
         config_text="name: x\n",
-        second_sink=McapSinkFactory(lambda psi: np.zeros(3), 1000.0),
+        second_sink=McapSinkFactory(ModelTip(lambda psi: np.zeros(3)), 1000.0),
         fsync_every_s=0.05,
     )
     for i in range(400):

@@ -17,6 +17,7 @@ from cdcr_ctl.runlog import load_run, streams
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_reader import read_mcap
 from cdcr_ctl.runlog.mcap_sink import RUN_MCAP, McapSink
+from cdcr_ctl.runlog.model_tip import ModelTip
 
 ROOT = Path(__file__).resolve().parents[2]
 COLS = sample_columns(2, 6, LOOP_EXTRA_COLUMNS)
@@ -47,7 +48,9 @@ def _rows(n: int, seed: int = 0):
 
 def test_rows_round_trip_through_run_mcap_exactly(tmp_path):
     rows = _rows(500)
-    sink = McapSink(tmp_path / RUN_MCAP, COLS, tip_from_psi=lambda p: np.array([1.0, 2.0, 3.0]))
+    sink = McapSink(
+        tmp_path / RUN_MCAP, COLS, model_tip=ModelTip(lambda p: np.array([1.0, 2.0, 3.0]))
+    )
     sink.write_rows(rows[:200])
     sink.flush()
     sink.write_rows(rows[200:])

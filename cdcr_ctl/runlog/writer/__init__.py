@@ -20,10 +20,15 @@ fsyncs every ``fsync_every_s`` (a power cut keeps everything fsynced). A write e
 a file-size limit) stops the writing, cuts a partly written batch back to the last whole row, keeps
 what is on disk and is exposed by :attr:`RunLogWriter.failure` and the ``on_failure`` callback;
 nothing raises into the caller of ``write``.
+
+This package's namespace holds the thread writer and the file names and formats, what the
+run-log writer process (:mod:`~cdcr_ctl.runlog.writer.child`) needs itself; the loop's side of
+the process writer (:mod:`~cdcr_ctl.runlog.writer.factory`'s ``RunLogFactory``,
+:mod:`~cdcr_ctl.runlog.writer.process`: numpy, python-can) is imported from its module, so the
+writer process's start does not pay for it.
 """
 
 from cdcr_ctl.runlog.mcap_sink import RUN_YAML
-from cdcr_ctl.runlog.writer.factory import RunLogFactory
 from cdcr_ctl.runlog.writer.files import (
     CAN_LOG_NAMES,
     CONFIG_YAML,
@@ -78,7 +83,6 @@ __all__ = [
     "FileOpener",
     "LogStats",
     "RunFileFormats",
-    "RunLogFactory",
     "RunLogWriter",
     "RunMetadata",
     "SecondSinkFactory",

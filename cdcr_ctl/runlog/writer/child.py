@@ -12,7 +12,9 @@ maps the shared ring from the inherited descriptor, makes an ordinary
 and CAN frames to that writer, publishes its counters and any write error in the shared header,
 and ends when
 
-- the loop's process asks it to close: drains the ring, closes the run with the given outcome;
+- the loop's process asks it to close: drains the ring, closes the run with the given outcome.
+  The request also wakes it (:class:`Wake`: a byte on its stdin, which it waits on between
+  drains), so a run's close does not wait for the drain period;
 - the loop's process is gone (its parent changed: SIGKILL, a crash): drains what the ring holds
   and closes the run with outcome ``aborted``, so the files end whole.
 """
@@ -23,14 +25,14 @@ import logging
 import math
 import os
 import pickle
+import select
 import struct
 import sys
-import time
 from typing import Any
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS, lateness_cell_us, t_cell
-from cdcr_ctl.runlog.writer.ring import (
+from cdcr_ctl.runlog.writer.ringmap import (
     DONE,
     FAILED,
     ORDER_NAMES,
@@ -41,7 +43,7 @@ from cdcr_ctl.runlog.writer.ring import (
     SLOT_HEAD,
     W_HIGH,
     W_START,
-    SharedRing,
+    RingMap,
     publish_writer_counts,
 )
 from cdcr_ctl.runlog.writer.thread import RunLogWriter
@@ -57,13 +59,14 @@ PARENT_GONE = "the daemon process ended with the run open (the writer process dr
 class RingDrain:
     """Moves rows from the ring to ``writer`` in column order (numbers back to Python values)."""
 
-    def __init__(self, ring: SharedRing, writer: RunLogWriter, columns: list[str]) -> None:
+    def __init__(self, ring: RingMap, writer: RunLogWriter, columns: list[str]) -> None:
         self.ring, self.writer = ring, writer
         num_cols = [c for c in columns if c not in TEXT_COLUMNS]
         text = [c for c in columns if c in TEXT_COLUMNS]
         self.text_pos = columns.index(text[0]) if text else -1
         self.int_pos = [j for j, c in enumerate(num_cols) if c in INT_COLUMNS]
         self.cap = ring.layout.rows
+        self.row_floats = ring.layout.row_floats
         self.n = len(num_cols)
         self.num_cols = num_cols
         self._by_names: list[int] | None = None
@@ -78,17 +81,17 @@ class RingDrain:
 
     def rows(self) -> int:
         """Hand every published row to the writer; the number moved."""
-        hdr = self.ring.hdr
-        tail, head = int(hdr[ROW_TAIL]), int(hdr[ROW_HEAD])
+        hdr = self.ring.hq
+        tail, head = hdr[ROW_TAIL], hdr[ROW_HEAD]
         if not self.drained:
             self.drained = True
             hdr[W_START] = head - tail  # the start's backlog, apart from the steady state
         elif head - tail > hdr[W_HIGH]:
             hdr[W_HIGH] = head - tail
-        nums, write, n = self.ring.nums, self.writer.write, self.n
+        f64, rf, write, n = self.ring.f64, self.row_floats, self.writer.write, self.n
         for seq in range(tail, head):
             slot = seq % self.cap
-            raw: list[Any] = nums[slot].tolist()
+            raw: list[Any] = f64[slot * rf : (slot + 1) * rf].tolist()
             order, n_text = raw[0], int(raw[1])
             if order == ORDER_NAMES:
                 # The loop's time and lateness come unrounded (s): rounded here, by the rule
@@ -118,7 +121,7 @@ class RingDrain:
             tap.queue.extend(frames)
 
     def publish(self) -> None:
-        s, hdr = self.writer.stats, self.ring.hdr
+        s, hdr = self.writer.stats, self.ring.hq
         publish_writer_counts(hdr, s, s.dropped - self.upstream)
         if self.writer.failure is not None and not hdr[FAILED]:
             self.ring.set_failure(self.writer.failure)
@@ -135,15 +138,50 @@ class RingDrain:
         return moved
 
 
+class Wake:
+    """Waits between drains on the stdin pipe from the loop's process (after the settings, it
+    writes one byte there with its close request, see
+    :meth:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter.close`); its end (the loop's
+    process gone) wakes too. Once at its end, a plain sleep."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.open = True
+
+    def wait(self, timeout_s: float) -> None:
+        """Return after ``timeout_s`` or at once when woken."""
+        if not self.open:
+            select.select([], [], [], timeout_s)
+            return
+        ready, _, _ = select.select([self.fd], [], [], timeout_s)
+        if ready:
+            try:
+                self.open = bool(os.read(self.fd, 64))
+            except OSError:
+                self.open = False
+
+
+def _read_exact(fd: int, n: int) -> bytes:
+    """``n`` bytes from ``fd`` (fewer at its end), unbuffered: nothing after them is read
+    ahead (the wake byte that may follow is :class:`Wake`'s)."""
+    out = b""
+    while len(out) < n:
+        chunk = os.read(fd, n - len(out))
+        if not chunk:
+            break
+        out += chunk
+    return out
+
+
 def main(run_nice: int | None = None) -> int:
     """The writer process: wait for the settings, then write the run at ``run_nice`` (the
     spare waited at a lower priority, see :data:`~cdcr_ctl.runlog.writer.spawn.SPARE_NICE`)."""
-    raw = sys.stdin.buffer
-    head = raw.read(8)
+    stdin = sys.stdin.fileno()
+    head = _read_exact(stdin, 8)
     if len(head) < 8:
         return 0  # a spare whose factory went away: nothing to write
     (n,) = struct.unpack("<Q", head)
-    spec = pickle.loads(raw.read(n))
+    spec = pickle.loads(_read_exact(stdin, n))
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     if run_nice is not None:
         try:
@@ -160,7 +198,7 @@ def main(run_nice: int | None = None) -> int:
         fd = spec["fd"]
     else:  # a spare, started before the ring existed
         fd = os.open(f"/proc/{spec['parent_pid']}/fd/{spec['fd']}", os.O_RDWR)
-    ring = SharedRing(spec["layout"], fd)
+    ring = RingMap(spec["layout"], fd)
     parent = spec["parent_pid"]  # not getppid() now: the parent may already be gone
     failures: list[str] = []
     try:
@@ -182,6 +220,7 @@ def main(run_nice: int | None = None) -> int:
             on_failure=failures.append,
             require_empty=False,
             files_made=bool(spec.get("files_made")),
+            yield_gil=False,  # no real-time thread in this process to give the GIL to
         )
     except (RigError, OSError, ValueError) as exc:
         text = str(exc)
@@ -190,9 +229,10 @@ def main(run_nice: int | None = None) -> int:
         ring.set_failure(text)
         log.error("run log not started: %s", text)
         return 1
-    ring.hdr[READY] = 1
+    ring.hq[READY] = 1
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
+    wake = Wake(stdin)
     reason, outcome = PARENT_GONE, "aborted"
     while True:
         request = ring.close_request()
@@ -207,10 +247,10 @@ def main(run_nice: int | None = None) -> int:
         # period (a loop on simulated time waiting for room, or one catching up), so drain
         # again at once rather than let the ring fill while this process sleeps.
         if moved < max(1, drain.cap // 4):
-            time.sleep(period)
-    drain.upstream = int(ring.hdr[ROW_DROPPED])
+            wake.wait(period)
+    drain.upstream = ring.hq[ROW_DROPPED]
     writer._dropped += drain.upstream  # rows the loop's side refused count in run.yaml too
     writer.close(reason, outcome=outcome)
     drain.publish()
-    ring.hdr[DONE] = 1
+    ring.hq[DONE] = 1
     return 0 if writer.failure is None else 2

@@ -17,6 +17,7 @@ import yaml
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
+from cdcr_ctl.runlog.model_tip import ModelTip
 from cdcr_ctl.runlog.writer.files import EFFECTIVE_CONFIG_YAML, RunMetadata, new_run_dir
 from cdcr_ctl.runlog.writer.process import ProcessRunLogWriter
 from cdcr_ctl.runlog.writer.spawn import start_writer_process
@@ -78,7 +79,8 @@ class RunLogFactory:
         self.base_dir = Path(base_dir)
         #: ``run.mcap`` beside ``samples.csv`` (``logging.mcap``); ``tip_from_psi``: the model's
         #: tip of a commanded pose for its ``/tip/model`` channel.
-        self.second_sink = McapSinkFactory(tip_from_psi, rate_hz) if mcap else None
+        tip = ModelTip(tip_from_psi) if tip_from_psi is not None else None
+        self.second_sink = McapSinkFactory(tip, rate_hz) if mcap else None
         self.rig, self.design, self.rate_hz = rig, design, float(rate_hz)
         self.n_segments, self.n_cables = n_segments, n_cables
         self.config_text, self.config_source = config_text, config_source

@@ -1,14 +1,11 @@
 """The run-log writer in a process of its own: the loop's process only copies numbers.
 
 :class:`ProcessRunLogWriter` has the interface of
-:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``write``, ``failure``, ``stats``,
-``can_tap``, ``close`` ...). Its :meth:`~ProcessRunLogWriter.write` stores the row's numbers
-into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`) and returns; a writer
-process (``python -m cdcr_ctl.runlog.writer.child``, SCHED_BATCH, never real-time)
-drains the ring and runs an ordinary ``RunLogWriter`` there: the CSV and MCAP encoding, the
-flushes and fsyncs every ``fsync_every_s``, the vanish checks, the ``run.yaml`` reserve and end
-all happen as before, but under the writer process's interpreter lock, which the loop never
-waits for.
+:class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter`. Its :meth:`~ProcessRunLogWriter.write`
+stores the row's numbers into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`)
+and returns; a writer process (:mod:`cdcr_ctl.runlog.writer.child`, SCHED_BATCH) drains the ring
+and runs an ordinary ``RunLogWriter`` there (CSV and MCAP encoding, flushes, fsyncs, vanish
+checks, ``run.yaml``) under its own interpreter lock, which the loop never waits for.
 
 - A write error in the writer process is published in the shared header; :attr:`failure` reads
   it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
@@ -29,6 +26,7 @@ waits for.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import logging
 import os
 import pickle
@@ -63,7 +61,7 @@ from cdcr_ctl.runlog.writer.ring import (
     writer_counts,
 )
 from cdcr_ctl.runlog.writer.slots import SlotFiller
-from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process
+from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process, wait_exit
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
     DEFAULT_QUEUE_ROWS,
@@ -79,8 +77,6 @@ log = logging.getLogger("cdcr_ctl.runlog.writer")
 DEFAULT_CAN_FRAMES = 50_000
 #: Rows between two checks that the writer process still runs (a ``waitpid`` each).
 ALIVE_EVERY_ROWS = 256
-#: Columns written back as integers by the writer process.
-INT_COLUMNS = frozenset({"cycle"})
 #: What a full ring does to a row (see :meth:`ProcessRunLogWriter._room`): ``trip`` refuses it
 #: and records :attr:`~ProcessRunLogWriter.overflow` (real time: the loop must never wait), or
 #: ``wait`` blocks the loop until the writer process has made room (simulated time: no row
@@ -242,8 +238,10 @@ class ProcessRunLogWriter(WriterBase):
             self._ring.close()
             raise RigError(f"{self.run_dir}: cannot start the run-log writer: {exc}") from exc
         try:
+            # The pipe stays open: the close request writes a byte to it to wake the writer
+            # process at once (:meth:`_request_close`).
             proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
-            proc.stdin.close()
+            proc.stdin.flush()
         except OSError as exc:
             proc.kill()
             proc.wait()
@@ -451,15 +449,25 @@ class ProcessRunLogWriter(WriterBase):
             self.wait_closed(CLOSE_TIMEOUT_S)
 
     def _request_close(self, reason: str, outcome: str, end_utc: str) -> None:
+        """The close request into the ring, then a byte on the writer process's stdin, which
+        wakes it now (:class:`~cdcr_ctl.runlog.writer.child.Wake`), not at its next drain."""
         ring = self._ring
         if ring is not None:
             ring.request_close(reason, outcome, end_utc)
+        self._end_stdin(b"\x01")
+
+    def _end_stdin(self, data: bytes = b"") -> None:
+        """Write ``data`` to the writer process's stdin and close it (once; never raises)."""
+        stdin = self._proc.stdin
+        with contextlib.suppress(OSError, ValueError):  # the process gone, or closed already
+            if stdin is not None and not stdin.closed:
+                stdin.write(data)
+                stdin.close()  # flushes first, closes even when that fails
 
     def wait_closed(self, timeout_s: float | None = None) -> bool:
-        """Wait until the writer process has finished after :meth:`close`; False on timeout."""
-        try:
-            self._proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
+        """Wait until the writer process has finished after :meth:`close`; False on timeout.
+        Returns as the process ends (:func:`~cdcr_ctl.runlog.writer.spawn.wait_exit`)."""
+        if not wait_exit(self._proc, timeout_s):
             return False
         self._release()
         return True
@@ -469,6 +477,7 @@ class ProcessRunLogWriter(WriterBase):
         if ring is None:
             return
         self._check_alive_final()
+        self._end_stdin()
         self._final = [int(v) for v in ring.hdr]
         self._limit = -1
         self._ring = None
@@ -488,4 +497,3 @@ class ProcessRunLogWriter(WriterBase):
 
 # A closed writer answers ``failure`` without its ring.
 ProcessRunLogWriter._final = [0] * 64  # type: ignore[attr-defined]
-_ = CLOSE  # re-exported name kept in use for readers of the header layout

@@ -3,11 +3,14 @@
 :func:`start_writer_process` starts ``python -c _BOOT``: off real time (``WRITER_POLICY``) and at
 ``WRITER_NICE`` before its imports, then :func:`cdcr_ctl.runlog.writer.child.main`, which waits
 for its settings on stdin (so the factory can keep a spare with its imports done).
-:class:`RingCanTap` puts CAN frames into the ring's records for ``run.mcap``'s ``/can``.
+:func:`wait_exit` waits for its end. :class:`RingCanTap` puts CAN frames into the ring's records
+for ``run.mcap``'s ``/can``.
 """
 
 from __future__ import annotations
 
+import os
+import select
 import subprocess
 import sys
 import threading
@@ -41,6 +44,9 @@ WRITER_POLICY = "SCHED_BATCH"
 SPARE_NICE = 10
 #: The writer process's first statements: off real time and at SPARE_NICE before its imports,
 #: then :func:`cdcr_ctl.runlog.writer.child.main` (which sets ``run_nice`` once it has a run).
+#: Once ``main`` returns, the run's files are closed and fsynced and the ring says so: the
+#: process ends at once (``os._exit``), without the interpreter's teardown, which would only
+#: delay the loop's process waiting for its end (``wait_closed``).
 _BOOT = (
     "import os, signal, sys\n"
     "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
@@ -51,7 +57,9 @@ _BOOT = (
     "try:\n    os.nice({spare_nice})\n"
     "except OSError:\n    pass\n"
     "from cdcr_ctl.runlog.writer.child import main\n"
-    "sys.exit(main(run_nice=base + {nice}))\n"
+    "code = main(run_nice=base + {nice})\n"
+    "sys.stderr.flush()\n"
+    "os._exit(code)\n"
 )
 
 
@@ -66,6 +74,30 @@ def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
     return subprocess.Popen(
         cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, pass_fds=fds, close_fds=True
     )
+
+
+def wait_exit(proc: subprocess.Popen, timeout_s: float | None) -> bool:
+    """Wait until ``proc`` has ended (and reap it); False after ``timeout_s``. Waits on a pidfd
+    (Linux 5.3+), which wakes as the process ends: ``Popen.wait`` with a timeout polls, up to
+    50 ms apart."""
+    if proc.poll() is not None:
+        return True
+    try:
+        fd = os.pidfd_open(proc.pid)
+    except (AttributeError, OSError):  # no pidfd, or reaped meanwhile: Popen's own wait
+        fd = None
+    if fd is not None:
+        try:
+            ready, _, _ = select.select([fd], [], [], timeout_s)
+        finally:
+            os.close(fd)
+        if not ready:
+            return False
+    try:
+        proc.wait(None if fd is not None else timeout_s)
+    except subprocess.TimeoutExpired:
+        return False
+    return True
 
 
 class RingCanTap(can.Listener):

@@ -102,7 +102,8 @@ class RunLogWriter(RunFileFormats, WriterBase):
     ``require_empty`` False skips that check (the writer process: its parent checked, and the
     CAN log may already be open beside it). ``files_made``: the config copies, ``run.yaml`` and
     ``samples.csv`` with its header were made by :meth:`make_start_files` (the writer process's
-    parent); this writer appends to ``samples.csv``.
+    parent); this writer appends to ``samples.csv``. ``yield_gil`` False: the writer thread never
+    gives up the GIL mid-batch (the writer process: no real-time thread there to wait for it).
     ``config_text`` is copied to ``config.yaml``; ``extra_files`` maps further file names in the
     run directory to their text. ``opener`` opens ``samples.csv`` for binary writing (tests inject
     failing files). ``on_failure(text)`` is called once, from the writer thread, on a write error.
@@ -129,6 +130,7 @@ class RunLogWriter(RunFileFormats, WriterBase):
         require_empty: bool = True,
         on_full: str = "trip",
         files_made: bool = False,
+        yield_gil: bool = True,
     ) -> None:
         cols = check_settings(columns, fsync_every_s, max_queued_rows, drain_interval_s, on_full)
         self.on_full = on_full
@@ -140,6 +142,8 @@ class RunLogWriter(RunFileFormats, WriterBase):
         self._drain_s = float(drain_interval_s)
         self._on_failure = on_failure
         self._colset = frozenset(self.columns)
+        if not yield_gil:
+            self._yield_every = 0
 
         # Counters: ``_queued``/``_dropped`` only by the writing thread, the rest by the writer
         # thread, so none needs a lock.
@@ -175,6 +179,8 @@ class RunLogWriter(RunFileFormats, WriterBase):
                 files = {CONFIG_YAML: config_text} if config_text is not None else {}
                 files.update(extra_files or {})
                 self._second = second_sink(self.run_dir, self.columns, files)
+                if not yield_gil and hasattr(self._second, "yield_every"):
+                    self._second.yield_every = 0
         except OSError as exc:
             if self._file is not None:
                 with contextlib.suppress(Exception):
@@ -373,7 +379,9 @@ class RunLogWriter(RunFileFormats, WriterBase):
                 # come on time: a SIGKILL loses no more than that (issue #23, acceptance 2).
                 due = now - last_sync + self._drain_s >= self.fsync_every_s
                 if self._failure is None and (stopping or due):
-                    self._sync()
+                    # Stopping: the end (_finish) fsyncs each file once, after its last bytes;
+                    # fsyncs here too would only add ~4 ms each to the close's wait.
+                    self._sync(fsync=not stopping)
                     last_sync = now
                 if stopping:
                     break
@@ -414,15 +422,23 @@ class RunLogWriter(RunFileFormats, WriterBase):
         os.fsync(fd)
         self._fsyncs += 1
 
-    def _sync(self) -> None:
+    def _sync(self, fsync: bool = True) -> None:
+        """Close the second sink's chunk, fsync both files (``fsync``), check that they have
+        not vanished."""
         try:
             if self._second is not None:
                 self._second.flush()
-                os.fsync(self._second.fileno())
-            self._fsync()
+                if fsync:
+                    os.fsync(self._second.fileno())
+            if fsync:
+                self._fsync()
         except (OSError, ValueError) as exc:
             self._fail(exc, "fsync")
             return
+        self._check_vanished()
+
+    def _check_vanished(self) -> None:
+        """The run directory and ``samples.csv`` still there (else the log fails)."""
         try:
             self._check_present()
         except OSError as exc:

@@ -22,7 +22,7 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.runlog.writer import RunLogFactory
+from cdcr_ctl.runlog.writer.factory import RunLogFactory
 from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.rig import LockstepRig
 from cdcr_ctl.sim.simconfig import LoadedSim
