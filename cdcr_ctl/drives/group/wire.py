@@ -28,6 +28,9 @@ from cdcr_ctl.errors import CommError, DriveFault
 log = logging.getLogger("cdcr_ctl.drives.group")
 
 
+_FAULT = State.FAULT  # (a module global: read faster than the enum's attribute)
+
+
 class _Network(canopen.Network):
     """canopen's Network with every transmission routed through the group (ring, log, lock) and
     every reception through the group's dispatcher ``rx`` (in place of canopen's
@@ -226,7 +229,7 @@ class _Wire:
         d.tpdo_sync = self.sync_count
         d.tpdo_count += 1
         d.last_tpdo_s = now
-        if state is State.FAULT and self._started:
+        if state is _FAULT and self._started:
             d.fault_tpdos += 1
             if d.fault_tpdos >= FAULT_TPDOS and d.last_emcy is None:
                 self._latch(

@@ -58,6 +58,29 @@ _LIVE = (
     epos.ERROR_REGISTER,
 )
 
+# Module globals (read faster than the enums' attributes) for the statusword.
+_OPERATION_ENABLED = State.OPERATION_ENABLED
+_QUICK_STOP_ACTIVE = State.QUICK_STOP_ACTIVE
+_CSP, _PP, _IP, _HOMING = (
+    Mode.CYCLIC_SYNC_POSITION,
+    Mode.PROFILE_POSITION,
+    Mode.INTERPOLATED_POSITION,
+    Mode.HOMING,
+)
+#: Statusword bits of OPERATION ENABLED with remote and voltage enabled.
+_ENABLED_BITS = STATE_BITS[_OPERATION_ENABLED] | SW_REMOTE | SW_VOLTAGE_ENABLED
+#: ... and in cyclic synchronous position (following the command).
+_CSP_ENABLED_BITS = _ENABLED_BITS | SW_FOLLOWING_COMMAND
+#: States that report "voltage enabled".
+_VOLTAGE_STATES = (
+    State.READY_TO_SWITCH_ON,
+    State.SWITCHED_ON,
+    _OPERATION_ENABLED,
+    _QUICK_STOP_ACTIVE,
+)
+#: Modes that report a following error in the statusword.
+_FOLLOWING_MODES = (_CSP, _PP, Mode.POSITION_MODE, _IP)
+
 #: The objects :attr:`_derived`'s values are computed from (interpolation period:
 #: :attr:`_Objects.interpolation_period_s`; software position limits: ``_limits``): a write to
 #: one of them empties it. A new derived value must add its objects here.
@@ -80,10 +103,11 @@ class _Objects:
                 self._params[key] = value
         return value
 
-    @property
-    def position_counts(self) -> int:
-        """Actual position the drive reports (0x6064), counts."""
+    def _position_counts(self) -> int:
         return round(self.motor.x + self.offset)
+
+    #: Actual position the drive reports (0x6064), counts.
+    position_counts = property(_position_counts)
 
     @property
     def velocity_counts_s(self) -> float:
@@ -98,53 +122,65 @@ class _Objects:
         """Position demand value (0x6062): the reference the position loop follows, counts."""
         return self.profile.x + self.offset
 
-    @property
-    def statusword(self) -> int:
+    def _statusword(self) -> int:
         with self._lock:
-            s = self.state
-            sw = STATE_BITS.get(s, 0) | SW_REMOTE
-            if s in (
-                State.READY_TO_SWITCH_ON,
-                State.SWITCHED_ON,
-                State.OPERATION_ENABLED,
-                State.QUICK_STOP_ACTIVE,
-            ):
-                sw |= SW_VOLTAGE_ENABLED
+            s = self._state
             mode = self.mode
-            if mode == Mode.HOMING:
-                if self._homing_phase == "done":
-                    sw |= SW_HOMING_ATTAINED | SW_TARGET_REACHED
-                elif self._homing_phase == "error":
-                    sw |= SW_HOMING_ERROR
-            elif self._at_target():
-                sw |= SW_TARGET_REACHED
-            if mode == Mode.PROFILE_POSITION and self._setpoint_ack:
-                sw |= SW_SETPOINT_ACK
-            if mode == Mode.INTERPOLATED_POSITION and self.pvt.active:
-                sw |= SW_IP_ACTIVE
-            if mode == Mode.CYCLIC_SYNC_POSITION and s is State.OPERATION_ENABLED:
-                sw |= SW_FOLLOWING_COMMAND
-            if (
-                mode
-                in (
-                    Mode.CYCLIC_SYNC_POSITION,
-                    Mode.PROFILE_POSITION,
-                    Mode.POSITION_MODE,
-                    Mode.INTERPOLATED_POSITION,
-                )
-                and self.following_error
-            ):
-                sw |= SW_FOLLOWING_ERROR
+            if s is _OPERATION_ENABLED and mode == _CSP:
+                # The steady CSP case (what _state_bits gives it, without the call): _at_target()
+                # with the demand as the goal, no homing, profile-position or interpolation bits.
+                motor, prof = self.motor, self.profile
+                sw = _CSP_ENABLED_BITS
+                if (
+                    abs(prof.x - motor.x) <= self._value(0x6067)
+                    and abs(motor.v) < AT_REST_COUNTS_S
+                    and prof.v == 0.0
+                ):
+                    sw |= SW_TARGET_REACHED
+                if self.following_error:
+                    sw |= SW_FOLLOWING_ERROR
+            else:
+                sw = self._state_bits(s, mode)
             if self.internal_limit:
                 sw |= SW_INTERNAL_LIMIT
             if self._homed and self.kind == "epos4":
                 sw |= SW_POSITION_REFERENCED
             return sw
 
+    def _state_bits(self, s: State, mode: int) -> int:
+        """The statusword bits of state ``s`` in ``mode`` (all but internal limit and position
+        referenced; lock held)."""
+        if s is _OPERATION_ENABLED:
+            sw = _ENABLED_BITS
+            if mode == _CSP:
+                sw |= SW_FOLLOWING_COMMAND
+        else:
+            sw = STATE_BITS.get(s, 0) | SW_REMOTE
+            if s in _VOLTAGE_STATES:
+                sw |= SW_VOLTAGE_ENABLED
+        if mode == _HOMING:
+            if self._homing_phase == "done":
+                sw |= SW_HOMING_ATTAINED | SW_TARGET_REACHED
+            elif self._homing_phase == "error":
+                sw |= SW_HOMING_ERROR
+        elif self._at_target():
+            sw |= SW_TARGET_REACHED
+        if mode == _PP and self._setpoint_ack:
+            sw |= SW_SETPOINT_ACK
+        if mode == _IP and self.pvt.active:
+            sw |= SW_IP_ACTIVE
+        if self.following_error and mode in _FOLLOWING_MODES:
+            sw |= SW_FOLLOWING_ERROR
+        return sw
+
+    #: The statusword (0x6041) the drive reports now.
+    statusword = property(_statusword)
+
     def _at_target(self) -> bool:
-        if self.state is not State.OPERATION_ENABLED and self.state is not State.QUICK_STOP_ACTIVE:
+        s = self._state
+        if s is not _OPERATION_ENABLED and s is not _QUICK_STOP_ACTIVE:
             return False
-        goal = self._pp_target if self.mode == Mode.PROFILE_POSITION else None
+        goal = self._pp_target if self.mode == _PP else None
         if goal is None:
             goal = self.profile.x
         window = self._value(0x6067)

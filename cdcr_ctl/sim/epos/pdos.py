@@ -14,18 +14,28 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
-from canopen.objectdictionary import INTEGER_TYPES, NUMBER_TYPES
+from canopen.nmt import NmtSlave
+from canopen.objectdictionary import INTEGER32, INTEGER_TYPES, NUMBER_TYPES
 from canopen.sdo.exceptions import SdoAbortedError
 
 from cdcr_ctl.drives import epos
 from cdcr_ctl.drives.cia402 import Mode, State
 from cdcr_ctl.drives.emcy import PDO_LENGTH_ERROR
-from cdcr_ctl.sim.epos.objects import _LIVE
+from cdcr_ctl.sim.epos.objects import _LIVE, _Objects
 
 #: Objects whose write by RPDO counts as the SYNC's set-point.
 _SETPOINTS = frozenset(
     (epos.TARGET_POSITION, epos.EPOS2_POSITION_MODE_SETPOINT, epos.EPOS2_IP_DATA_RECORD)
 )
+
+#: The CSP target's store key, its mapping entry and its encoding (INTEGER32).
+_TARGET_KEY = (epos.TARGET_POSITION, 0)
+_TARGET_ENTRIES = [(epos.TARGET_POSITION, 0, 4)]
+_I32 = struct.Struct("<i")
+# Module globals: read faster than the enums' attributes.
+_OPERATION_ENABLED = State.OPERATION_ENABLED
+#: Modes whose set-point comes every SYNC (a SYNC without one counts as missed).
+_SYNC_SETPOINT_MODES = (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE)
 
 #: One logger for the whole simulated node (the name it had before the node was split up).
 log = logging.getLogger("cdcr_ctl.sim.epos.node")
@@ -51,6 +61,9 @@ class _Pdo:
     objects: list[Any] | None = None
     #: Bytes the mapping covers (the sum of the entries' sizes).
     size: int = 0
+    #: RPDO of the target position alone: what :meth:`_PdoService._write_target` needs (see
+    #: :meth:`_PdoService._target_plan`); None: not looked at yet; False: not such an RPDO.
+    target_plan: tuple | bool | None = None
 
     def __post_init__(self) -> None:
         self.size = sum(n for _, _, n in self.entries)
@@ -92,8 +105,8 @@ class _PdoService:
         return not self.silent and not self._rebooting and self.node.nmt.state == "OPERATIONAL"
 
     def _on_rpdo(self, can_id: int, data: bytearray, ts: float) -> None:
-        if not self._operational():
-            return
+        if self.silent or self._rebooting or self.node.nmt.state != "OPERATIONAL":
+            return  # not _operational() (without the call)
         if self._pdo_dirty:
             self._rebuild_pdos()
         pdo = self._rpdos.get(can_id)
@@ -110,6 +123,11 @@ class _PdoService:
             self._send_changed_tpdos()
 
     def _apply_rpdo(self, pdo: _Pdo, data: bytes) -> None:
+        plan = pdo.target_plan
+        if plan is None:
+            plan = pdo.target_plan = self._target_plan(pdo)
+        if plan is not False and self.fast_paths and self._write_target(plan, data):
+            return
         objects = pdo.objects
         if objects is None:
             objects = pdo.objects = [self._find_or_none(i, s) for i, s, _ in pdo.entries]
@@ -128,6 +146,59 @@ class _PdoService:
                 log.warning(
                     "node %d: RPDO write 0x%04X refused (0x%08X)", self.node_id, index, exc.code
                 )
+
+    def _target_plan(self, pdo: _Pdo) -> tuple | bool:
+        """For an RPDO mapping the target position alone (the CSP set-point RPDO) in a node
+        whose write callbacks are canopen's NMT slave's (it acts on 0x1017 only) and
+        :meth:`_Objects._on_write`, and whose limits table has the target as a writable
+        INTEGER32: ``(callbacks, table, limit, low, high)`` for :meth:`_write_target`; else
+        False."""
+        if pdo.entries != _TARGET_ENTRIES:
+            return False
+        obj = self._find_or_none(*_TARGET_KEY)
+        if obj is None or obj.data_type != INTEGER32 or len(obj) != 32:
+            return False
+        callbacks = tuple(self.node._write_callbacks)
+        expected = ((NmtSlave.on_write, self.node.nmt), (_Objects._on_write, self))
+        if len(callbacks) != len(expected):
+            return False
+        for cb, (func, owner) in zip(callbacks, expected, strict=True):
+            if (
+                getattr(cb, "__func__", None) is not func
+                or getattr(cb, "__self__", None) is not owner
+            ):
+                return False
+        table = self.limits
+        limit = table.get(*_TARGET_KEY)
+        if limit is None or not limit.writable or limit.dtype != INTEGER32:
+            return False
+        return callbacks, table, limit, limit.low, limit.high
+
+    def _write_target(self, plan: tuple, data: bytes) -> bool:
+        """The target-position RPDO ``data`` written as :meth:`_set_data` and
+        :meth:`_Objects._on_write` write it when the limits table accepts it (the set-point
+        flag, :meth:`_target`, the cached parameter, the stored bytes, in that order), without
+        the generic checks per frame. False (nothing done) when the node or its table changed
+        since :meth:`_target_plan` or the value is out of range: the general path then."""
+        (nmt_cb, own_cb), table, limit, low, high = plan
+        callbacks = self.node._write_callbacks
+        if (
+            self.limits is not table
+            or len(callbacks) != 2
+            or callbacks[0] is not nmt_cb
+            or callbacks[1] is not own_cb
+            or table.get(*_TARGET_KEY) is not limit
+        ):
+            return False
+        chunk = data[:4]
+        (value,) = _I32.unpack(chunk)
+        if (low is not None and value < low) or (high is not None and value > high):
+            return False  # refused: the general path logs it
+        self._setpoint_since_sync = True
+        self._target(value)
+        self._params[_TARGET_KEY] = value
+        self.node.data_store.setdefault(epos.TARGET_POSITION, {})[0] = chunk
+        return True
 
     def _find_or_none(self, index: int, sub: int) -> Any:
         """The dictionary object ``index:sub``, or None when there is none (then canopen's
@@ -153,9 +224,14 @@ class _PdoService:
         if packer is None:
             packer = pdo.packer = self._packer(pdo)
         if packer is not False:
-            st, getters, ranges = packer  # type: ignore[misc]
-            values = [get() for get in getters]
-            for v, (lo, hi) in zip(values, ranges, strict=True):
+            st, getters, bounded = packer  # type: ignore[misc]
+            if len(getters) == 2:  # the feedback TPDOs (without a list comprehension's frame)
+                get0, get1 = getters
+                values = [get0(), get1()]
+            else:
+                values = [get() for get in getters]
+            for k, lo, hi in bounded:
+                v = values[k]
                 if (lo is not None and v < lo) or (hi is not None and v > hi):
                     break  # canopen warns about it: let it (and refuse what does not fit)
             else:
@@ -172,9 +248,11 @@ class _PdoService:
         """A TPDO mapping only whole live integer objects (statusword, actual position, ...)
         built with one ``struct`` from the values :meth:`_on_read` gives: the bytes canopen's
         ``encode_raw`` makes of each (little-endian, the object's own type), joined. False
-        when any entry is not such an object (the per-entry :meth:`_readers` then)."""
-        formats, getters, ranges = [], [], []
-        for index, sub, n in pdo.entries:
+        when any entry is not such an object (the per-entry :meth:`_readers` then). Returned:
+        the struct, per entry its value's getter, and ``(entry, min, max)`` of the entries
+        whose object has a range."""
+        formats, getters, bounded = [], [], []
+        for k, (index, sub, n) in enumerate(pdo.entries):
             if index not in _LIVE:
                 return False
             obj = self._find_or_none(index, sub)
@@ -190,12 +268,13 @@ class _PdoService:
 
             # The two objects of every feedback TPDO read straight (what _on_read gives them).
             direct = {
-                epos.STATUSWORD: lambda: self.statusword,
-                epos.POSITION_ACTUAL: lambda: self.position_counts,
+                epos.STATUSWORD: self._statusword,
+                epos.POSITION_ACTUAL: self._position_counts,
             }
             getters.append(direct.get(index, get))
-            ranges.append((obj.min, obj.max))
-        return struct.Struct("<" + "".join(formats)), getters, ranges
+            if obj.min is not None or obj.max is not None:
+                bounded.append((k, obj.min, obj.max))
+        return struct.Struct("<" + "".join(formats)), getters, bounded
 
     def _readers(self, pdo: _Pdo) -> list[Callable[[], bytes]]:
         """Per TPDO entry, what ``node.get_data(index, sub)[:n]`` gives: for the live objects
@@ -237,23 +316,30 @@ class _PdoService:
             self.sync_times_s.append(now)
             if self._pdo_dirty:
                 self._rebuild_pdos()
-            operational = self._operational()
+            # _operational() without the call
+            operational = (
+                not self.silent and not self._rebooting and self.node.nmt.state == "OPERATIONAL"
+            )
             lag = self.lag_cycles
+            samples = self._samples
             if operational and lag > 0:
                 # The position (and statusword) latched at this SYNC, before its set-point acts.
-                self._samples.append(self._sync_tpdos())
-                if len(self._samples) >= lag:
-                    out = self._samples.popleft()
+                if lag == 1 and not samples:
+                    out = self._sync_tpdos()  # appended and taken out again at once
+                else:
+                    samples.append(self._sync_tpdos())
+                    if len(samples) >= lag:
+                        out = samples.popleft()
             elif not operational:
-                self._samples.clear()
+                samples.clear()
             if operational:
                 for pdo in self._rpdos.values():
                     if pdo.pending is not None:
                         pending, pdo.pending = pdo.pending, None
                         self._apply_rpdo(pdo, pending)
             if (
-                self.state is State.OPERATION_ENABLED
-                and self.mode in (Mode.CYCLIC_SYNC_POSITION, Mode.POSITION_MODE)
+                self._state is _OPERATION_ENABLED
+                and self.mode in _SYNC_SETPOINT_MODES
                 and not self._setpoint_since_sync
                 and self.sync_count > 1
             ):
@@ -265,8 +351,10 @@ class _PdoService:
                 out = self._sync_tpdos()
         for cob, payload in out:
             self._send(cob, payload)
-        self._send_changed_tpdos()
-        self.check_master_heartbeat(now)
+        if self._event_tpdos:  # (_send_changed_tpdos has nothing to do without one)
+            self._send_changed_tpdos()
+        if self._master_hb_s is not None:  # (nor check_master_heartbeat before a heartbeat)
+            self.check_master_heartbeat(now)
 
     def _sync_tpdos(self) -> list[tuple[int, bytes]]:
         """The synchronous TPDOs due at this SYNC, with their data as of now (lock held)."""

@@ -23,6 +23,10 @@ from cdcr_ctl.sim.epos.od import ACCEPTED_MODES, ERROR_HISTORY
 log = logging.getLogger("cdcr_ctl.sim.epos.node")
 
 
+# Module globals: read faster than the enums' attributes.
+_OPERATION_ENABLED = State.OPERATION_ENABLED
+_CSP = Mode.CYCLIC_SYNC_POSITION
+
 #: Quick stop option code of a drive without 0x605A (the EPOS2: stop on the ramp, power off).
 QUICK_STOP_OPTION_ABSENT = 2
 
@@ -129,10 +133,10 @@ class _StateMachine:
 
     def _target(self, target: int) -> None:
         with self._lock:
-            if self.mode != Mode.CYCLIC_SYNC_POSITION or self.state is not State.OPERATION_ENABLED:
+            if self.mode != _CSP or self._state is not _OPERATION_ENABLED:
                 return  # profile position reads 0x607A at the set-point edge
-            if self._controlword_halted():
-                return
+            if self.controlword & CW_HALT_BIT:
+                return  # halted (_controlword_halted without the call)
             self._record_target(target)
             lo, hi = self._limits()
             if not lo <= target <= hi:

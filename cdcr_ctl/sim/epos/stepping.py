@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from cdcr_ctl.drives import epos
-from cdcr_ctl.drives.cia402 import Mode, State
+from cdcr_ctl.drives.cia402 import CW_HALT_BIT, Mode, State
 from cdcr_ctl.drives.emcy import (
     FOLLOWING_ERROR,
     HEARTBEAT_ERROR,
@@ -25,6 +25,47 @@ from cdcr_ctl.sim.epos.objects import AT_REST_COUNTS_S
 #: Homing with a current threshold: the current must stay above it this long (s).
 HOMING_CURRENT_DWELL_S = 0.002
 
+# Module globals: read faster than the enums' attributes.
+_OPERATION_ENABLED = State.OPERATION_ENABLED
+_CSP = Mode.CYCLIC_SYNC_POSITION
+
+#: :func:`csp_times` results kept (few: one per segment start, sub-step and period in use).
+_CSP_TIMES: dict[tuple[float, float, float, int], tuple[tuple[int, float], ...]] = {}
+_CSP_TIMES_KEPT = 64
+
+
+def csp_times(t0: float, h: float, period: float, n: int) -> tuple[tuple[int, float], ...]:
+    """(sub-step number 1..n, segment time s after it) for ``n`` CSP sub-steps of ``h`` s from
+    segment time ``t0`` s: :meth:`_Stepping._substep`'s ``min(t + h, period)`` repeated, the
+    same additions in the same order (so the same floats), made once per (t0, h, period, n)."""
+    key = (t0, h, period, n)
+    out = _CSP_TIMES.get(key)
+    if out is None:
+        steps, t = [], t0
+        for j in range(1, n + 1):
+            t += h
+            if period < t:
+                t = period
+            steps.append((j, t))
+        out = tuple(steps)
+        if len(_CSP_TIMES) >= _CSP_TIMES_KEPT:
+            _CSP_TIMES.clear()
+        _CSP_TIMES[key] = out
+    return out
+
+
+def safe_box(lo1: int, hi1: int, offset: float, sw_lo: float, sw_hi: float) -> tuple[float, float]:
+    """Raw positions (counts) ``(xmin, xmax)`` strictly inside which a sub-step meets the CSP
+    fast paths' position checks ``lo1 <= x + offset <= hi1`` and ``sw_lo < x < sw_hi`` for
+    certain: 1 count of margin against the rounding of ``lo1 - offset`` and ``hi1 - offset``
+    (below 2**-12 counts while ``|offset|`` < 2**40; rounding to nearest is monotonic and the
+    integer bounds are floats exactly, so ``x + offset`` rounds inside them too). Empty
+    (``(inf, -inf)``) when the offset is not that small: every sub-step then takes the exact
+    comparisons."""
+    if not abs(offset) < 2.0**40:
+        return math.inf, -math.inf
+    return max(lo1 - offset + 1.0, sw_lo), min(hi1 - offset - 1.0, sw_hi)
+
 
 class _Stepping:
     """Time stepping and supervision of :class:`~cdcr_ctl.sim.epos.node.SimEpos`."""
@@ -37,7 +78,8 @@ class _Stepping:
             n = max(1, math.ceil(dt_s / p.substep_s - 1e-9))
             h = dt_s / n
             self._step_period_s = self.interpolation_period_s  # objects change between steps
-            done = self._csp_substeps(h, n) if self.mode == Mode.CYCLIC_SYNC_POSITION else 0
+            fast = self.mode == _CSP and self.fast_paths
+            done = self._csp_substeps(h, n) if fast else 0
             for _ in range(n - done):
                 self._substep(h)
 
@@ -49,8 +91,8 @@ class _Stepping:
         :meth:`_supervise`; a sub-step outside that case goes through :meth:`_supervise`, and
         the first sub-step whose state or mode changed ends the fast path. Returns the sub-steps
         done (the caller does the rest with :meth:`_substep`)."""
-        if self.state is not State.OPERATION_ENABLED or self._controlword_halted():
-            return 0
+        if self._state is not _OPERATION_ENABLED or self.controlword & CW_HALT_BIT:
+            return 0  # (the second: _controlword_halted without the call)
         motor = self.motor
         if self.load_fn is None and motor.p.hard_stops_counts is None:
             return self._csp_substeps_inline(h, n)
@@ -84,67 +126,76 @@ class _Stepping:
         """:meth:`_csp_substeps` with a constant load torque and no hard stops (the lock-step
         rig's case): :meth:`~cdcr_ctl.sim.epos.plant.Motor.substep` (powered) written out with
         the axis state, the parameters and the reference in local variables: the same
-        operations in the same order, so the same floats; performance only. The state goes back
-        to the objects before a sub-step that needs :meth:`_supervise` and at the end."""
+        operations in the same order, so the same floats; performance only. The reference's
+        times within the segment come from :func:`csp_times` (the same additions, made once);
+        a sub-step is checked first against :func:`safe_box` (sufficient for the limits) and
+        only outside it with :meth:`_supervise`'s exact comparisons. The state goes back to the
+        objects before a sub-step that needs :meth:`_supervise` and at the end."""
         motor, prof = self.motor, self.profile
         p = motor.p
         k, kp, kd, ki = motor.k, motor._kp, motor._kd, motor._ki
         J, kt, ilim = p.inertia_kgm2, p.torque_constant_Nm_A, p.current_limit_A
+        nilim = -ilim
         Jk = J * k  # Motor.substep's ``p.inertia_kgm2 * self.k * a_cmd`` groups left first
         visc = p.viscous_Nm_s_rad
         tau_gear = self.load_torque_Nm / p.gear_ratio
         copysign = math.copysign
         period, window, unbounded, lo1, hi1, offset, sw_lo, sw_hi = self._csp_bounds()
+        xmin, xmax = safe_box(lo1, hi1, offset, sw_lo, sw_hi)
+        wlim = math.inf if unbounded else float(window)
         x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
         px, pv, pa = prof.x, prof.v, prof.a
-        csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
+        c_from, c_to = self._csp_from, self._csp_to
         max_err = self.max_following_error_counts
-        clear = False  # a sub-step within every limit since the last write-back
+        # |px - x| <= m implies: within the window and no new maximum (m = min(max_err, wlim);
+        # NaN compares False and takes the exact path).
+        m = max_err if max_err <= wlim else wlim
+        nm = -m
         # The segment's velocity: the same float every sub-step (from, to and period change
         # only in _supervise, after which it is computed again).
         vel = (c_to - c_from) / period
-        done = 0
-        while done < n:
-            # Motor.substep (powered)
-            e, ev = px - x, pv - v
-            a_cmd = pa + kp * e + kd * ev + ki * integral
-            i = Jk * a_cmd / kt
-            if i >= ilim or i <= -ilim:  # abs(i) >= ilim without the call
+        supervised = 0  # the last sub-step that went through _supervise (0: none)
+        done, t = 0, self._csp_t
+        d = px - x  # Motor.substep's e = x_ref - x (from here on the last sub-step's d)
+        for done, t in csp_times(self._csp_t, h, period, n):
+            # Motor.substep (powered): a_cmd = pa + kp e + kd ev + ki integral, i = J k a_cmd / kt
+            i = Jk * (pa + kp * d + kd * (pv - v) + ki * integral) / kt
+            if i >= ilim or i <= nilim:  # abs(i) >= ilim without the call
                 i = copysign(ilim, i)
             else:
-                integral += e * h
-            omega = k * v
-            torque = kt * i + tau_gear
-            torque -= visc * omega
-            v += torque / J / k * h
+                integral += d * h
+            # torque = kt i + tau / N - b k v; v += torque / J / k * h (the same groupings)
+            v += (kt * i + tau_gear - visc * (k * v)) / J / k * h
             x += v * h
-            # the CSP reference moves on to t + h (min(csp_t + h, period), without the call)
-            csp_t += h
-            if period < csp_t:
-                csp_t = period
+            # the CSP reference moves on to t + h
             pa = 0.0
-            px, pv = c_from + vel * csp_t, (vel if csp_t < period else 0.0)
-            done += 1
-            err = px - x
-            if err < 0.0:
-                err = -err  # abs(px - x) without the call
+            px = c_from + vel * t
+            pv = vel if t < period else 0.0
+            d = px - x
+            if d <= m and d >= nm and x < xmax and x > xmin:
+                continue  # within every limit, max_err unchanged (sufficient: safe_box, m)
+            err = -d if d < 0.0 else d  # abs(px - x) (NaN stays NaN)
             actual = x + offset
             if (unbounded or err <= window) and lo1 <= actual <= hi1 and sw_lo < x < sw_hi:
                 if err > max_err:
                     max_err = err
-                clear = True
+                    m = max_err if max_err <= wlim else wlim
+                    nm = -m
                 continue
-            self._write_back(x, v, integral, i, px, pv, pa, csp_t, max_err, clear)
-            clear = False
+            self._write_back(x, v, integral, i, px, pv, pa, t, max_err, done - 1 > supervised)
+            supervised = done
             self._supervise(h)
             x, v, integral, i = motor.x, motor.v, motor._integral, motor.i
             px, pv, pa = prof.x, prof.v, prof.a
-            csp_t, c_from, c_to = self._csp_t, self._csp_from, self._csp_to
+            c_from, c_to = self._csp_from, self._csp_to
             vel = (c_to - c_from) / period
             max_err = self.max_following_error_counts
-            if self.state is not State.OPERATION_ENABLED:
+            m = max_err if max_err <= wlim else wlim
+            nm = -m
+            d = px - x
+            if self._state is not _OPERATION_ENABLED:
                 return done
-        self._write_back(x, v, integral, i, px, pv, pa, csp_t, max_err, clear)
+        self._write_back(x, v, integral, i, px, pv, pa, t, max_err, done > supervised)
         return done
 
     def _csp_bounds(self) -> tuple[float, float, bool, float, float, float, float, float]:

@@ -59,6 +59,18 @@ class NodeNetwork(canopen.Network):
         super().__init__(NodeBus(link))
         self._link = link
 
+    def notify(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """canopen's :meth:`~canopen.Network.notify` (every subscriber of ``can_id`` in order,
+        then the node scanner), the scanner called only for a frame it could act on (a node's
+        own service, node id not 0): the scanner does nothing with the others (SYNC, RPDOs)."""
+        callbacks = self.subscribers.get(can_id)
+        if callbacks is not None:
+            for callback in callbacks:
+                callback(can_id, data, timestamp)
+        scanner = self.scanner
+        if can_id & 0x7F and (can_id & 0x780) in scanner.SERVICES:
+            scanner.on_message_received(can_id)
+
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         link = self._link
         if not remote and link.hook is not None and can_id in link.hooked:
