@@ -13,10 +13,16 @@ import json
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
 from cdcr_ctl.sim.lockstep.placement import Placement
+
+#: Commands that wait for the lock-step loop to settle before they act (see ``settle`` below).
+SETTLE_BEFORE = ("trajectory", "joystick", "jog", "compensation")
+#: Longest wall time such a command waits for it (s); then it acts all the same.
+SETTLE_TIMEOUT_S = 30.0
 
 
 def serve_lockstep(
@@ -52,6 +58,14 @@ def serve_lockstep(
     assert rig.drives is not None
     io = RigIO(rig.drives, rig.tensions, rig.tip, close=rig.close, attitude=rig.attitude)
     attach_attitude(model, io)
+
+    def settle(req: Any) -> None:
+        # A command that starts motion waits until the loop has settled (taken up what came
+        # before, nothing left to do), unless a run is going on: it then starts at the same
+        # simulated time however the host scheduled the loop thread (SimClock.wait_settled).
+        if req.cmd in SETTLE_BEFORE and d.loop.current_run is None:
+            rig.clock.wait_settled(SETTLE_TIMEOUT_S)
+
     d = Daemon(
         cfg,
         path,
@@ -61,6 +75,7 @@ def serve_lockstep(
         trajectory,
         joystick_opener=rig.open_joystick,
         clock=rig.clock,
+        before_command=settle,
     )
     rig.clock.busy = lambda: d.loop.busy
     try:

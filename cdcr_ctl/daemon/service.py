@@ -63,6 +63,7 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         clock: LoopClock | None = None,
         intake: Intake | None = None,
         planner: Planner | None = None,
+        before_command: Callable[[Request], None] | None = None,
     ) -> None:
         """``joystick_opener(JoystickConfig)`` opens the rig's joystick for a ``joystick``
         session (default :func:`cdcr_ctl.sensors.joystick.open_joystick`). ``clock``: the
@@ -70,8 +71,12 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         ``intake``: where trajectory files are prepared (default a worker of this daemon's; the
         rig process passes its front process's, whose prepared files it maps). ``planner``:
         plans lead-ins and jog moves in a worker process (:mod:`.planner`); None plans them in
-        this process (the one-process daemon, lock-step)."""
+        this process (the one-process daemon, lock-step). ``before_command(req)``: called
+        before each command that takes the command lock (the lock-step simulator waits there
+        for its loop to settle, so that a command's simulated time does not depend on the
+        host's scheduling)."""
         self.cfg = cfg
+        self._before_command = before_command
         self.config_path = config_path
         self.io = io
         self.model = model
@@ -217,6 +222,8 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         if req.cmd in UNLOCKED_COMMANDS:
             return method(req.args)
         with self._cmd_lock:
+            if self._before_command is not None:
+                self._before_command(req)
             return method(req.args)
 
     def _on_trip(self, trip: Trip) -> None:

@@ -16,12 +16,16 @@ not pacing simulated time.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 
 from cdcr_ctl.control.timing import LatenessStats
 
 #: While the loop is idle, look for new work this often (s, wall clock).
 IDLE_POLL_S = 0.002
+
+#: :meth:`SimClock.wait_settled` looks again at least this often (s, wall clock).
+SETTLE_POLL_S = 0.01
 
 Advance = Callable[[float, float], None]
 
@@ -81,6 +85,29 @@ class SimClock:
         self.stats.add(0.0)
         return self._t, 0.0
 
+    def wait_settled(self, timeout_s: float) -> bool:
+        """(Not on the loop thread.) Wait, on the wall clock, until the loop has taken up every
+        posted command and has no work left (it waits for work: :attr:`idle` set and ``busy()``
+        false); False after ``timeout_s`` (s) without that.
+
+        Why: the loop takes up every command posted before a cycle in that cycle. Two commands
+        posted one after the other (``home``, then a run) land in one cycle or in two,
+        depending on when the loop thread got the CPU, and the run would start one period
+        earlier or later in simulated time. Posting the next command only once the loop has
+        settled makes the cycle each command lands in a function of the commands alone."""
+        busy = self.busy
+        end = time.monotonic() + timeout_s
+        while not self._closed:
+            if self.idle.is_set() and (busy is None or not busy()):
+                return True
+            left = end - time.monotonic()
+            if left <= 0:
+                return False
+            self.idle.wait(min(left, SETTLE_POLL_S))
+            if self.idle.is_set():
+                time.sleep(SETTLE_POLL_S / 10)  # idle but busy: a command not yet taken up
+        return False
+
     def done(self) -> None:
         """Nothing to schedule: the next cycle is due as soon as there is work."""
 
@@ -98,4 +125,4 @@ class SimClock:
         self._wake.set()
 
 
-__all__ = ["IDLE_POLL_S", "SimClock"]
+__all__ = ["IDLE_POLL_S", "SETTLE_POLL_S", "SimClock"]

@@ -33,6 +33,8 @@ STUCK_WALL_PER_SIM_S = 20.0
 #: at the run at least this often (s, wall clock; each look takes the interpreter lock from the
 #: loop thread).
 RUN_POLL_S = 0.05
+#: Longest wall time the loop may take to settle between two commands (s).
+SETTLE_TIMEOUT_S = 60.0
 #: The loop went idle before it took the run up: look again after this (s, wall clock).
 TAKE_UP_WAIT_S = 0.001
 
@@ -105,6 +107,7 @@ class LockstepSession:
             finally:
                 s.loop.pause(False)
             s.loop.set_home(home)
+            s.settle()
         except BaseException:
             s.close()
             raise
@@ -115,6 +118,7 @@ class LockstepSession:
     ) -> RunInfo:
         """Follow ``traj`` (after a lead-in from the commanded pose) and wait until the loop
         ends it; the run's record (``log_dir`` is its run directory when ``log``)."""
+        self.settle()  # the run starts from a settled loop: the same cycle on every run
         lead = tj.with_lead_in(self.loop.psi_cmd, traj)
         comp = compensation or self.loop.cfg.compensation
         sink = self.sinks(name, comp) if log else None
@@ -131,6 +135,13 @@ class LockstepSession:
         if sink is not None:
             sink.wait_closed(60.0)
         return run
+
+    def settle(self) -> None:
+        """Wait until the loop has taken up every posted command and has no work left
+        (:meth:`SimClock.wait_settled`: what the next command does then starts at a simulated
+        time set by the commands alone, not by when the loop thread got the CPU)."""
+        if not self.rig.clock.wait_settled(SETTLE_TIMEOUT_S):
+            raise RigError(f"lock-step loop did not settle within {SETTLE_TIMEOUT_S} s")
 
     def close(self) -> None:
         self.rig.clock.close()
