@@ -281,32 +281,7 @@ class ForceTransfer(TensionChain):
             # own disks (mass m at arc fraction sig): first moment m (sig^2 l c2 X, sig^2 l c2 Y,
             # sig l s1) and weight moment m sig^2 l (c2 g + sig^2 d2 x (x.g) + sig d1 x g_z),
             # ratios at sig theta, summed over the disks as four scalars (A, B, C, D) first
-            A = B = C = D = 0.0
-            for sig, ms2, ms3, ms4, ms in self._disk_w[i]:
-                st = sig * t
-                # _ratios(st) but its e2, written out (it runs for every disk of every pose)
-                if abs(st) < SERIES_BELOW:
-                    t2 = st * st
-                    t4 = t2 * t2
-                    t6 = t4 * t2
-                    ss1 = 1.0 - t2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t4 * t4 / 362880.0
-                    cc2 = 0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t4 * t4 / 3628800.0
-                    dd1 = -1.0 / 3.0 + t2 / 30.0 - t4 / 840.0 + t6 / 45360.0
-                    dd2 = -1.0 / 12.0 + t2 / 180.0 - t4 / 6720.0 + t6 / 453600.0
-                else:
-                    sn = math.sin(st)
-                    h = math.sin(0.5 * st)
-                    omc = 2.0 * h * h
-                    it = 1.0 / st
-                    it2 = it * it
-                    ss1 = sn * it
-                    cc2 = omc * it2
-                    dd1 = (st * math.cos(st) - sn) * it2 * it
-                    dd2 = (st * sn - 2.0 * omc) * it2 * it2
-                A += ms2 * cc2
-                B += ms4 * dd2
-                C += ms3 * dd1
-                D += ms * ss1
+            A, B, C, D = _disk_sums(self._disk_w[i], t)
             om = self._disk_mass[i]
             xg = X * gx + Y * gy
             Qx = L * (A * gx + (B * xg + C * gz) * X)
@@ -342,3 +317,36 @@ class ForceTransfer(TensionChain):
             Ez = oz + Md * p[2] + Dz
             Md += om
         return out
+
+
+def _disk_sums(disks: list[tuple[float, ...]], t: float) -> tuple[float, float, float, float]:
+    """(A, B, C, D) = sums over a segment's disks of m sig^2 c2, m sig^4 d2, m sig^3 d1 and
+    m sig s1, the ratios at sig t (rad), t the segment's bend; ``disks`` the pose-free factors
+    (sig, m sig^2, m sig^3, m sig^4, m sig) of :attr:`ForceTransfer._disk_w`. :func:`_ratios`
+    but its e2 written out (it runs for every disk of every pose; the same floats, tested)."""
+    A = B = C = D = 0.0
+    for sig, ms2, ms3, ms4, ms in disks:
+        st = sig * t
+        if abs(st) < SERIES_BELOW:
+            t2 = st * st
+            t4 = t2 * t2
+            t6 = t4 * t2
+            ss1 = 1.0 - t2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t4 * t4 / 362880.0
+            cc2 = 0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t4 * t4 / 3628800.0
+            dd1 = -1.0 / 3.0 + t2 / 30.0 - t4 / 840.0 + t6 / 45360.0
+            dd2 = -1.0 / 12.0 + t2 / 180.0 - t4 / 6720.0 + t6 / 453600.0
+        else:
+            sn = math.sin(st)
+            h = math.sin(0.5 * st)
+            omc = 2.0 * h * h
+            it = 1.0 / st
+            it2 = it * it
+            ss1 = sn * it
+            cc2 = omc * it2
+            dd1 = (st * math.cos(st) - sn) * it2 * it
+            dd2 = (st * sn - 2.0 * omc) * it2 * it2
+        A += ms2 * cc2
+        B += ms4 * dd2
+        C += ms3 * dd1
+        D += ms * ss1
+    return A, B, C, D
