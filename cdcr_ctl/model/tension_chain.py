@@ -216,28 +216,21 @@ class TensionChain:
     ) -> tuple[float, float, float, float]:
         """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state.
 
-        :meth:`outside` and :meth:`inside` written out (the same floats, tested): this runs per
-        cable in every evaluation of the chain and in the forward solver's differences.
+        :meth:`inside` written out (the same floats, tested): this runs per cable in every
+        evaluation of the chain and in the forward solver's differences.
         """
         tb = T_k * math.exp(Eb_k)
-        T0 = self._T0[k]
-        run = self._run[k]
-        T = tb
-        acc = (T - T0) * run
-        for tr in self._pul_rev[k]:
-            T, st = tr.to_actuator_stretch(T, s_k, T0)
-            acc += st
-            acc += (T - T0) * run
+        ta, do = self.outside(k, tb, s_k)
         iEA = self._iEA[k]
         if iEA == 0.0:
-            wk = P.q_geom[k] + 0.0
-        else:
-            a_in = 0.0
-            ls = self._l
-            for i, f in enumerate(Fb_k):
-                a_in += ls[i] * (T_k * f - T0)
-            wk = P.q_geom[k] + a_in * iEA
-        return tb, T, wk, wk + acc * iEA
+            return tb, ta, P.q_geom[k] + 0.0, P.q_geom[k] + 0.0 + do
+        T0 = self._T0[k]
+        a_in = 0.0
+        ls = self._l
+        for i, f in enumerate(Fb_k):
+            a_in += ls[i] * (T_k * f - T0)
+        wk = P.q_geom[k] + a_in * iEA
+        return tb, ta, wk, wk + do
 
     def _along(self, P: Pose, Fb, Eb, T, s) -> Transfer:
         K = self.K

@@ -101,31 +101,19 @@ def test_chord_factors_equal_s1_and_d1(thickness):
 
 
 @pytest.mark.parametrize("n", [0.67, 0.5])
-def test_table_inverse_equals_the_per_piece_formula(n):
+def test_table_inverse_pieces_equal_the_per_piece_formula(n):
+    # lower_high's solve on piece j: y = (ln T_high - frac (a_j - m_j y_j)) / (1 + frac m_j),
+    # m_j = (a_{j+1} - a_j) / dx, y_j = x0 + j dx, formed at load time: the same floats
     tr = cap.PulleyTransfer(8.0, 1.5708, 0.3, n, 0.4)
-    tab, x0, dx, last = tr._lnk_tab, tr._x0, tr._dx, tr._n_pts - 1
-
-    def ln_low(lnH: float, frac: float) -> float:
-        y = lnH - frac * tr._interp(tab, lnH)[0]
-        piece = -2
-        for _ in range(last + 2):
-            u = (y - x0) / dx
-            j = -1 if u <= 0.0 else (last if u >= last else int(u))
-            if j == piece:
-                break
-            piece = j
-            if j < 0:
-                y = lnH - frac * tab[0]
-            elif j == last:
-                y = lnH - frac * tab[-1]
-            else:
-                m = (tab[j + 1] - tab[j]) / dx
-                y = (lnH - frac * (tab[j] - m * (x0 + j * dx))) / (1.0 + frac * m)
-        return y
-
-    for T_high in np.geomspace(1e-5, 1e5, 613):
-        for frac in (0.0, 0.2, 0.7, 1.0):
-            assert tr.lower_high(float(T_high), frac) == math.exp(ln_low(math.log(T_high), frac))
+    tab, x0, dx = tr._lnk_tab, tr._x0, tr._dx
+    assert len(tr._pieces) == len(tab) - 1
+    for j, (m, c) in enumerate(tr._pieces):
+        m_j = (tab[j + 1] - tab[j]) / dx
+        assert (m, c) == (m_j, tab[j] - m_j * (x0 + j * dx))
+    for T_high in np.geomspace(1e-5, 1e5, 157):
+        for frac in (0.0, 0.7, 1.0):
+            y = math.log(tr.lower_high(float(T_high), frac))
+            assert y + frac * tr.ln_kappa(math.exp(y)) == pytest.approx(math.log(T_high), abs=1e-12)
 
 
 @pytest.mark.parametrize("n", [1.0, 0.67, None])
