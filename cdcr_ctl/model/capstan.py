@@ -210,6 +210,11 @@ class PulleyTransfer:
             self._n_pts = points
             self._lnk_tab = list(lnk)
             self._mean_tab = list(mean)
+            #: per table piece j (slope m_j, intercept a_j - m_j y_j) of ln kappa over ln T
+            self._pieces = []
+            for j in range(points - 1):
+                m = (lnk[j + 1] - lnk[j]) / self._dx
+                self._pieces.append((m, lnk[j] - m * (self._x0 + j * self._dx)))
 
     # ------------------------------------------------------------------ table look-up
     def _interp(self, tab: list[float], lnT: float) -> tuple[float, float]:
@@ -259,10 +264,23 @@ class PulleyTransfer:
             return T_high_N * math.exp(-frac * self._lnk)
         if T_high_N <= 0.0:
             return T_high_N * math.exp(-frac * self._lnk_tab[0])
+        return math.exp(self._ln_low(math.log(T_high_N), frac))
+
+    def _ln_low(self, lnH: float, frac: float) -> float:
+        """ln of :meth:`lower_high` on the table, from ln T_high (see there)."""
         tab, x0, dx, last = self._lnk_tab, self._x0, self._dx, self._n_pts - 1
-        lnH = math.log(T_high_N)
-        y = lnH - frac * self._interp(tab, lnH)[0]
+        u = (lnH - x0) / dx
+        if u <= 0.0:
+            v = tab[0]
+        elif u >= last:
+            v = tab[-1]
+        else:  # _interp(tab, lnH)[0]
+            j = int(u)
+            a = tab[j]
+            v = a + (u - j) * (tab[j + 1] - a)
+        y = lnH - frac * v
         piece = -2
+        pieces = self._pieces
         for _ in range(last + 2):
             u = (y - x0) / dx
             j = -1 if u <= 0.0 else (last if u >= last else int(u))
@@ -274,9 +292,9 @@ class PulleyTransfer:
             elif j == last:
                 y = lnH - frac * tab[-1]
             else:
-                m = (tab[j + 1] - tab[j]) / dx
-                y = (lnH - frac * (tab[j] - m * (x0 + j * dx))) / (1.0 + frac * m)
-        return math.exp(y)
+                m, c = pieces[j]
+                y = (lnH - frac * c) / (1.0 + frac * m)
+        return y
 
     def to_actuator(self, T_robot_N: float, s: float) -> float:
         """Tension on the actuator side of the pulley from the robot side (N)."""
@@ -306,11 +324,45 @@ class PulleyTransfer:
 
     def to_actuator_stretch(self, T_robot_N: float, s: float, T0_N: float) -> tuple[float, float]:
         """(:meth:`to_actuator`, :meth:`stretch_integral` over this pulley) from the robot-side
-        tension: the same floats as the two calls, with the table looked up once where the low
-        side is the robot side (pulled in, s >= 0: the common case)."""
+        tension: the same floats as the two calls (tested), with the table looked up once where
+        the low side is the robot side (pulled in, s >= 0: the common case) and the table
+        pulley's look-ups written out (this runs six times per evaluation of the chain)."""
         T = T_robot_N
         if self.frictionless:
             return self.to_actuator(T, s), self.stretch_integral(self.to_actuator(T, s), T, s, T0_N)
+        if self.constant or T <= 0.0:
+            return self._stretch_slow(T, s, T0_N)
+        if s >= 0.0:
+            low = T
+        else:
+            Tn = math.exp(self._ln_low(math.log(T), -s))  # lower_high(T, -s)
+            low = Tn if Tn <= T else T
+        # _lnk_mean(low), low > 0
+        x0, dx, last = self._x0, self._dx, self._n_pts - 1
+        u = (math.log(low) - x0) / dx
+        if u <= 0.0:
+            lnk, mean = self._lnk_tab[0], self._mean_tab[0]
+        elif u >= last:
+            lnk, mean = self._lnk_tab[-1], self._mean_tab[-1]
+        else:
+            j = int(u)
+            f = u - j
+            a = self._lnk_tab[j]
+            c = self._mean_tab[j]
+            lnk = a + f * (self._lnk_tab[j + 1] - a)
+            mean = c + f * (self._mean_tab[j + 1] - c)
+        if s >= 0.0:
+            Tn = T * math.exp(s * lnk)  # raise_low(T, s)
+            if Tn < T:  # (only with a negative ln kappa) the actuator side is the low one
+                lnk, mean = self._lnk_mean(Tn)
+                low = Tn
+        f = abs(s)
+        if f < 1.0 and lnk > 0.0:
+            mean = 1.0 + (mean - 1.0) * math.expm1(f * lnk) / math.expm1(lnk)
+        return Tn, (low * mean - T0_N) * self.wrapped_mm
+
+    def _stretch_slow(self, T: float, s: float, T0_N: float) -> tuple[float, float]:
+        """:meth:`to_actuator_stretch` of a constant-ratio pulley or a tension <= 0."""
         if s >= 0.0:
             lnk, mean = self._lnk_mean(T)
             Tn = T * math.exp(s * lnk)  # raise_low(T, s)

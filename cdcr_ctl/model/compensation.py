@@ -47,7 +47,8 @@ MODES = ("off", "model", "measured")
 def psi_to_flat_x(psi: np.ndarray | Sequence[Sequence[float]]) -> list[float]:
     """(S, 2) rows (theta, phi) -> flat bending vectors [x_1, y_1, ...] (plain floats)."""
     out: list[float] = []
-    for row in psi:
+    # an array's rows as Python floats at once (float() of each element is the same value)
+    for row in psi.tolist() if isinstance(psi, np.ndarray) else psi:
         th, ph = float(row[0]), float(row[1])
         out.append(th * math.cos(ph))
         out.append(th * math.sin(ph))
@@ -230,10 +231,11 @@ class Compensator:
         res = tr.evaluate(xs, state.s, pose=P)
         changed = False
         band = self.reversal_band_mm
-        new_s = list(state.s)
-        for k in range(self.n_cables):
-            dw = res.w[k] - state.w_mm[k]
-            sk = state.s[k]
+        s_old, w_old, w_new = state.s, state.w_mm, res.w
+        new_s = list(s_old)
+        for k in range(tr.K):
+            dw = w_new[k] - w_old[k]
+            sk = s_old[k]
             ns = band_update(sk, dw, band) if band > 0.0 else direction_update(sk, dw, 1e-12)
             if ns != sk:
                 new_s[k] = ns

@@ -214,23 +214,38 @@ class TensionChain:
     def cable(
         self, P: Pose, k: int, T_k: float, s_k: float, Fb_k: list[float], Eb_k: float
     ) -> tuple[float, float, float, float]:
-        """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state."""
+        """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state.
+
+        :meth:`inside` written out (the same floats, tested): this runs per cable in every
+        evaluation of the chain and in the forward solver's differences.
+        """
         tb = T_k * math.exp(Eb_k)
         ta, do = self.outside(k, tb, s_k)
-        wk = P.q_geom[k] + self.inside(k, T_k, Fb_k)
+        iEA = self._iEA[k]
+        if iEA == 0.0:
+            return tb, ta, P.q_geom[k] + 0.0, P.q_geom[k] + 0.0 + do
+        T0 = self._T0[k]
+        a_in = 0.0
+        ls = self._l
+        for i, f in enumerate(Fb_k):
+            a_in += ls[i] * (T_k * f - T0)
+        wk = P.q_geom[k] + a_in * iEA
         return tb, ta, wk, wk + do
 
     def _along(self, P: Pose, Fb, Eb, T, s) -> Transfer:
-        Tb, Ta, din, dout, w, q = [], [], [], [], [], []
-        for k in range(self.K):
-            tb, ta, wk, qk = self.cable(P, k, T[k], s[k], Fb[k], Eb[k])
-            Tb.append(tb)
-            Ta.append(ta)
-            din.append(wk - P.q_geom[k])
-            dout.append(qk - wk)
-            w.append(wk)
-            q.append(qk)
-        return Transfer(list(P.q_geom), list(T), Tb, Ta, din, dout, w, q)
+        K = self.K
+        Tb, Ta, din, dout, w, q = [0.0] * K, [0.0] * K, [0.0] * K, [0.0] * K, [0.0] * K, [0.0] * K
+        qg = P.q_geom
+        cable = self.cable
+        for k in range(K):
+            tb, ta, wk, qk = cable(P, k, T[k], s[k], Fb[k], Eb[k])
+            Tb[k] = tb
+            Ta[k] = ta
+            din[k] = wk - qg[k]
+            dout[k] = qk - wk
+            w[k] = wk
+            q[k] = qk
+        return Transfer(list(qg), list(T), Tb, Ta, din, dout, w, q)
 
     def friction_capacity(self, P: Pose, k: int) -> float:
         """ln(T_high/T_low) of cable k fully sliding at this pose (holes + pulleys at T0)."""
@@ -267,8 +282,13 @@ def _min_sum_pair(
     """Extra tensions y >= 0 of least sum with sum y_j cols_j = b (statics.pretension_tensions)."""
     m = len(cols)
     scale = 1.0
-    for cx, cy in cols:
-        scale = max(scale, abs(cx), abs(cy))
+    for cx, cy in cols:  # max(scale, abs(cx), abs(cy)), written out
+        v = abs(cx)
+        if v > scale:
+            scale = v
+        v = abs(cy)
+        if v > scale:
+            scale = v
     if abs(bx) <= tol * scale and abs(by) <= tol * scale:
         return [0.0] * m
     if m == 1:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 from cdcr_ctl.model.capstan import PulleyTransfer
-from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
+from cdcr_ctl.model.kinematics import SERIES_BELOW
 from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
 from cdcr_ctl.model.routing import tangent_angle
 from cdcr_ctl.model.statics import G_MM_S2_TO_N
@@ -87,6 +87,13 @@ class ForceTransfer(TensionChain):
             for s in segs
         ]
         self._disk_mass = [sum(m for _, m in d) for d in self._disks]
+        #: per disk (sig, m sig^2, m sig^3, m sig^4, m sig): the weights' pose-free factors, each
+        #: the product _moment_demand formed left to right (the same floats)
+        self._disk_w = [
+            [(sig, m * sig * sig, m * sig * sig * sig, m * sig * sig * sig * sig, m * sig)
+             for sig, m in d]
+            for d in self._disks
+        ]  # fmt: skip
         cab = params.cables
         self._a = [c.segment for c in cab]
         self._r = [c.routing_radius_mm for c in cab]
@@ -129,6 +136,12 @@ class ForceTransfer(TensionChain):
         self._cc_arm = [(self._ex[k], self._ey[k]) for k in range(K)]
         #: segments some cable crosses (the chord geometry's per-segment factors)
         self._n_arm_segs = max(self._a) + 1 if K else 0
+        #: per segment (n, l, t, 2 n t, 2 n, 4 n^2, 4 n): the chord factors' pose-free parts
+        self._chord_k = [
+            (s.n_disks, s.length_mm, s.disk_thickness_mm, 2.0 * s.n_disks * s.disk_thickness_mm,
+             2.0 * s.n_disks, 4.0 * s.n_disks * s.n_disks, 4.0 * s.n_disks)
+            for s in segs
+        ]  # fmt: skip
 
     # ------------------------------------------------------------------ geometry and loads
     def pose(self, xs: list[float]) -> Pose:
@@ -198,19 +211,22 @@ class ForceTransfer(TensionChain):
         """
         seg = []
         for i in range(self._n_arm_segs):
-            t, n, L, tk = theta[i], self._n[i], self._l[i], self._tk[i]
-            a = 0.5 * t / n
-            sa = s1(a)
+            n, L, tk, two_n_tk, two_n, four_n2, four_n = self._chord_k[i]
+            a = 0.5 * theta[i] / n
+            sn = math.sin(a)
+            # s1(a) and d1(a) written out (the same floats)
+            if abs(a) < SERIES_BELOW:
+                t2 = a * a
+                sa = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0)))
+                da = -1.0 / 3.0 + t2 / 30.0 - t2 * t2 / 840.0 + t2**3 / 45360.0
+            else:
+                sa = sn / a
+                da = (a * math.cos(a) - sn) / a**3
             h = math.sin(0.5 * a)
             seg.append(
-                (
-                    L * (1.0 - sa) - 2.0 * n * tk * h * h,
-                    2.0 * n * math.sin(a),
-                    d1(a) / (4.0 * n * n),
-                    tk * sa / (4.0 * n),
-                    sa,
-                )
+                (L * (1.0 - sa) - two_n_tk * h * h, two_n * sn, da / four_n2, tk * sa / four_n, sa)
             )
+        ls = self._l
         q_geom, arm = [], []
         for k in range(self.K):
             ex, ey = self._ex[k], self._ey[k]
@@ -220,7 +236,7 @@ class ForceTransfer(TensionChain):
                 X, Y = xs[2 * i], xs[2 * i + 1]
                 base, two_n_sin, fd, ft, sa = seg[i]
                 qk += base + two_n_sin * (ex * ux[i] + ey * uy[i])
-                f = fd * (ex * X + ey * Y - self._l[i]) - ft
+                f = fd * (ex * X + ey * Y - ls[i]) - ft
                 ak.append((f * X + sa * ex, f * Y + sa * ey))
             q_geom.append(qk)
             arm.append(ak)
@@ -234,7 +250,8 @@ class ForceTransfer(TensionChain):
         # pass 1, base -> tip: local rotations, tip positions, gravity (per gram) per base frame
         gx, gy, gz = self._g
         Rs, ps, gs, rat = [], [], [], []
-        for i in range(S):
+        # (one segment: pass 2 uses only its gravity, the rest of pass 1 would be dead)
+        for i in range(S if S > 1 else 0):
             X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
             r = _ratios(t)
             a, b = r[0], r[1]
@@ -252,6 +269,8 @@ class ForceTransfer(TensionChain):
                 R[1] * gx + R[4] * gy + R[7] * gz,
                 R[2] * gx + R[5] * gy + R[8] * gz,
             )
+        if S == 1:
+            gs.append((gx, gy, gz))
         # pass 2, tip -> base: own disks, then everything distal as one mass and first moment
         out: list[tuple[float, float]] = [(0.0, 0.0)] * S
         Ex = Ey = Ez = 0.0  # sum m (x_m - P_i) of the distal disks, in segment i's tip frame
@@ -262,21 +281,14 @@ class ForceTransfer(TensionChain):
             # own disks (mass m at arc fraction sig): first moment m (sig^2 l c2 X, sig^2 l c2 Y,
             # sig l s1) and weight moment m sig^2 l (c2 g + sig^2 d2 x (x.g) + sig d1 x g_z),
             # ratios at sig theta, summed over the disks as four scalars (A, B, C, D) first
-            A = B = C = D = 0.0
-            for sig, m in self._disks[i]:
-                ss1, cc2, dd1, dd2, _ = _ratios(sig * t)
-                ms2 = m * sig * sig
-                A += ms2 * cc2
-                B += ms2 * sig * sig * dd2
-                C += ms2 * sig * dd1
-                D += m * sig * ss1
+            A, B, C, D = _disk_sums(self._disk_w[i], t)
             om = self._disk_mass[i]
             xg = X * gx + Y * gy
-            ox = L * A * X
-            oy = L * A * Y
-            oz = L * D
             Qx = L * (A * gx + (B * xg + C * gz) * X)
             Qy = L * (A * gy + (B * xg + C * gz) * Y)
+            if i == 0 and Md == 0.0:  # one segment: nothing distal, nothing below
+                out[0] = (self._kEI[0] * X - Qx, self._kEI[0] * Y - Qy)
+                break
             R = Rs[i]
             Dx = R[0] * Ex + R[1] * Ey + R[2] * Ez
             Dy = R[3] * Ex + R[4] * Ey + R[5] * Ez
@@ -294,9 +306,47 @@ class ForceTransfer(TensionChain):
                 Qx += ty - Y * k_
                 Qy += -tx + X * k_
             out[i] = (self._kEI[i] * X - Qx, self._kEI[i] * Y - Qy)
+            if i == 0:
+                break  # the distal sums are for the next segment down
             p = ps[i]
+            ox = L * A * X
+            oy = L * A * Y
+            oz = L * D
             Ex = ox + Md * p[0] + Dx
             Ey = oy + Md * p[1] + Dy
             Ez = oz + Md * p[2] + Dz
             Md += om
         return out
+
+
+def _disk_sums(disks: list[tuple[float, ...]], t: float) -> tuple[float, float, float, float]:
+    """(A, B, C, D) = sums over a segment's disks of m sig^2 c2, m sig^4 d2, m sig^3 d1 and
+    m sig s1, the ratios at sig t (rad), t the segment's bend; ``disks`` the pose-free factors
+    (sig, m sig^2, m sig^3, m sig^4, m sig) of :attr:`ForceTransfer._disk_w`. :func:`_ratios`
+    but its e2 written out (it runs for every disk of every pose; the same floats, tested)."""
+    A = B = C = D = 0.0
+    for sig, ms2, ms3, ms4, ms in disks:
+        st = sig * t
+        if abs(st) < SERIES_BELOW:
+            t2 = st * st
+            t4 = t2 * t2
+            t6 = t4 * t2
+            ss1 = 1.0 - t2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t4 * t4 / 362880.0
+            cc2 = 0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t4 * t4 / 3628800.0
+            dd1 = -1.0 / 3.0 + t2 / 30.0 - t4 / 840.0 + t6 / 45360.0
+            dd2 = -1.0 / 12.0 + t2 / 180.0 - t4 / 6720.0 + t6 / 453600.0
+        else:
+            sn = math.sin(st)
+            h = math.sin(0.5 * st)
+            omc = 2.0 * h * h
+            it = 1.0 / st
+            it2 = it * it
+            ss1 = sn * it
+            cc2 = omc * it2
+            dd1 = (st * math.cos(st) - sn) * it2 * it
+            dd2 = (st * sn - 2.0 * omc) * it2 * it2
+        A += ms2 * cc2
+        B += ms4 * dd2
+        C += ms3 * dd1
+        D += ms * ss1
+    return A, B, C, D
