@@ -1,8 +1,8 @@
-"""The ``cdcr-ctl`` command group, its shared options (:class:`Ctx`) and the small commands that
-only talk to a running daemon.
+"""The options every ``cdcr-ctl`` command shares (:class:`Ctx`) and the small commands that only
+talk to a running daemon.
 
-The heavier commands live in their own modules and register on :func:`cli` by importing this
-module; this module imports none of them (:mod:`cdcr_ctl.cli.main` imports them all).
+The command group is :data:`cdcr_ctl.cli.main.cli`; it imports each command's module when the
+command is used (:class:`~cdcr_ctl.cli.lazy.LazyGroup`), and those modules import this one.
 Commands that talk to the daemon find its socket from ``--socket``, else ``$CDCR_CTL_SOCKET``,
 else the ``daemon.socket_path`` of ``--config``, else ``/run/cdcr-ctl/control.sock``.
 """
@@ -67,23 +67,7 @@ def _as_text(result: Any, indent: str = "") -> str:
     return f"{indent}{result}"
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("--socket", envvar="CDCR_CTL_SOCKET", help="Control socket of the daemon.")
-@click.option(
-    "--config",
-    "-c",
-    type=click.Path(dir_okay=False),
-    help="Rig config (YAML); gives the socket path when --socket is not set.",
-)
-@click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
-@click.version_option(package_name="cdcr-ctl")
-@click.pass_context
-def cli(ctx: click.Context, socket: str | None, config: str | None, as_json: bool) -> None:
-    """Controller for cable-driven continuum robot rigs."""
-    ctx.obj = Ctx(socket, config, as_json)
-
-
-@cli.command("check-config")
+@click.command("check-config")
 @click.argument("path", type=click.Path(dir_okay=False))
 @click.pass_obj
 def check_config(obj: Ctx, path: str) -> None:
@@ -105,35 +89,35 @@ def check_config(obj: Ctx, path: str) -> None:
     obj.emit(summary)
 
 
-@cli.command()
+@click.command()
 @click.pass_obj
 def status(obj: Ctx) -> None:
     """Daemon state, drives, sensors, supervisor trips, loop timing."""
     obj.emit(obj.call("status"))
 
 
-@cli.command()
+@click.command()
 @click.pass_obj
 def enable(obj: Ctx) -> None:
     """Enable the drives (CiA 402 OPERATION ENABLED) holding the present position."""
     obj.emit(obj.call("enable"))
 
 
-@cli.command()
+@click.command()
 @click.pass_obj
 def disable(obj: Ctx) -> None:
     """Disable the drives (controlword 0x06 -> READY TO SWITCH ON)."""
     obj.emit(obj.call("disable"))
 
 
-@cli.command()
+@click.command()
 @click.pass_obj
 def home(obj: Ctx) -> None:
     """Home every drive with its configured 0x6098 method."""
     obj.emit(obj.call("home"))
 
 
-@cli.command()
+@click.command()
 @click.option("--segment", type=int, help="Segment number (1 = base).")
 @click.option("--theta", "theta_rad", type=float, help="Bend angle (rad).")
 @click.option("--phi", "phi_rad", type=float, help="Bending-plane direction (rad).")
@@ -155,7 +139,7 @@ def jog(obj: Ctx, **args: Any) -> None:
     obj.emit(obj.call("jog", **args))
 
 
-@cli.command()
+@click.command()
 @click.option("--mode", type=click.Choice(["quick_stop", "halt"]), default="quick_stop")
 @click.pass_obj
 def stop(obj: Ctx, mode: str) -> None:
@@ -163,14 +147,14 @@ def stop(obj: Ctx, mode: str) -> None:
     obj.emit(obj.call("stop", mode=mode))
 
 
-@cli.command("reset-fault")
+@click.command("reset-fault")
 @click.pass_obj
 def reset_fault(obj: Ctx) -> None:
     """Acknowledge a latched supervisor trip and reset drive faults."""
     obj.emit(obj.call("reset_fault", confirm=True))
 
 
-@cli.command()
+@click.command()
 @click.argument("mode", type=click.Choice(["off", "model", "measured"]))
 @click.pass_obj
 def compensation(obj: Ctx, mode: str) -> None:
@@ -178,7 +162,7 @@ def compensation(obj: Ctx, mode: str) -> None:
     obj.emit(obj.call("compensation", mode=mode))
 
 
-@cli.group()
+@click.group()
 def log() -> None:
     """Start or stop a run log (samples.csv + CAN traffic) outside a trajectory."""
 
@@ -196,7 +180,7 @@ def log_stop(obj: Ctx) -> None:
     obj.emit(obj.call("log_stop"))
 
 
-@cli.command()
+@click.command()
 @click.pass_obj
 def shutdown(obj: Ctx) -> None:
     """Ask the daemon to stop cleanly (as SIGTERM does)."""
@@ -228,4 +212,19 @@ def wait_for_run(obj: Ctx, run_id: str, duration_s: float, progress: bool = True
         bar.close()
 
 
-__all__ = ["DEFAULT_SOCKET", "Ctx", "cli", "wait_for_run"]
+__all__ = [
+    "DEFAULT_SOCKET",
+    "Ctx",
+    "check_config",
+    "compensation",
+    "disable",
+    "enable",
+    "home",
+    "jog",
+    "log",
+    "reset_fault",
+    "shutdown",
+    "status",
+    "stop",
+    "wait_for_run",
+]

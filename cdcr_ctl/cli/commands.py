@@ -1,7 +1,8 @@
-"""The heavier ``cdcr-ctl`` commands: daemon, sim, trajectory, plot, demo.
+"""The heavier ``cdcr-ctl`` commands: daemon, sim, trajectory, plot (``demo`` is
+:mod:`cdcr_ctl.cli.demo`).
 
-Imported by :mod:`cdcr_ctl.cli.main`; each command imports what it needs when it runs, so
-``cdcr-ctl status`` stays fast.
+Imported by the command group (:mod:`cdcr_ctl.cli.main`) when one of them runs or ``--help``
+lists them; each command imports what it needs when it runs, so listing them stays fast.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli, wait_for_run
+from cdcr_ctl.cli.app import Ctx, wait_for_run
 
 
 def _setup_logging(verbose: bool) -> None:
@@ -30,7 +31,7 @@ def _setup_logging(verbose: bool) -> None:
     )
 
 
-@cli.command()
+@click.command()
 @click.option("--verbose", "-v", is_flag=True)
 @click.option(
     "--one-process",
@@ -104,7 +105,7 @@ def _one_process_daemon(cfg: Any, path: Path) -> str:
     return d.serve()
 
 
-@cli.command()
+@click.command()
 @click.argument("sim_config", type=click.Path(exists=True, dir_okay=False))
 @click.option(
     "--duration-s",
@@ -190,7 +191,7 @@ def sim(
         click.echo(json.dumps({"stopped": True, "counters": rig.counters.__dict__}), err=True)
 
 
-@cli.command("trajectory")
+@click.command("trajectory")
 @click.argument("file", required=False, type=click.Path(exists=True, dir_okay=False))
 @click.option(
     "--builtin",
@@ -262,7 +263,7 @@ def tip_error_summary(run_dir: str) -> dict[str, Any]:
     return tip_errors(run_dir).summary()
 
 
-@cli.command()
+@click.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False))
 @click.option(
     "--out", type=click.Path(file_okay=False), default=None, help="Default: RUN_DIR/plots"
@@ -277,8 +278,3 @@ def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     run = load_run(run_dir)
     files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))
     obj.emit({"plots": [str(f) for f in files]})
-
-
-from cdcr_ctl.cli.demo import demo  # noqa: E402
-
-cli.add_command(demo)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.errors import RigError
 
 
@@ -28,7 +28,7 @@ def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
     return out
 
 
-@cli.command("discrepancy")
+@click.command("discrepancy")
 @click.argument("run_dirs", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False))
 @click.option(
     "--rig-config",

@@ -22,7 +22,7 @@ from typing import Any
 import click
 import yaml
 
-from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.cli.identify_runs import (
     ATTEMPTS,
     MODES,
@@ -166,7 +166,7 @@ def _controller_config(work: Path, name: str, rig: Path, band_mm: float, overlay
     return path
 
 
-@cli.command("experiments")
+@click.command("experiments")
 @click.option(
     "--sim-config",
     type=click.Path(exists=True, dir_okay=False, path_type=Path),

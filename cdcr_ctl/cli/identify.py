@@ -7,8 +7,8 @@ then fits the model parameters offline from the logged run (:mod:`cdcr_ctl.ident
 residual plots. ``--from-run`` fits logged runs without moving anything.
 
 ``experiments`` (the whole story on the simulated rig in one command) is
-:mod:`cdcr_ctl.cli.experiments`, the helpers both share :mod:`cdcr_ctl.cli.identify_runs`;
-importing this module registers both commands and keeps every helper name importable here.
+:mod:`cdcr_ctl.cli.experiments`, the helpers both share :mod:`cdcr_ctl.cli.identify_runs` (their
+public names are importable here too).
 """
 
 from __future__ import annotations
@@ -17,15 +17,7 @@ from pathlib import Path
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli
-from cdcr_ctl.cli.experiments import (  # importing it registers ``experiments``
-    _controller_config,
-    _experiments,
-    _parallel,
-    _run_modes,
-    _session,
-    experiments_cmd,
-)
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.cli.identify_runs import (
     ATTEMPTS,
     MODES,
@@ -44,13 +36,7 @@ __all__ = [
     "REVERSAL_BAND_MM",
     "ROOT_CONFIG",
     "RUN_SLACK_S",
-    "_controller_config",
-    "_experiments",
-    "_parallel",
-    "_run_modes",
     "_run_recovering",
-    "_session",
-    "experiments_cmd",
     "fit_and_write",
     "identify_cmd",
     "run_sweep",
@@ -58,7 +44,7 @@ __all__ = [
 ]
 
 
-@cli.command("identify")
+@click.command("identify")
 @click.option(
     "--out",
     type=click.Path(file_okay=False, path_type=Path),

@@ -10,14 +10,15 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.identify.estimator import FitOptions
-from cdcr_ctl.runlog.reader import wait_run_closed
+
+if TYPE_CHECKING:
+    from cdcr_ctl.identify.estimator import FitOptions
 
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: Extra time allowed beyond a run's duration before giving up on it (s).
@@ -35,6 +36,8 @@ def run_trajectory(
     sock: str | Path, name: str, rows: list[list[float]], comp: str, log: bool = True
 ) -> dict[str, Any]:
     """Run one trajectory through the daemon, wait for its end; the run's record + log dir."""
+    from cdcr_ctl.runlog.reader import wait_run_closed
+
     with ControlClient(sock) as c:
         res = c.call("trajectory", name=name, samples=rows, compensation=comp, log=log)
         end = time.monotonic() + res["duration_s"] + RUN_SLACK_S

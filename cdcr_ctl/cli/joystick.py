@@ -16,7 +16,7 @@ from typing import Any
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.daemon.client import ControlClient
 
 #: How often the progress is refreshed (s).
@@ -95,7 +95,7 @@ def follow_session(obj: Ctx, run_id: str, show: bool) -> dict[str, Any]:
         client.close()
 
 
-@cli.command("joystick")
+@click.command("joystick")
 @click.option(
     "--seconds",
     type=click.FloatRange(min=0, min_open=True, max=24 * 3600),

@@ -1,8 +1,9 @@
 """``cdcr-ctl``: start the daemon or the simulated rig, and talk to a running daemon.
 
-``main(argv)`` runs a command in-process (tests) and turns errors into exit codes. The command
-group and the small daemon commands are in :mod:`cdcr_ctl.cli.app`; importing the command modules
-here registers the rest on it.
+:data:`cli` is the command group: its options and the table of its commands (:data:`COMMANDS`),
+each imported only when it is used (:class:`~cdcr_ctl.cli.lazy.LazyGroup`), so that a process
+started for one command imports what that command needs (``cdcr-ctl status`` no scipy, no rig).
+``main(argv)`` runs a command in-process (tests) and turns errors into exit codes.
 """
 
 from __future__ import annotations
@@ -12,18 +13,60 @@ from collections.abc import Sequence
 
 import click
 
-from cdcr_ctl.cli import (
-    commands,  # noqa: F401  registers the heavier commands (daemon, sim, trajectory, plot, demo)
-    discrepancy,  # noqa: F401  registers discrepancy
-    identify,  # noqa: F401  registers identify, experiments
-    joystick,  # noqa: F401  registers joystick
-    runlogs,  # noqa: F401  registers export
-    scan,  # noqa: F401  registers scan
-    watch,  # noqa: F401  registers watch
-)
-from cdcr_ctl.cli.app import Ctx, cli, wait_for_run
+from cdcr_ctl.cli.app import Ctx
+from cdcr_ctl.cli.lazy import LazyGroup
 from cdcr_ctl.daemon.client import DaemonError
 from cdcr_ctl.errors import RigError
+
+#: Every command of ``cdcr-ctl``: name -> ``"module.attribute"`` of its :class:`click.Command`.
+COMMANDS: dict[str, str] = {
+    # the small commands that talk to a running daemon
+    "check-config": "cdcr_ctl.cli.app.check_config",
+    "compensation": "cdcr_ctl.cli.app.compensation",
+    "disable": "cdcr_ctl.cli.app.disable",
+    "enable": "cdcr_ctl.cli.app.enable",
+    "home": "cdcr_ctl.cli.app.home",
+    "jog": "cdcr_ctl.cli.app.jog",
+    "log": "cdcr_ctl.cli.app.log",
+    "reset-fault": "cdcr_ctl.cli.app.reset_fault",
+    "shutdown": "cdcr_ctl.cli.app.shutdown",
+    "status": "cdcr_ctl.cli.app.status",
+    "stop": "cdcr_ctl.cli.app.stop",
+    # the daemon, the simulated rig, runs and their logs
+    "daemon": "cdcr_ctl.cli.commands.daemon",
+    "sim": "cdcr_ctl.cli.commands.sim",
+    "trajectory": "cdcr_ctl.cli.commands.trajectory_cmd",
+    "plot": "cdcr_ctl.cli.commands.plot",
+    "demo": "cdcr_ctl.cli.demo.demo",
+    "export": "cdcr_ctl.cli.runlogs.export_cmd",
+    "watch": "cdcr_ctl.cli.watch.watch",
+    "joystick": "cdcr_ctl.cli.joystick.joystick",
+    "scan": "cdcr_ctl.cli.scan.scan",
+    # calibration, the paper's experiments, the discrepancy analysis
+    "identify": "cdcr_ctl.cli.identify.identify_cmd",
+    "experiments": "cdcr_ctl.cli.experiments.experiments_cmd",
+    "discrepancy": "cdcr_ctl.cli.discrepancy.discrepancy",
+}
+
+
+@click.group(
+    cls=LazyGroup,
+    lazy_subcommands=COMMANDS,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+@click.option("--socket", envvar="CDCR_CTL_SOCKET", help="Control socket of the daemon.")
+@click.option(
+    "--config",
+    "-c",
+    type=click.Path(dir_okay=False),
+    help="Rig config (YAML); gives the socket path when --socket is not set.",
+)
+@click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
+@click.version_option(package_name="cdcr-ctl")
+@click.pass_context
+def cli(ctx: click.Context, socket: str | None, config: str | None, as_json: bool) -> None:
+    """Controller for cable-driven continuum robot rigs."""
+    ctx.obj = Ctx(socket, config, as_json)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -57,4 +100,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["Ctx", "cli", "main", "wait_for_run"]
+__all__ = ["COMMANDS", "cli", "main"]

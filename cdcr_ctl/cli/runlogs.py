@@ -1,4 +1,4 @@
-"""``cdcr-ctl export`` (a run as CSV, Parquet and candump) and ``cdcr-ctl watch`` (live status)."""
+"""``cdcr-ctl export``: a run as CSV, Parquet and candump."""
 
 from __future__ import annotations
 
@@ -6,12 +6,10 @@ from pathlib import Path
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli
-from cdcr_ctl.runlog import export as run_export
-from cdcr_ctl.runlog.reader import load_run
+from cdcr_ctl.cli.app import Ctx
 
 
-@cli.command("export")
+@click.command("export")
 @click.argument("run", type=click.Path(exists=True))
 @click.option("--csv", "as_csv", is_flag=True, help="samples.csv + run.yaml + configs in OUT.")
 @click.option("--parquet", "as_parquet", is_flag=True, help="OUT/samples.parquet (zstd).")
@@ -30,6 +28,9 @@ def export_cmd(
     """Export a run (directory or run.mcap) for spreadsheets, batch analysis and CAN replay."""
     if not (as_csv or as_parquet):
         raise click.UsageError("give --csv and/or --parquet")
+    from cdcr_ctl.runlog import export as run_export
+    from cdcr_ctl.runlog.reader import load_run
+
     r = load_run(run)
     out_dir = Path(out) if out else r.run_dir / "export"
     written: dict[str, str] = {}

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import click
 
-from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.errors import ConfigError
 
 
-@cli.command("scan")
+@click.command("scan")
 @click.option(
     "--timeout",
     "timeout_s",

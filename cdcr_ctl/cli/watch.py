@@ -13,20 +13,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
-from rich.console import Console, Group
-from rich.live import Live
-from rich.table import Table
-from rich.text import Text
 
-from cdcr_ctl.cli.app import Ctx, cli
+from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 
-TipModel = Callable[[np.ndarray], np.ndarray]
+if TYPE_CHECKING:
+    import numpy as np
+    from rich.console import Group
+
+#: The model tip (mm) of the loop's commanded configuration ``psi_cmd_rad``.
+TipModel = Callable[["np.ndarray"], "np.ndarray"]
 
 
 def _fmt(v: Any, digits: int = 2) -> str:
@@ -39,6 +39,8 @@ def _fmt(v: Any, digits: int = 2) -> str:
 
 def tip_error_mm(st: dict[str, Any], tip_model: TipModel | None) -> float | None:
     """|tracked - model tip| of the last cycle (mm), or None without tracker, model or command."""
+    import numpy as np
+
     last = (st.get("loop") or {}).get("last") or {}
     tracked = [last.get(f"tip_{a}_mm") for a in "xyz"]
     psi = st.get("loop", {}).get("psi_cmd_rad")
@@ -53,6 +55,10 @@ def tip_error_mm(st: dict[str, Any], tip_model: TipModel | None) -> float | None
 
 def status_page(st: dict[str, Any], tip_err: float | None, polled: str = "") -> Group:
     """The page for one ``status`` reply."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
     run = st.get("run") or {}
     head = Text()
     head.append(f"{st.get('rig', '?')} ({st.get('design', '?')})  ", style="bold")
@@ -125,12 +131,15 @@ def _tip_model(config_path: str | None) -> TipModel | None:
         return None
 
 
-@cli.command()
+@click.command()
 @click.option("--hz", type=click.FloatRange(0.5, 20), default=4.0, show_default=True)
 @click.option("--count", type=click.IntRange(min=1), default=None, help="Stop after N pages.")
 @click.pass_obj
 def watch(obj: Ctx, hz: float, count: int | None) -> None:
     """Live status page: state, drives, trips, tip error, loop lateness (Ctrl-C quits)."""
+    from rich.console import Console
+    from rich.live import Live
+
     console = Console()
     period = 1.0 / hz
     n = 0

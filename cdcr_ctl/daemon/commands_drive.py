@@ -11,12 +11,8 @@ from typing import Any
 from cdcr_ctl.control.supervisor import Reaction
 from cdcr_ctl.daemon import recovery
 from cdcr_ctl.daemon.protocol import ProtocolError
+from cdcr_ctl.daemon.rigshare import stop_reaction
 from cdcr_ctl.errors import RigError
-
-
-def stop_reaction(mode: str) -> Reaction:
-    """The loop's reaction to a ``stop`` of ``mode`` (``quick_stop`` or ``halt``)."""
-    return Reaction.QUICK_STOP if mode == "quick_stop" else Reaction.HALT
 
 
 class DriveCommands:

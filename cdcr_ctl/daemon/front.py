@@ -37,12 +37,11 @@ from typing import Any
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.stopflag import StopFlag
-from cdcr_ctl.daemon.commands_drive import stop_reaction
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
+from cdcr_ctl.daemon.outcome import outcome
 from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed
-from cdcr_ctl.daemon.recovery import STOP_ACK_TIMEOUT_S
-from cdcr_ctl.daemon.rigproc import HEARTBEAT, SHARED_SLOTS, outcome, rig_main
+from cdcr_ctl.daemon.rigshare import HEARTBEAT, SHARED_SLOTS, STOP_ACK_TIMEOUT_S, stop_reaction
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
 from cdcr_ctl.errors import RigError
@@ -150,6 +149,17 @@ class Coalescer:
         return batch.result()
 
 
+def rig_process(*args: Any) -> None:
+    """The rig process's target: :func:`cdcr_ctl.daemon.rigproc.rig_main` (same arguments).
+
+    Imported here, in the spawned child: the front itself imports none of the rig side (the
+    loop, the drives and their CAN stack, the sensors, the run-log writer, the planner), which
+    the child needs and the front does not (:mod:`cdcr_ctl.daemon.rigshare`)."""
+    from cdcr_ctl.daemon.rigproc import rig_main
+
+    rig_main(*args)
+
+
 class FrontDaemon:
     """The front process (see the module docstring): ``start()``, then ``serve()`` until
     stopped; ``serve`` returns (reason, exit status)."""
@@ -174,7 +184,7 @@ class FrontDaemon:
         self.intake = Intake(n_segments, cfg.limits.bend_rad)
         self._conn, child_conn = ctx.Pipe()
         self.proc = ctx.Process(
-            target=rig_main,
+            target=rig_process,
             args=(
                 child_conn,
                 self.shared,

@@ -26,6 +26,7 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.control.ports import DriveState
 from cdcr_ctl.control.supervisor import Reaction, Supervisor
 from cdcr_ctl.daemon.planning import estimate_pose, plan_lead_in
+from cdcr_ctl.daemon.rigshare import STOP_ACK_TIMEOUT_S
 from cdcr_ctl.errors import RigError
 
 if TYPE_CHECKING:
@@ -34,8 +35,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-#: Longest wait of ``stop`` for the loop to act (s); a loop that is not running is bypassed.
-STOP_ACK_TIMEOUT_S = 1.0
 #: Longest wait for the quick stop's frame to reach the bus tap through the traffic log's
 #: writer thread (s): a hundred of its drain periods (a loaded machine may starve the thread).
 BUS_TAP_WAIT_S = 2.0

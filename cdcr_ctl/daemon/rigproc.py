@@ -44,25 +44,20 @@ from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.control import trajectory
 from cdcr_ctl.control.io import open_rig_io
 from cdcr_ctl.control.ports import attach_attitude
-from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.timing import try_realtime
 from cdcr_ctl.daemon import recovery
-from cdcr_ctl.daemon.commands_drive import stop_reaction
 from cdcr_ctl.daemon.gcwatch import GcWatch, thread_cpu_s
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.outcome import encode_outcome as _encode
 from cdcr_ctl.daemon.outcome import outcome
 from cdcr_ctl.daemon.planner import Planner
+from cdcr_ctl.daemon.rigshare import HEARTBEAT, SHARED_SLOTS, stop_reaction
 from cdcr_ctl.daemon.service import Daemon
 from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
 log = logging.getLogger(__name__)
 
-#: Slots of the shared integer array between the processes: the StopFlag's, then the rig's
-#: heartbeat (counts up while the loop runs: the front pets systemd's watchdog on it).
-HEARTBEAT = StopFlag.SLOTS
-SHARED_SLOTS = StopFlag.SLOTS + 1
 #: How often the rig process's heartbeat counts (s).
 HEARTBEAT_PERIOD_S = 0.2
 #: Command handlings remembered for ``status`` ``rig_command_log`` (the last ones).
