@@ -74,6 +74,19 @@ def threads_sched(skip: int) -> tuple[float, int]:
     return cpu, wakes
 
 
+def host_reference_ms(n: int = 1_000_000) -> float:
+    """Thread CPU (ms) of a fixed pure-Python loop (``n`` additions), the least of three: how
+    fast this host runs Python right now. On this VM it moves by up to 2x within an hour (the
+    host's other guests); print it with every speed factor, so that runs can be compared."""
+    best = math.inf
+    for _ in range(3):
+        c0, s = time.thread_time(), 0
+        for i in range(n):
+            s += i
+        best = min(best, time.thread_time() - c0)
+    return best * 1e3
+
+
 def children_cpu_s() -> float:
     """User + system CPU (s) of the children reaped so far."""
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -170,6 +183,7 @@ def main() -> None:
                 solves0 = rig.truth_steps
                 work0, send0 = loop.counters.work_cpu_s, send_cpu[0]
                 load = os.getloadavg()
+                ref_ms = host_reference_ms()
                 probe.first = 0.0
                 spare0 = probe.spare_pid()
                 spare_cpu0 = proc_cpu_s(spare0) if spare0 else 0.0
@@ -200,7 +214,8 @@ def main() -> None:
                 us = 1e6 / max(n, 1)
                 print(
                     f"run {run.name}: {run.state}, {n} cycles = {sim_s:.2f} s simulated "
-                    f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f})"
+                    f"(load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; host reference "
+                    f"{ref_ms:.0f} ms: 10^6 pure-Python additions, thread CPU, least of 3)"
                 )
                 print(
                     f"  truth {'inline' if args.truth_inline else 'in a worker process'}; "

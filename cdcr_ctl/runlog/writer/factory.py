@@ -101,7 +101,7 @@ class RunLogFactory:
         self._made: list[Any] = []
         #: A writer process started ahead, imports done, for the next run (a run then starts
         #: without waiting for an interpreter: ~0.5 s idle, seconds on a loaded machine).
-        self._spare = start_writer_process() if writer == "process" else None
+        self._spare = start_writer_process(on_full=on_full) if writer == "process" else None
         self._spare_closed = False
         #: The control loop's "between my cycles" (its ``between_cycles``), set by the daemon:
         #: a process writer in real time then stores its rows into the ring only then
@@ -186,7 +186,7 @@ class RunLogFactory:
             **kw,
         )
         if self.writer == "process" and not self._spare_closed:
-            self._spare = start_writer_process()
+            self._spare = start_writer_process(on_full=self.on_full)
         self._made = [w for w in self._made if not (w.closed and w.wait_closed(0))]
         self._made.append(writer)
         return writer

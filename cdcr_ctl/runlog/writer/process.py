@@ -232,7 +232,7 @@ class ProcessRunLogWriter(WriterBase):
         ahead) or to a writer process started now."""
         try:
             if proc is None or proc.poll() is not None:
-                proc = start_writer_process(self._ring.fd)
+                proc = start_writer_process(self._ring.fd, self.on_full)
                 blob = pickle.dumps({**pickle.loads(blob), "fd_inherited": True})
         except OSError as exc:
             self._ring.close()

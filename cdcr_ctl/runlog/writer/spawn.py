@@ -34,6 +34,14 @@ WRITER_NICE = 0
 #: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
 #: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
 WRITER_POLICY = "SCHED_BATCH"
+#: Scheduling policy of a writer whose loop waits for it when its ring is full
+#: (``on_full="wait"``: a loop on simulated time, the lock-step rig): SCHED_IDLE, so it runs only
+#: on CPU time no other task wants. There is no real-time loop to protect there, but the
+#: lock-step truth worker is on the critical path: at SCHED_BATCH the writer's drains held the
+#: worker's CPU for whole time slices and the loop waited for the truth (the lock-step benchmark,
+#: four alternating pairs: 6.3-7.8x with the writer at SCHED_BATCH, 8.0-10.6x at SCHED_IDLE;
+#: README "Lock-step simulation"). Whatever it falls behind, the ring's wait takes up.
+WAITING_WRITER_POLICY = "SCHED_IDLE"
 #: Nice increment of a writer process while it starts (its interpreter and imports, ~0.3 s of
 #: CPU idle, more under load) and waits as a spare: the factory starts the next run's spare as
 #: a run starts, and at nice 0 that burst competed with the simulator and the loop at the
@@ -63,12 +71,19 @@ _BOOT = (
 )
 
 
-def start_writer_process(ring_fd: int | None = None) -> subprocess.Popen:
+def writer_policy(on_full: str) -> str:
+    """The writer process's scheduling policy for a ring whose ``on_full`` is this."""
+    return WAITING_WRITER_POLICY if on_full == "wait" else WRITER_POLICY
+
+
+def start_writer_process(ring_fd: int | None = None, on_full: str = "trip") -> subprocess.Popen:
     """A writer process that imports what it needs and then waits for its settings on stdin.
     Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
     exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
-    until it has its settings). One that never gets settings exits when its stdin closes."""
-    boot = _BOOT.format(nice=WRITER_NICE, spare_nice=SPARE_NICE, policy=WRITER_POLICY)
+    until it has its settings). One that never gets settings exits when its stdin closes.
+    ``on_full``: what its ring does when full, which sets its scheduling policy
+    (:func:`writer_policy`)."""
+    boot = _BOOT.format(nice=WRITER_NICE, spare_nice=SPARE_NICE, policy=writer_policy(on_full))
     cmd = [sys.executable, "-c", boot]
     fds = () if ring_fd is None else (ring_fd,)
     return subprocess.Popen(

@@ -63,7 +63,7 @@ from cdcr_ctl.sim.lockstep.clock import SimClock
 from cdcr_ctl.sim.lockstep.joystick import JoystickSchedule
 from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.sensors import LoadCellSchedule, SerialLoopback, TrackerSchedule
-from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
+from cdcr_ctl.sim.lockstep.truthproc import LOCKSTEP_SPIN_S, TruthProcess
 from cdcr_ctl.sim.simconfig import LoadedSim
 from cdcr_ctl.sim.tracker import SimNatNetServer, true_transform
 
@@ -308,7 +308,9 @@ class LockstepRig:
         self._solved_counts = self.positions()
         self.truth.step(self._solved_counts)
         if self._truth_process:
-            self.truth_proc = TruthProcess(str(self.loaded.path), self.truth)
+            self.truth_proc = TruthProcess(
+                str(self.loaded.path), self.truth, spin_s=LOCKSTEP_SPIN_S
+            )
             self._closers.append(self.truth_proc.close)
             self.placement.pin_worker(self.truth_proc.pid)
             self.truth_proc.submit(self._solved_counts)  # the worker's truth starts alike

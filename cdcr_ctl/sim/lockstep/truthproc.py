@@ -45,6 +45,14 @@ from cdcr_ctl.sim.simconfig import load_sim_config
 #: other process is still alive (a dead worker or parent must not leave the other waiting for
 #: ever). Not a pacing: a wake-up comes as soon as the semaphore is released.
 ALIVE_CHECK_S = 1.0
+#: The lock-step rig's ``spin_s`` (s, wall clock; :class:`TruthProcess`). Its loop collects
+#: the solve it submitted one cycle before, and submits the next at once in four cycles of
+#: five (physics at 200 Hz, loop at 250 Hz): a loop cycle is ~0.4-0.6 ms of wall, so 2 ms
+#: covers the gaps of a run and lets both sides sleep when it ends or stalls (a worker
+#: descheduled by a busy machine is not waited for on the CPU for longer). Measured on the
+#: lock-step benchmark (README "Lock-step simulation"): the loop thread's sleep over a
+#: 3215-cycle bend 0.2-0.33 s -> 0.01 s, the worker's CPU per cycle ~290 -> ~215 us.
+LOCKSTEP_SPIN_S = 0.002
 #: Longest wall time one solve may take before the worker counts as stuck (s).
 SOLVE_TIMEOUT_S = 60.0
 
@@ -128,20 +136,35 @@ class _Shared:
 
 
 def _worker(
-    sim_path: str, ints: Any, floats: Any, shapes: Any, req: Any, ans: Any, conn: Any, parent: int
+    sim_path: str,
+    ints: Any,
+    floats: Any,
+    shapes: Any,
+    req: Any,
+    ans: Any,
+    conn: Any,
+    parent: int,
+    spin_s: float,
 ) -> None:
     """Solve each request (drive counts in shared memory), answer through shared memory (or the
-    pipe when ``shapes`` is None); stop on request number -1 or when the parent is gone."""
+    pipe when ``shapes`` is None); stop on request number -1 or when the parent is gone. After
+    an answer, look for the next request in shared memory for up to ``spin_s`` (s) before
+    sleeping on the semaphore (see :class:`TruthProcess`)."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a forked worker has the parent's handlers
     truth = make_truth(load_sim_config(sim_path))
     sh = _Shared(ints, floats, shapes)
     iv, fv = sh.ints, sh.floats
     k = len(iv) - _COUNTS
+    last = 0
     while True:
+        if spin_s > 0:
+            end = time.perf_counter() + spin_s
+            while iv[_REQ] == last and time.perf_counter() < end:
+                pass
         while not req.acquire(True, ALIVE_CHECK_S):
             if os.getppid() != parent:
                 return
-        n = int(iv[_REQ])
+        n = last = int(iv[_REQ])
         if n < 0:
             return
         counts = [int(c) for c in iv[_COUNTS : _COUNTS + k]]
@@ -162,9 +185,18 @@ class TruthProcess:
     the same world in this process, whose ``cell_tensions``/``tip_pose`` the sensors read, and
     whose state gives the layout of the shared memory)."""
 
-    def __init__(self, sim_path: str, local: Any, start_method: str = "spawn") -> None:
+    def __init__(
+        self, sim_path: str, local: Any, start_method: str = "spawn", spin_s: float = 0.0
+    ) -> None:
         """``start_method``: ``spawn`` (a new interpreter, ~1.5 s of imports), or ``fork`` for a
-        caller with no other thread yet (the worker then starts in milliseconds)."""
+        caller with no other thread yet (the worker then starts in milliseconds). ``spin_s``
+        (s, wall clock): how long each side looks for the other's next word in shared memory
+        before it sleeps on its semaphore (0: at once). The lock-step rig, whose loop hands
+        off a solve almost every cycle, spins (:data:`LOCKSTEP_SPIN_S`): on this VM a wake-up
+        of a sleeping CPU costs tens of microseconds and lets other processes in between, so
+        each solve started cold; the real-time simulator, whose physics thread submits every
+        5 ms, does not."""
+        self.spin_s = float(spin_s)
         ctx = multiprocessing.get_context(start_method)
         self.local = local
         self.n_drives = len(local.counts_per_mm)
@@ -177,7 +209,17 @@ class TruthProcess:
         self._conn, child = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(
             target=_worker,
-            args=(sim_path, ints, floats, shapes, self._req, self._ans, child, os.getpid()),
+            args=(
+                sim_path,
+                ints,
+                floats,
+                shapes,
+                self._req,
+                self._ans,
+                child,
+                os.getpid(),
+                self.spin_s,
+            ),
             name="lockstep-truth",
             daemon=True,
         )
@@ -202,7 +244,14 @@ class TruthProcess:
         self.pending = True
 
     def collect(self) -> None:
-        """Wait for the pending result and make it the world's state."""
+        """Wait for the pending result and make it the world's state. The answer is looked for
+        in shared memory for up to ``spin_s`` before the wait on the semaphore, which is then
+        taken at once (and orders the state's reads after the worker's writes)."""
+        iv, seq = self._sh.ints, self._seq
+        if self.spin_s > 0 and iv[_ANS] != seq:
+            end = time.perf_counter() + self.spin_s
+            while iv[_ANS] != seq and time.perf_counter() < end:
+                pass
         waited = 0.0
         while not self._ans.acquire(True, ALIVE_CHECK_S):
             waited += ALIVE_CHECK_S
@@ -242,4 +291,4 @@ class TruthProcess:
         self._conn.close()
 
 
-__all__ = ["TruthProcess", "from_wire", "state_shapes", "to_wire"]
+__all__ = ["LOCKSTEP_SPIN_S", "TruthProcess", "from_wire", "state_shapes", "to_wire"]
