@@ -22,6 +22,9 @@ import click
 
 from cdcr_ctl.cli.app import Ctx, wait_for_run
 
+#: How long ``trajectory`` waits for the run's log to be closed by its writer (s, wall clock).
+LOG_CLOSE_TIMEOUT_S = 60.0
+
 
 def _setup_logging(verbose: bool) -> None:
     logging.basicConfig(
@@ -232,6 +235,11 @@ def trajectory_cmd(
     if done:
         out["end_reason"] = done["end_reason"]
     if res.get("log_dir"):
+        from cdcr_ctl.runlog.reader import wait_run_closed
+
+        # The run has ended in the loop; the writer may still be behind (a loaded machine, a
+        # lock-step rig's idle-priority writer): its log is read once the writer closed it.
+        wait_run_closed(res["log_dir"], LOG_CLOSE_TIMEOUT_S)
         out["tip_error_mm"] = tip_error_summary(res["log_dir"])
     obj.emit(out)
     if done and done["state"] != "completed":

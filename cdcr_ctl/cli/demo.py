@@ -244,7 +244,10 @@ def recover(sock: Path, attempts: int = 3) -> None:
 
 
 def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str) -> dict[str, Any]:
-    """Run one trajectory through the daemon and wait for it; return the run's log dir and state."""
+    """Run one trajectory through the daemon and wait for it and its log; return the run's log
+    dir and state."""
+    from cdcr_ctl.runlog.reader import wait_run_closed
+
     with ControlClient(sock) as c:
         res = c.call("trajectory", name=name, samples=samples, compensation=comp, log=True)
         end = time.monotonic() + res["duration_s"] + 60.0
@@ -252,6 +255,10 @@ def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str)
             st = c.call("status")
             done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
             if done is not None:
+                # Ended in the loop; its log is complete once the writer has closed it (the
+                # writer may be behind: a loaded machine, or lock-step's idle-priority writer).
+                if not wait_run_closed(res["log_dir"], max(0.0, end - time.monotonic())):
+                    raise RigError(f"run {name}: its log {res['log_dir']} was not closed")
                 return {**res, "state": done["state"], "end_reason": done["end_reason"]}
             time.sleep(0.2)
     raise RigError(f"run {name} did not finish")
