@@ -12,40 +12,31 @@ Importing the package imports none of its modules: a process that needs one of t
 discrepancy analysis reads keypoint logs with :mod:`.keypoints`; ``cdcr-ctl experiments`` draws
 with :mod:`.figures`) does not pay for the others (the estimator's scipy.stats is ~0.8 s of CPU).
 The public names below are still the package's attributes: their module is imported on their
-first use (:func:`__getattr__`). Code of the package imports them from their modules.
+first use (:mod:`cdcr_ctl.firstuse`). Code of the package imports them from their modules.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from cdcr_ctl.firstuse import first_use
 
-#: The package's public names, by the module that defines them (imported on first use).
-_DWELL_NAMES = ("DwellPoint", "extract_dwells")
-_ESTIMATOR_NAMES = ("Estimate", "FitOptions", "Identification", "identify")
-_PARAMETER_NAMES = ("FitParameter", "NotIdentified", "plan_parameters")
-_PIPELINE_NAMES = ("identify_runs", "overlay_text", "report_dict", "summary_table")
-_SWEEP_NAMES = ("CalibrationSweep", "SweepSpec", "calibration_sweep")
-
-
-def __getattr__(name: str) -> Any:
-    """A public name of the package from its module (imported now, once; the name is then a
-    plain attribute of the package)."""
-    if name in _DWELL_NAMES:
-        from cdcr_ctl.identify import dwell as module
-    elif name in _ESTIMATOR_NAMES:
-        from cdcr_ctl.identify import estimator as module
-    elif name in _PARAMETER_NAMES:
-        from cdcr_ctl.identify import parameters as module
-    elif name in _PIPELINE_NAMES:
-        from cdcr_ctl.identify import pipeline as module
-    elif name in _SWEEP_NAMES:
-        from cdcr_ctl.identify import sweep as module
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(module, name)
-    globals()[name] = value
-    return value
-
+#: The package's public names -> the module that defines them (imported on first use).
+LAZY = {
+    **dict.fromkeys(("DwellPoint", "extract_dwells"), "cdcr_ctl.identify.dwell"),
+    **dict.fromkeys(
+        ("Estimate", "FitOptions", "Identification", "identify"), "cdcr_ctl.identify.estimator"
+    ),
+    **dict.fromkeys(
+        ("FitParameter", "NotIdentified", "plan_parameters"), "cdcr_ctl.identify.parameters"
+    ),
+    **dict.fromkeys(
+        ("identify_runs", "overlay_text", "report_dict", "summary_table"),
+        "cdcr_ctl.identify.pipeline",
+    ),
+    **dict.fromkeys(
+        ("CalibrationSweep", "SweepSpec", "calibration_sweep"), "cdcr_ctl.identify.sweep"
+    ),
+}
+__getattr__ = first_use(globals(), LAZY)
 
 __all__ = [
     "CalibrationSweep",

@@ -24,6 +24,7 @@ LAYERS: dict[str, int] = {
     "__init__": 0,  # the package root: imports only blas (the BLAS thread policy)
     "blas": 0,
     "errors": 0,
+    "firstuse": 0,  # package attributes imported on first use (standard library only)
     "model": 0,
     "config": 1,
     "drives": 2,
@@ -95,10 +96,17 @@ def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
 def imported_by_name() -> dict[str, set[str]]:
     """Imports made from a string at run time: the command modules of the CLI's lazy group
     (:data:`cdcr_ctl.cli.main.COMMANDS`, ``"module.attribute"``), counted as imports of
-    ``cdcr_ctl.cli.main``."""
+    ``cdcr_ctl.cli.main``, and the modules of the packages' ``LAZY`` tables, as imports of the
+    package."""
+    from cdcr_ctl import identify, runlog
     from cdcr_ctl.cli.main import COMMANDS
 
-    return {"cdcr_ctl.cli.main": {path.rpartition(".")[0] for path in COMMANDS.values()}}
+    return {
+        "cdcr_ctl.cli.main": {path.rpartition(".")[0] for path in COMMANDS.values()},
+        # the packages' attributes imported on first use (cdcr_ctl.firstuse)
+        "cdcr_ctl.identify": set(identify.LAZY.values()),
+        "cdcr_ctl.runlog": set(runlog.LAZY.values()),
+    }
 
 
 def graph() -> dict[str, set[str]]:

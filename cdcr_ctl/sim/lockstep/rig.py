@@ -160,18 +160,14 @@ class LockstepRig:
 
     @classmethod
     def open(
-        cls,
-        loaded: LoadedSim,
-        ctl: RigConfig,
-        ctl_file: str = "",
-        truth_process: bool = True,
-        placement: Placement | None = None,
+        cls, loaded: LoadedSim, ctl: RigConfig, ctl_file: str = "", **options: Any
     ) -> LockstepRig:
         """Build the world, boot the nodes, open and configure the controller's drives and
-        sensors (nothing is enabled); closed again if any step fails. ``truth_process``: solve
-        the truth in a worker process, one period behind (:mod:`.truthproc`); ``placement``:
-        the CPUs of the loop thread and that worker (:mod:`.placement`)."""
-        rig = cls(loaded, ctl, ctl_file, truth_process, placement)
+        sensors (nothing is enabled); closed again if any step fails. ``options``: the
+        constructor's ``truth_process`` (solve the truth in a worker process, one period
+        behind: :mod:`.truthproc`) and ``placement`` (the CPUs of the loop thread and that
+        worker: :mod:`.placement`)."""
+        rig = cls(loaded, ctl, ctl_file, **options)
         try:
             rig._open(ctl_file)
         except BaseException:

@@ -57,7 +57,9 @@ class LockstepSession:
         # The loop runs on simulated time: a full run-log ring makes it wait for the writer (no
         # row may be dropped: the logs must be the same on every run, whatever the load).
         self.sinks = RunLogFactory.from_config(ctl, ctl_path, base_dir=log_dir, on_full="wait")
-        self.rig = LockstepRig.open(loaded, ctl, str(ctl_path), truth_process, placement)
+        self.rig = LockstepRig.open(
+            loaded, ctl, str(ctl_path), truth_process=truth_process, placement=placement
+        )
         assert self.rig.drives is not None
         self.drives = self.rig.drives
         attach = getattr(self.model, "attach_attitude", None)
