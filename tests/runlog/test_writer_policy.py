@@ -1,7 +1,8 @@
-"""The run-log writer process's scheduling policy follows what its ring does when full: a loop on
-simulated time waits for it (``on_full="wait"``), so it runs at SCHED_IDLE, on CPU time nobody
-else wants (the lock-step truth worker is on the critical path); a real-time loop never waits
-(``"trip"``), and its writer stays at SCHED_BATCH, a fair share that never preempts the loop."""
+"""The run-log writer process's priority follows what its ring does when full: a loop on
+simulated time waits for it (``on_full="wait"``), so once it has its run it stays at nice 10 (the
+lock-step truth worker, on the critical path, preempts it; beside a CPU-bound neighbour it still
+gets a tenth of a nice-0 share); a real-time loop never waits (``"trip"``), and its writer runs at
+the daemon's own nice. Both are SCHED_BATCH (a drain never preempts a running task)."""
 
 from __future__ import annotations
 
@@ -10,24 +11,36 @@ import time
 
 import pytest
 
-from cdcr_ctl.runlog.writer.spawn import start_writer_process, writer_policy
+from cdcr_ctl.runlog.writer.spawn import (
+    SPARE_NICE,
+    WAITING_WRITER_NICE,
+    WRITER_NICE,
+    start_writer_process,
+    writer_nice,
+)
 
 
-def test_policy_by_what_a_full_ring_does():
-    assert writer_policy("wait") == "SCHED_IDLE"
-    assert writer_policy("trip") == "SCHED_BATCH"
+def test_run_nice_by_what_a_full_ring_does():
+    assert writer_nice("wait") == WAITING_WRITER_NICE == 10
+    assert writer_nice("trip") == WRITER_NICE == 0
 
 
 @pytest.mark.parametrize("on_full", ["wait", "trip"])
-def test_the_started_process_runs_at_that_policy(on_full):
+def test_the_started_process_is_batch_and_carries_its_run_nice(on_full):
+    base = os.getpriority(os.PRIO_PROCESS, 0)
     proc = start_writer_process(on_full=on_full)
     try:
-        want = getattr(os, writer_policy(on_full))
-        # The policy is set by the process's first statements, before its imports.
-        deadline = time.monotonic() + 10.0
-        while os.sched_getscheduler(proc.pid) != want and time.monotonic() < deadline:
+        # Its first statements: SCHED_BATCH and the spare's nice, before its imports.
+        deadline = time.monotonic() + 30.0
+        while (
+            os.sched_getscheduler(proc.pid) != os.SCHED_BATCH
+            or os.getpriority(os.PRIO_PROCESS, proc.pid) != base + SPARE_NICE
+        ) and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert os.sched_getscheduler(proc.pid) == want
+        assert os.sched_getscheduler(proc.pid) == os.SCHED_BATCH
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == base + SPARE_NICE
+        # The nice it takes with its run (child.main's run_nice), from its start-up code.
+        assert f"main(run_nice=base + {writer_nice(on_full)})" in proc.args[-1]
     finally:
         proc.stdin.close()  # a spare without settings exits when its stdin closes
-        proc.wait(10.0)
+        proc.wait(60.0)

@@ -34,14 +34,16 @@ WRITER_NICE = 0
 #: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
 #: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
 WRITER_POLICY = "SCHED_BATCH"
-#: Scheduling policy of a writer whose loop waits for it when its ring is full
-#: (``on_full="wait"``: a loop on simulated time, the lock-step rig): SCHED_IDLE, so it runs only
-#: on CPU time no other task wants. There is no real-time loop to protect there, but the
-#: lock-step truth worker is on the critical path: at SCHED_BATCH the writer's drains held the
-#: worker's CPU for whole time slices and the loop waited for the truth (the lock-step benchmark,
-#: four alternating pairs: 6.3-7.8x with the writer at SCHED_BATCH, 8.0-10.6x at SCHED_IDLE;
-#: README "Lock-step simulation"). Whatever it falls behind, the ring's wait takes up.
-WAITING_WRITER_POLICY = "SCHED_IDLE"
+#: Nice increment of a writer whose loop waits for it when its ring is full (``on_full="wait"``:
+#: a loop on simulated time, the lock-step rig), kept once it has its run. There is no real-time
+#: loop to protect there, but the lock-step truth worker is on the critical path: at nice 0 the
+#: writer's drains held the worker's CPU for whole time slices and the loop waited for the
+#: truth. Lower, the woken worker preempts it. SCHED_IDLE did that best on an idle machine (the
+#: lock-step benchmark, four alternating pairs over the bend's cycles: 6.4-7.9x at nice 0,
+#: 8.2-10.9x at SCHED_IDLE), but beside a CPU-bound neighbour (``stress-ng --cpu 2``) an idle
+#: task gets almost nothing and lock-step runs crawled (three tests timed out); at nice 10 it
+#: keeps a tenth of a nice-0 task's share. README "Lock-step simulation".
+WAITING_WRITER_NICE = 10
 #: Nice increment of a writer process while it starts (its interpreter and imports, ~0.3 s of
 #: CPU idle, more under load) and waits as a spare: the factory starts the next run's spare as
 #: a run starts, and at nice 0 that burst competed with the simulator and the loop at the
@@ -71,9 +73,10 @@ _BOOT = (
 )
 
 
-def writer_policy(on_full: str) -> str:
-    """The writer process's scheduling policy for a ring whose ``on_full`` is this."""
-    return WAITING_WRITER_POLICY if on_full == "wait" else WRITER_POLICY
+def writer_nice(on_full: str) -> int:
+    """The writer process's nice increment (once it has its run) for a ring whose ``on_full``
+    is this."""
+    return WAITING_WRITER_NICE if on_full == "wait" else WRITER_NICE
 
 
 def start_writer_process(ring_fd: int | None = None, on_full: str = "trip") -> subprocess.Popen:
@@ -81,9 +84,9 @@ def start_writer_process(ring_fd: int | None = None, on_full: str = "trip") -> s
     Given ``ring_fd``, the ring's descriptor is inherited; a spare started before its ring
     exists maps it through ``/proc/<parent>/fd/<fd>`` instead (so a spare needs its parent alive
     until it has its settings). One that never gets settings exits when its stdin closes.
-    ``on_full``: what its ring does when full, which sets its scheduling policy
-    (:func:`writer_policy`)."""
-    boot = _BOOT.format(nice=WRITER_NICE, spare_nice=SPARE_NICE, policy=writer_policy(on_full))
+    ``on_full``: what its ring does when full, which sets its nice level once it has its run
+    (:func:`writer_nice`)."""
+    boot = _BOOT.format(nice=writer_nice(on_full), spare_nice=SPARE_NICE, policy=WRITER_POLICY)
     cmd = [sys.executable, "-c", boot]
     fds = () if ring_fd is None else (ring_fd,)
     return subprocess.Popen(
