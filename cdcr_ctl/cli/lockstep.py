@@ -17,12 +17,11 @@ from typing import Any
 
 import click
 
+from cdcr_ctl.sim.lockstep.clock import SETTLE_TIMEOUT_S
 from cdcr_ctl.sim.lockstep.placement import Placement
 
 #: Commands that wait for the lock-step loop to settle before they act (see ``settle`` below).
 SETTLE_BEFORE = ("trajectory", "joystick", "jog", "compensation")
-#: Longest wall time such a command waits for it (s); then it acts all the same.
-SETTLE_TIMEOUT_S = 30.0
 
 
 def serve_lockstep(
@@ -63,6 +62,7 @@ def serve_lockstep(
         # A command that starts motion waits until the loop has settled (taken up what came
         # before, nothing left to do), unless a run is going on: it then starts at the same
         # simulated time however the host scheduled the loop thread (SimClock.wait_settled).
+        # Past SETTLE_TIMEOUT_S the command acts all the same (the loop may be ramping a jog).
         if req.cmd in SETTLE_BEFORE and d.loop.current_run is None:
             rig.clock.wait_settled(SETTLE_TIMEOUT_S)
 

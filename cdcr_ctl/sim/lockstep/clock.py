@@ -26,6 +26,8 @@ IDLE_POLL_S = 0.002
 
 #: :meth:`SimClock.wait_settled` looks again at least this often (s, wall clock).
 SETTLE_POLL_S = 0.01
+#: Longest wall time a caller waits for the loop to settle between two commands (s).
+SETTLE_TIMEOUT_S = 60.0
 
 Advance = Callable[[float, float], None]
 
@@ -125,4 +127,4 @@ class SimClock:
         self._wake.set()
 
 
-__all__ = ["IDLE_POLL_S", "SETTLE_POLL_S", "SimClock"]
+__all__ = ["IDLE_POLL_S", "SETTLE_POLL_S", "SETTLE_TIMEOUT_S", "SimClock"]

@@ -23,6 +23,7 @@ from cdcr_ctl.control.loop import ControlLoop, LoopConfig, RunInfo
 from cdcr_ctl.control.supervisor import Supervisor
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.writer.factory import RunLogFactory
+from cdcr_ctl.sim.lockstep.clock import SETTLE_TIMEOUT_S
 from cdcr_ctl.sim.lockstep.placement import Placement
 from cdcr_ctl.sim.lockstep.rig import LockstepRig
 from cdcr_ctl.sim.simconfig import LoadedSim
@@ -33,8 +34,6 @@ STUCK_WALL_PER_SIM_S = 20.0
 #: at the run at least this often (s, wall clock; each look takes the interpreter lock from the
 #: loop thread).
 RUN_POLL_S = 0.05
-#: Longest wall time the loop may take to settle between two commands (s).
-SETTLE_TIMEOUT_S = 60.0
 #: The loop went idle before it took the run up: look again after this (s, wall clock).
 TAKE_UP_WAIT_S = 0.001
 
