@@ -114,6 +114,12 @@ class LoggingConfig(Section):
     #: The writer process under a 2-core ``stress-ng --cpu 2`` held at most ~1 s of a 1 kHz
     #: loop's rows (README, run logs), so 10 s is a tenfold margin for ~14 MB of memory.
     ring_s: Annotated[float, Field(gt=0, le=60)] = 10.0
+    #: The ring of a loop on simulated time (lock-step), in seconds of simulated time at the
+    #: loop's rate: its writer drains it only once it is half full or the run ends
+    #: (``cdcr_ctl.runlog.writer.process.WAIT_DEFER_FILL``), so a run up to half this long is
+    #: written after its last cycle, not beside it. 60 s at 250 Hz is 15 000 rows (~3 MB of
+    #: numbers touched; the event text area is touched only by rows with an event).
+    wait_ring_s: Annotated[float, Field(gt=0, le=600)] = 60.0
 
 
 class LiveViewConfig(Section):

@@ -232,13 +232,19 @@ def main(run_nice: int | None = None) -> int:
     ring.hq[READY] = 1
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
+    # A ring that waits (lock-step) is drained only once this full, or at the close or the
+    # parent's end (process.WAIT_DEFER_FILL); None: every drain interval.
+    defer = spec.get("defer_fill")
     wake = Wake(stdin)
     reason, outcome = PARENT_GONE, "aborted"
     while True:
         request = ring.close_request()
         gone = os.getppid() != parent
-        moved = drain.all()
-        drain.publish()
+        if defer is None or request is not None or gone or ring.backlog() >= defer:
+            moved = drain.all()
+            drain.publish()
+        else:
+            moved = 0
         if request is not None or gone:
             if request is not None:
                 reason, outcome = request["reason"], request["outcome"]

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import math
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -103,6 +104,7 @@ class RunLogFactory:
         #: without waiting for an interpreter: ~0.5 s idle, seconds on a loaded machine).
         self._spare = start_writer_process(on_full=on_full) if writer == "process" else None
         self._spare_closed = False
+        self._spare_lock = threading.Lock()
         #: The control loop's "between my cycles" (its ``between_cycles``), set by the daemon:
         #: a process writer in real time then stores its rows into the ring only then
         #: (:mod:`cdcr_ctl.runlog.writer.handoff`). None: on the loop's thread, in ``write``.
@@ -123,7 +125,9 @@ class RunLogFactory:
 
         The log directory is ``cfg.logging.directory`` (relative to the config file's folder if
         relative) unless ``base_dir`` is given; counts default to the config's segments and
-        cables. Raises :class:`RigError` naming the file if the config cannot be re-read.
+        cables. The ring holds ``cfg.logging.ring_s`` of rows, ``cfg.logging.wait_ring_s`` for
+        ``on_full="wait"`` (lock-step). Raises :class:`RigError` naming the file if the config
+        cannot be re-read.
         """
         path = Path(config_path)
         try:
@@ -148,7 +152,9 @@ class RunLogFactory:
             fsync_every_s=cfg.logging.fsync_every_s,
             mcap=cfg.logging.mcap,
             writer=cfg.logging.writer,
-            ring_s=cfg.logging.ring_s,
+            ring_s=(
+                cfg.logging.wait_ring_s if kwargs.get("on_full") == "wait" else cfg.logging.ring_s
+            ),
             **kwargs,
         )
 
@@ -167,7 +173,8 @@ class RunLogFactory:
         kw: dict[str, Any] = {}
         if self.writer == "process":
             cls: Any = ProcessRunLogWriter
-            kw["process"], self._spare = self._spare, None
+            with self._spare_lock:
+                kw["process"], self._spare = self._spare, None
             kw["quiet"] = self.quiet
         else:
             cls = RunLogWriter
@@ -185,19 +192,32 @@ class RunLogFactory:
             on_full=self.on_full,
             **kw,
         )
-        if self.writer == "process" and not self._spare_closed:
-            self._spare = start_writer_process(on_full=self.on_full)
+        if self.writer == "process":
+            if self.on_full == "wait":
+                # Lock-step: the next spare's start-up (an interpreter, ~0.1 s of CPU) after
+                # this run's last cycle, not beside its cycles (process.WAIT_DEFER_FILL).
+                writer.on_close = self._start_spare
+            else:
+                self._start_spare()
         self._made = [w for w in self._made if not (w.closed and w.wait_closed(0))]
         self._made.append(writer)
         return writer
+
+    def _start_spare(self) -> None:
+        """Start the next run's spare writer process, unless one is waiting or spares are
+        closed."""
+        with self._spare_lock:
+            if self._spare is None and not self._spare_closed:
+                self._spare = start_writer_process(on_full=self.on_full)
 
     def close_spare(self, timeout_s: float = 5.0) -> None:
         """End the spare writer process started ahead (it exits when its stdin closes; killed
         after ``timeout_s``). Idempotent; writers already made are not touched, and a writer
         made later starts a process of its own. For owners done making runs (a session
         closing, a test), so spares do not outlive them."""
-        self._spare_closed = True
-        spare, self._spare = self._spare, None
+        with self._spare_lock:
+            self._spare_closed = True
+            spare, self._spare = self._spare, None
         if spare is None:
             return
         with contextlib.suppress(OSError):

@@ -16,7 +16,7 @@ checks, ``run.yaml``) under its own interpreter lock, which the loop never waits
   (quick stop; the rows in the ring are still written and the run closed, its reason naming the
   overflow); ``wait`` (a loop on simulated time, lock-step) blocks ``write`` until the writer
   process has made room, so no row is lost whatever the load and the files are the same on
-  every run.
+  every run; its writer drains it only once half full or at the close (``spawn.defer_fill``).
 - The writer process exiting without closing the run (a crash) is also a failure.
 - If the loop's process dies (SIGKILL), the writer process sees its parent change, drains what is
   in the ring, and closes the run with outcome ``aborted``: ``samples.csv`` and ``run.mcap`` end
@@ -39,12 +39,7 @@ from typing import Any
 
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import TEXT_COLUMNS
-from cdcr_ctl.runlog.writer.files import (
-    LogStats,
-    RunMetadata,
-    WriterBase,
-    utc_now_iso,
-)
+from cdcr_ctl.runlog.writer.files import LogStats, RunMetadata, WriterBase, utc_now_iso
 from cdcr_ctl.runlog.writer.handoff import RowHandoff
 from cdcr_ctl.runlog.writer.ring import (
     CLOSE,
@@ -61,7 +56,7 @@ from cdcr_ctl.runlog.writer.ring import (
     writer_counts,
 )
 from cdcr_ctl.runlog.writer.slots import SlotFiller
-from cdcr_ctl.runlog.writer.spawn import RingCanTap, start_writer_process, wait_exit
+from cdcr_ctl.runlog.writer.spawn import RingCanTap, defer_fill, start_writer_process, wait_exit
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
     DEFAULT_QUEUE_ROWS,
@@ -82,8 +77,7 @@ ALIVE_EVERY_ROWS = 256
 #: ``wait`` blocks the loop until the writer process has made room (simulated time: no row
 #: lost, the same files whatever the load).
 ON_FULL = ("trip", "wait")
-#: Poll period of a loop waiting for room in the ring (s) and polls between two checks that the
-#: writer process still runs.
+#: Poll period of a loop waiting for room (s); polls between two checks the writer still runs.
 WAIT_POLL_S = 0.001
 WAIT_ALIVE_EVERY = 100
 
@@ -159,6 +153,8 @@ class ProcessRunLogWriter(WriterBase):
         self._failure: str | None = None
         self._notified = False
         self._exit_checked = False
+        #: Called once when the log is asked to close, or None (spawn.defer_fill's spare).
+        self.on_close: Callable[[], None] | None = None
 
         num_cols = [c for c in self.columns if c not in TEXT_COLUMNS]
         layout = RingLayout(len(num_cols), self.max_queued_rows, can_frames)
@@ -178,6 +174,7 @@ class ProcessRunLogWriter(WriterBase):
             "extra_files": dict(extra_files or {}),
             "fsync_every_s": self.fsync_every_s,
             "drain_interval_s": float(drain_interval_s),
+            "defer_fill": defer_fill(on_full),
             "second_sink": second_sink,
             "layout": layout,
             "fd": self._ring.fd,
@@ -445,6 +442,10 @@ class ProcessRunLogWriter(WriterBase):
                 self._handoff.finish(lambda: self._request_close(*end))
             else:
                 self._request_close(*end)
+            if self.on_close is not None:
+                with contextlib.suppress(Exception):  # close never raises (then: no spare)
+                    self.on_close()
+                self.on_close = None
         if wait:
             self.wait_closed(CLOSE_TIMEOUT_S)
 

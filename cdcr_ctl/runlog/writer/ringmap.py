@@ -250,6 +250,14 @@ class RingMap:
         hq[CAN_HEAD] = head + 1
         return True
 
+    def backlog(self) -> float:
+        """The fuller of the two rings (rows, CAN frames) as a fraction of its capacity: what
+        the producer has published and the writer not yet taken."""
+        hq, lay = self.hq, self.layout
+        rows = (hq[ROW_HEAD] - hq[ROW_TAIL]) / lay.rows
+        frames = (hq[CAN_HEAD] - hq[CAN_TAIL]) / lay.frames if lay.frames else 0.0
+        return rows if rows >= frames else frames
+
     def take_frames(self) -> list[tuple]:
         """Writer: the frames published so far, as the MCAP sink's ``CanTap`` queues them
         (timestamp, id, extended, rx, error, remote, dlc, data)."""

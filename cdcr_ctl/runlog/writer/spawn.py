@@ -73,6 +73,26 @@ _BOOT = (
 )
 
 
+#: A ring that waits (``on_full="wait"``: a loop on simulated time) is drained only once it is
+#: this full (rows or CAN frames, a fraction of its size), or when the run closes or the loop's
+#: process is gone; a ring that trips is drained every drain interval. Lock-step runs as fast
+#: as the two cores allow, and a writer draining meanwhile takes its CPU from the loop thread or
+#: the truth worker: measured on the planar bend (README "Lock-step simulation"), the loop's
+#: cycles took 555-850 us with the writer draining at nice 10 whatever its CPU or policy, 370-441
+#: us with no run log. Deferred, the writer does the same work after the run's last cycle, on
+#: CPUs the run no longer needs. Rows wait in shared memory, which the writer process holds
+#: too: a loop process killed meanwhile loses none of them (the writer drains when it sees its
+#: parent gone). Real time keeps its drain interval: there the log is on disk within
+#: ``fsync_every_s``.
+WAIT_DEFER_FILL = 0.5
+
+
+def defer_fill(on_full: str) -> float | None:
+    """How full a ring whose ``on_full`` this is must be before its writer drains it, before
+    the run closes (:data:`WAIT_DEFER_FILL`); None: every drain interval."""
+    return WAIT_DEFER_FILL if on_full == "wait" else None
+
+
 def writer_nice(on_full: str) -> int:
     """The writer process's nice increment (once it has its run) for a ring whose ``on_full``
     is this."""
