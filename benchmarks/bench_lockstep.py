@@ -2,7 +2,8 @@
 each part, over the Qi et al. 2023 planar bend (0 -> 90 deg at pi/10 rad/s) at the rig's 250 Hz.
 
     .venv/bin/python benchmarks/bench_lockstep.py [--sim-config config/sim/qi2023-truth.yaml]
-        [--compensation model] [--repeat 1] [--truth-inline] [--no-parts] [--cpus auto]
+        [--compensation model] [--repeat 1] [--truth-inline] [--no-parts] [--no-log]
+        [--cpus auto]
 
 One process: the controller's loop, drive layer (CANopen), Modbus RTU reader and NatNet parser,
 the simulated EPOS nodes, transmitters, tracker and truth (cdcr_ctl.sim.lockstep). Parts:
@@ -149,6 +150,11 @@ def main() -> None:
         "~1.5 us each, some 20 per cycle, are themselves a cost); as experiments and tests run",
     )
     ap.add_argument(
+        "--no-log",
+        action="store_true",
+        help="Runs without a run log (no writer process): what the log's writer costs the run",
+    )
+    ap.add_argument(
         "--cpus",
         default="auto",
         help="Loop thread and truth worker CPUs, as `cdcr-ctl sim --lockstep --cpus` (default "
@@ -191,7 +197,7 @@ def main() -> None:
                 tid = loop._thread.native_id
                 lt0, ot0 = thread_sched(tid), threads_sched(tid)
                 w0, c0 = time.perf_counter(), time.process_time()
-                run = s.run(traj, f"bench{i}", args.compensation)
+                run = s.run(traj, f"bench{i}", args.compensation, log=not args.no_log)
                 wall, cpu = time.perf_counter() - w0, time.process_time() - c0
                 writer = children_cpu_s() - kids0 - probe.writer_cpu0
                 spare = probe.spare_pid()
