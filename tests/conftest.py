@@ -1,15 +1,14 @@
 """Fixtures and collection rules for every test directory.
 
-``--unit``: ``wallclock`` or ``rest`` runs one part of the suite. ``scripts/test`` (CI) runs the
-two side by side, each in a pytest process of its own, the rest at nice +10 (README "CI time").
+``--unit``: ``wallclock`` or ``rest`` runs one part of the suite (``scripts/test`` runs all in
+one process; README "CI time" has what splitting it gave).
 
 - ``wallclock``: tests marked ``realtime`` (the simulated rig and the daemon as processes on
   the wall clock: stand-in hardware, heartbeats, stop latency, kills) and the drive-layer files
   whose simulated nodes run in the test's process on the wall clock (:data:`WALLCLOCK_FILES`).
-  Beside a second worker under ``stress-ng --cpu 2`` they tripped in session 9 (five real-time
-  tests, "heartbeat lost"); since the simulator solves its truth in a worker process and its
-  session runs at nice -5 (session 10) they pass beside ``stress-ng --cpu 2`` and beside the
-  rest at nice +10;
+  Beside a second worker under ``stress-ng --cpu 2`` they tripped (session 9: five real-time
+  tests, "heartbeat lost"; session 12: beside the rest at autogroup nice +10, three), serially
+  they pass: they need the machine to themselves;
 - ``rest``: everything else, whose outcome does not hang on the wall clock.
 
 Within a run with workers (``pytest -n 2 --dist loadgroup``, whatever ``--unit``):
