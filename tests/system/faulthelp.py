@@ -64,11 +64,14 @@ def wait_for(pred, timeout_s: float, what: str, poll_s: float = 0.02):
 
 
 def _enable_or_reset(work: Path) -> bool:
-    """``enable``; True when accepted. A drive still in FAULT gets another ``reset_fault``."""
+    """``enable``; True when accepted. A drive still in FAULT, or a trip latched meanwhile (a
+    starved machine: the stand-in drives fell silent for a moment during the enable, and the
+    group latched ``no_feedback``; seen under ``stress-ng --cpu 2``), gets a ``reset_fault``,
+    as an operator would, and the enable is tried again."""
     try:
         call(work, "enable")
     except DaemonError as exc:
-        if "reset_faults() first" not in str(exc):
+        if "reset_faults() first" not in str(exc) and status(work)["fault"] is None:
             raise
         call(work, "reset_fault", confirm=True)
         return False

@@ -7,8 +7,11 @@ model (issue 22's acceptance). The two differ only in timing: in real time the p
 solves the truth at 200 Hz on the wall clock and every message crosses a process boundary; in
 lock-step the truth is solved right after each SYNC that moved a drive. A real-time run is a
 reference only if it kept its 250 Hz: when the machine is too busy for that (the loop skipped
-more than 1 % of its deadlines, so the real-time run itself is distorted), the comparison is
-skipped with the figures, not loosened.
+more than 1 % of its deadlines, or its cycles ran late: a lateness p99 over a quarter period,
+so the real-time run itself is distorted), the comparison is skipped with the figures, not
+loosened. Measured on fresh clones (session 12): idle, the real-time runs' lateness p99 was
+199-426 us and the max tip errors within 2.5 %; beside ``stress-ng --cpu 2`` it was
+1374-1381 us (26-34 cycles over 1 ms) and the compensated max 7.7 % over lock-step's.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import math
 
+import numpy as np
 import pytest
 from syshelp import client, session, start_daemon, start_sim, wait_for_socket
 
@@ -23,13 +27,25 @@ from cdcr_ctl.analysis import tip_errors
 from cdcr_ctl.cli.demo import _cli, running
 from cdcr_ctl.cli.identify import run_trajectory
 from cdcr_ctl.control import trajectory as tj
+from cdcr_ctl.runlog import load_run
 
 TOLERANCE = 0.05
 MODES = ("off", "model")
+#: A real-time run is a reference only if its loop's lateness p99 (``lateness_us``) stays within
+#: this fraction of the period (1 ms at 250 Hz).
+LATE_P99_FRACTION = 0.25
 
 
-def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, float]]:
-    """(mean, max tip error mm, fraction of the expected rows logged) per mode."""
+def _late_p99_s(log_dir) -> float:
+    """The loop's lateness p99 (s) over a run's rows."""
+    late = np.asarray(load_run(log_dir).column("lateness_us"), dtype=float)
+    late = late[np.isfinite(late)]
+    return float(np.percentile(late, 99)) * 1e-6 if late.size else 0.0
+
+
+def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, float, float]]:
+    """(mean, max tip error mm, fraction of the expected rows logged, lateness p99 s) per
+    mode."""
     traj = tj.planar_bend(theta_max_rad=math.pi / 2, rate_rad_s=math.pi / 10)
     out = {}
     with contextlib.ExitStack() as procs:
@@ -48,7 +64,7 @@ def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, fl
             assert res["state"] == "completed", res
             e = tip_errors(res["log_dir"], settle_s=0.0).summary()
             kept = e["samples"] / (res["duration_s"] * 250.0)
-            out[comp] = (e["mean_mm"], e["max_mm"], kept)
+            out[comp] = (e["mean_mm"], e["max_mm"], kept, _late_p99_s(res["log_dir"]))
             run_trajectory(work / "control.sock", "return", [[0, 0, 0], [0.5, 0, 0]], comp, False)
     return out
 
@@ -66,6 +82,9 @@ def test_lockstep_and_real_time_give_the_same_tip_errors(tmp_path):
     assert all(lock[m][2] > 0.99 for m in MODES), figures  # lock-step never skips a cycle
     if min(real[m][2] for m in MODES) < 0.99:
         pytest.skip(f"the real-time run could not keep 250 Hz on this machine: {figures}")
+    late = {m: real[m][3] for m in MODES}
+    if max(late.values()) > LATE_P99_FRACTION / 250.0:
+        pytest.skip(f"the real-time run's cycles ran late (lateness p99 {late} s): {figures}")
     for m in MODES:
         for i, what in enumerate(("mean", "max")):
             ls, rt = lock[m][i], real[m][i]
