@@ -9,9 +9,11 @@ lock-step the truth is solved right after each SYNC that moved a drive. A real-t
 reference only if it kept its 250 Hz: when the machine is too busy for that (the loop skipped
 more than 1 % of its deadlines, or its cycles ran late: a lateness p99 over a quarter period,
 so the real-time run itself is distorted), the comparison is skipped with the figures, not
-loosened. Measured on fresh clones (session 12): idle, the real-time runs' lateness p99 was
-199-426 us and the max tip errors within 2.5 %; beside ``stress-ng --cpu 2`` it was
-1374-1381 us (26-34 cycles over 1 ms) and the compensated max 7.7 % over lock-step's.
+loosened; so is a real-time run that trips because its stand-in rig fell silent (a starved
+machine: ``faulthelp.STARVED_CAUSES``). Measured on fresh clones (session 12): idle, the
+real-time runs' lateness p99 was 199-426 us and the max tip errors within 2.5 %; beside
+``stress-ng --cpu 2`` it was 1374-1381 us (26-34 cycles over 1 ms) and the compensated max
+7.7 % over lock-step's, and one real-time run tripped (no TPDO for 0.25 s).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import math
 
 import numpy as np
 import pytest
+from faulthelp import STARVED_CAUSES
 from syshelp import client, session, start_daemon, start_sim, wait_for_socket
 
 from cdcr_ctl.analysis import tip_errors
@@ -61,6 +64,9 @@ def _measure(work, rig, sim, lockstep: bool) -> dict[str, tuple[float, float, fl
             c.call("home")
         for comp in MODES:
             res = run_trajectory(work / "control.sock", f"bend-{comp}", traj.rows(), comp)
+            reason = str(res.get("end_reason") or "")
+            if not lockstep and res["state"] == "tripped" and reason.startswith(STARVED_CAUSES):
+                pytest.skip(f"the real-time reference's rig was starved on this machine: {res}")
             assert res["state"] == "completed", res
             e = tip_errors(res["log_dir"], settle_s=0.0).summary()
             kept = e["samples"] / (res["duration_s"] * 250.0)
