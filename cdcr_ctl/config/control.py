@@ -116,7 +116,7 @@ class LoggingConfig(Section):
     ring_s: Annotated[float, Field(gt=0, le=60)] = 10.0
     #: The ring of a loop on simulated time (lock-step), in seconds of simulated time at the
     #: loop's rate: its writer drains it only once it is half full or the run ends
-    #: (``cdcr_ctl.runlog.writer.process.WAIT_DEFER_FILL``), so a run up to half this long is
+    #: (``cdcr_ctl.runlog.writer.spawn.WAIT_DEFER_FILL``), so a run up to half this long is
     #: written after its last cycle, not beside it. 60 s at 250 Hz is 15 000 rows (~3 MB of
     #: numbers touched; the event text area is touched only by rows with an event).
     wait_ring_s: Annotated[float, Field(gt=0, le=600)] = 60.0

@@ -233,7 +233,7 @@ def main(run_nice: int | None = None) -> int:
     drain = RingDrain(ring, writer, list(spec["columns"]))
     period = spec["drain_interval_s"]
     # A ring that waits (lock-step) is drained only once this full, or at the close or the
-    # parent's end (process.WAIT_DEFER_FILL); None: every drain interval.
+    # parent's end (spawn.WAIT_DEFER_FILL); None: every drain interval.
     defer = spec.get("defer_fill")
     wake = Wake(stdin)
     reason, outcome = PARENT_GONE, "aborted"

@@ -195,7 +195,7 @@ class RunLogFactory:
         if self.writer == "process":
             if self.on_full == "wait":
                 # Lock-step: the next spare's start-up (an interpreter, ~0.1 s of CPU) after
-                # this run's last cycle, not beside its cycles (process.WAIT_DEFER_FILL).
+                # this run's last cycle, not beside its cycles (spawn.WAIT_DEFER_FILL).
                 writer.on_close = self._start_spare
             else:
                 self._start_spare()

@@ -77,13 +77,13 @@ _BOOT = (
 #: this full (rows or CAN frames, a fraction of its size), or when the run closes or the loop's
 #: process is gone; a ring that trips is drained every drain interval. Lock-step runs as fast
 #: as the two cores allow, and a writer draining meanwhile takes its CPU from the loop thread or
-#: the truth worker: measured on the planar bend (README "Lock-step simulation"), the loop's
-#: cycles took 555-850 us with the writer draining at nice 10 whatever its CPU or policy, 370-441
-#: us with no run log. Deferred, the writer does the same work after the run's last cycle, on
-#: CPUs the run no longer needs. Rows wait in shared memory, which the writer process holds
-#: too: a loop process killed meanwhile loses none of them (the writer drains when it sees its
-#: parent gone). Real time keeps its drain interval: there the log is on disk within
-#: ``fsync_every_s``.
+#: the truth worker: on the planar bend (``benchmarks/bench_lockstep.py``, README "Lock-step
+#: simulation", session 12) the cycles took 566-684 us each with the writer draining beside them
+#: at nice 10, 462-536 us deferred. Deferred, the writer does the same work after the run's last
+#: cycle, on CPUs the run no longer needs (the whole run is no faster: a serial tail). Rows
+#: wait in shared memory, which the writer process holds too: a loop process killed meanwhile
+#: loses none of them (the writer drains when it sees its parent gone). Real time keeps its
+#: drain interval: there the log is on disk within ``fsync_every_s``.
 WAIT_DEFER_FILL = 0.5
 
 
