@@ -156,6 +156,16 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             "title": "Raw CAN frame",
             "type": "object",
             "properties": {
+                "t_s": {
+                    "type": ["number", "null"],
+                    "description": "s: the frame's time on the loop-time axis of the rows"
+                    " (timestamp_s minus the UNIX time of loop time 0)",
+                },
+                "cycle": {
+                    "type": "integer",
+                    "description": "loop cycle counter of the last row logged before the frame"
+                    " was written (-1 before the first)",
+                },
                 "timestamp_s": {"type": "number", "description": "s: UNIX time of the frame"},
                 "id": {"type": "integer", "description": "arbitration id"},
                 "extended": {"type": "boolean"},
