@@ -9,15 +9,17 @@
 // Clients: "both" offers foxglove.sdk.v1 and foxglove.websocket.v1 (as Lichtblick does since
 // it learned the SDK's name), "sdk" offers foxglove.sdk.v1 only (the Foxglove app), "v1" offers
 // FoxgloveClient.SUPPORTED_SUBPROTOCOL only (foxglove.websocket.v1: the client as shipped).
-import { FoxgloveClient } from "@foxglove/ws-protocol";
+import wsProtocol from "@foxglove/ws-protocol";
 import WebSocket from "ws";
+
+const { FoxgloveClient } = wsProtocol;
 
 const [url, seconds, settle, ...topics] = process.argv.slice(2);
 const windowMs = Number(seconds) * 1000;
 const settleMs = Number(settle) * 1000;
 const SDK = "foxglove.sdk.v1";
 const OFFERS = {
-  both: [SDK, FoxgloveClient.SUPPORTED_SUBPROTOCOL],
+  both: [FoxgloveClient.SUPPORTED_SUBPROTOCOL, SDK], // Lichtblick's list, in its order
   sdk: [SDK],
   v1: [FoxgloveClient.SUPPORTED_SUBPROTOCOL],
 };
