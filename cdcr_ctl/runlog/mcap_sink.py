@@ -272,10 +272,14 @@ class McapSinkFactory:
     most every :func:`~cdcr_ctl.runlog.streams.model_tip_every` cycles of ``rate_hz``."""
 
     def __init__(
-        self, model_tip: ModelTipSource | None = None, rate_hz: float | None = None
+        self,
+        model_tip: ModelTipSource | None = None,
+        rate_hz: float | None = None,
+        index_types: IndexType = INDEXES,
     ) -> None:
         self.model_tip = model_tip
         self.model_tip_every = streams.model_tip_every(rate_hz)
+        self.index_types = index_types
 
     def __call__(self, run_dir: Path, columns: list[str], files: dict[str, str]) -> McapSink:
         start = run_dir / RUN_YAML
@@ -287,4 +291,5 @@ class McapSinkFactory:
             start_metadata=meta,
             model_tip=self.model_tip,
             model_tip_every=self.model_tip_every,
+            index_types=self.index_types,
         )
