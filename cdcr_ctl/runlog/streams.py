@@ -24,7 +24,10 @@ topic              schema               fields                                  
 =================  ===================  ==============================================  ==========
 
 Every message carries ``t_s`` (loop time, s) and ``cycle`` (loop cycle counter) so a reader
-joins the channels by cycle. ``/tip/model`` is written every :func:`model_tip_every` cycles
+joins the channels by cycle; a ``/can`` frame's are its time on the same axis and the last
+cycle written before it (:meth:`~cdcr_ctl.runlog.mcap_sink.McapSink.write_can`).
+``docs/operating/channels.md`` documents the channels (a test holds it to the files).
+``/tip/model`` is written every :func:`model_tip_every` cycles
 (at most :data:`MODEL_TIP_MAX_HZ`): the forward kinematics of some designs costs more than a
 cycle can spare, and the writer thread must keep up with the loop. Its message is made in
 :mod:`cdcr_ctl.runlog.model_tip` (numpy), apart: this module imports no numpy, so the run-log
