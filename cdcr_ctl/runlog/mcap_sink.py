@@ -131,8 +131,8 @@ class McapSink:
         #: UNIX time (ns) of loop time 0: the wall clock when the first row is written minus
         #: its ``t_s`` (None before it).
         self._epoch_ns: int | None = None
-        #: ``cycle`` of the last row written (-1 before the first).
-        self._last_cycle = -1
+        #: ``t_s``, ``cycle`` and log time (ns) of the last row written (None, -1, 0 before it).
+        self._last_row: tuple[float | None, int, int] = (None, -1, 0)
         self._file = opener(self.path) if opener else open(self.path, "xb")  # noqa: SIM115
         self._w = Writer(
             self._file,
@@ -178,7 +178,8 @@ class McapSink:
             log_ns = self._epoch_ns + round(t * 1e9)
             index = self.rows_written
             cyc = d.get("cycle")
-            self._last_cycle = int(cyc) if cyc is not None and cyc == cyc else index
+            cyc = int(cyc) if cyc is not None and cyc == cyc else index
+            self._last_row = (t, cyc, log_ns)
             for topic, msg in self.rows.encoded(d, index):
                 self._add(topic, log_ns, msg)
             if self.model_tip is not None and S and index % self.model_tip_every == 0:
@@ -194,20 +195,20 @@ class McapSink:
     def write_can(self, final: bool = False) -> None:
         """Add the CAN frames queued by :attr:`can_tap` so far.
 
-        A frame's ``t_s`` is its time on the rows' loop-time axis (its UNIX time minus the file's
-        epoch, see :meth:`write_rows`), its ``cycle`` the last cycle written before it: both are
-        known once a row is, so frames wait in the queue until then (``final``: at close, a run
-        without rows writes them with ``t_s`` null and ``cycle`` -1)."""
+        A frame's ``t_s`` and ``cycle`` are those of the last row written before it (frames
+        and rows reach the writer in batches, so the frame's own cycle may be earlier or the
+        next); its own time (UNIX s) is ``timestamp_s``, which is also its log time; a frame the bus did not stamp (python-can's
+        0.0, as a lock-step bus leaves received frames) is logged at that row's log time. Frames
+        wait in the queue until a row is written (``final``: at close, a run without rows
+        writes them with ``t_s`` null and ``cycle`` -1)."""
         q = self.can_tap.queue
-        epoch = self._epoch_ns
-        if epoch is None and not final:
+        if self._epoch_ns is None and not final:
             return
-        cycle = self._last_cycle
+        t_s, cycle, row_ns = self._last_row
         while q:
             ts, cob, ext, rx, err, rtr, dlc, data = q.popleft()
-            log_ns = round(ts * 1e9)
             msg = {
-                "t_s": (log_ns - epoch) / 1e9 if epoch is not None else None,
+                "t_s": t_s,
                 "cycle": cycle,
                 "timestamp_s": ts,
                 "id": cob,
@@ -218,7 +219,7 @@ class McapSink:
                 "dlc": dlc,
                 "data": data.hex(),
             }
-            self._add(streams.CAN, log_ns, msg)
+            self._add(streams.CAN, round(ts * 1e9) if ts else row_ns, msg)
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the OS (no fsync)."""

@@ -24,8 +24,8 @@ topic              schema               fields                                  
 =================  ===================  ==============================================  ==========
 
 Every message carries ``t_s`` (loop time, s) and ``cycle`` (loop cycle counter) so a reader
-joins the channels by cycle; a ``/can`` frame's are its time on the same axis and the last
-cycle written before it (:meth:`~cdcr_ctl.runlog.mcap_sink.McapSink.write_can`).
+joins the channels by cycle; a ``/can`` frame's are those of the last row written before it
+(:meth:`~cdcr_ctl.runlog.mcap_sink.McapSink.write_can`), its own time is ``timestamp_s``.
 ``docs/operating/channels.md`` documents the channels (a test holds it to the files).
 ``/tip/model`` is written every :func:`model_tip_every` cycles
 (at most :data:`MODEL_TIP_MAX_HZ`): the forward kinematics of some designs costs more than a
@@ -161,15 +161,18 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             "properties": {
                 "t_s": {
                     "type": ["number", "null"],
-                    "description": "s: the frame's time on the loop-time axis of the rows"
-                    " (timestamp_s minus the UNIX time of loop time 0)",
+                    "description": "s: loop time of the last row logged before the frame"
+                    " was written (its own time: timestamp_s)",
                 },
                 "cycle": {
                     "type": "integer",
                     "description": "loop cycle counter of the last row logged before the frame"
                     " was written (-1 before the first)",
                 },
-                "timestamp_s": {"type": "number", "description": "s: UNIX time of the frame"},
+                "timestamp_s": {
+                    "type": "number",
+                    "description": "s: UNIX time of the frame (0: the bus did not stamp it)",
+                },
                 "id": {"type": "integer", "description": "arbitration id"},
                 "extended": {"type": "boolean"},
                 "rx": {"type": "boolean", "description": "received (else sent by us)"},

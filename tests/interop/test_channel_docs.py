@@ -43,9 +43,8 @@ def _table() -> dict[str, dict]:
     return rows
 
 
-def _write_run(path: Path) -> tuple[float, float, list[float]]:
-    """A run with a message on every channel; returns the wall-clock bounds (UNIX s) around the
-    first rows' write (the file's loop time 0 is taken in it) and the CAN frames' timestamps."""
+def _write_run(path: Path) -> list[float]:
+    """A run with a message on every channel; returns its CAN frames' timestamps."""
     sink = McapSink(path, COLS, model_tip=ModelTip(lambda psi: np.ones(3)))
     rows = []
     for i in range(50):
@@ -53,24 +52,24 @@ def _write_run(path: Path) -> tuple[float, float, list[float]]:
         d.update(t_s=i * 1e-3, cycle=i, event="tension_low: cable 1" if i == 9 else "")
         d["tip_y_mm"] = math.nan if i == 3 else d["tip_y_mm"]
         rows.append(d)
-    stamps = [time.time() - 0.25, time.time() + 0.5]
+    stamps = [time.time(), 0.0]  # the second one unstamped, as a lock-step bus leaves frames
     sink.can_tap(can.Message(timestamp=stamps[0], arbitration_id=0x80, data=b""))  # before rows
-    before = time.time()
     sink.write_rows(rows[:20])
-    after = time.time()
     sink.can_tap(can.Message(timestamp=stamps[1], arbitration_id=0x181, data=b"\x01\x02"))
     sink.write_rows(rows[20:])
     sink.close("name: doc\n")
-    return before, after, stamps
+    return stamps
 
 
 def test_the_channel_table_matches_run_mcap_and_the_live_view(tmp_path):
     table = _table()
-    before, after, stamps = _write_run(tmp_path / RUN_MCAP)
+    stamps = _write_run(tmp_path / RUN_MCAP)
     with open(tmp_path / RUN_MCAP, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        messages = [(ch.topic, json.loads(m.data)) for _, ch, m in reader.iter_messages()]
+        found = list(reader.iter_messages(log_time_order=False))
+    messages = [(ch.topic, json.loads(m.data)) for _, ch, m in found]
+    log_ns = {(ch.topic, json.loads(m.data)["cycle"]): m.log_time for _, ch, m in found}
     in_file = {ch.topic: summary.schemas[ch.schema_id] for ch in summary.channels.values()}
     assert {t for t, row in table.items() if row["file"]} == set(in_file)
     for topic, schema in in_file.items():
@@ -84,12 +83,12 @@ def test_the_channel_table_matches_run_mcap_and_the_live_view(tmp_path):
         assert set(msg) == HEAD | table[topic]["fields"], (topic, msg)
         assert isinstance(msg["cycle"], int)
     can_msgs = [m for t, m in messages if t == streams.CAN]
-    # /can: the frame's time on the rows' axis (its UNIX time minus that of loop time 0, taken
-    # while the first rows were written) and the last cycle written before it.
-    assert [m["cycle"] for m in can_msgs] == [19, 49]
-    for m, stamp in zip(can_msgs, stamps, strict=True):
-        assert m["timestamp_s"] == stamp
-        assert stamp - after <= m["t_s"] <= stamp - before
+    # /can: t_s and cycle of the last row written before the frame; its own time apart.
+    assert [(m["t_s"], m["cycle"]) for m in can_msgs] == [(0.019, 19), (0.049, 49)]
+    assert [m["timestamp_s"] for m in can_msgs] == stamps
+    # Logged at its own time, or when unstamped at its row's (never at UNIX time 0).
+    assert log_ns[(streams.CAN, 19)] == round(stamps[0] * 1e9)
+    assert log_ns[(streams.CAN, 49)] == log_ns[(streams.COMMAND, 49)] > 0
 
     with LiveView(lambda: None, COLS, port=0) as live:
         served = {*live._channels, live._scene.topic()}
