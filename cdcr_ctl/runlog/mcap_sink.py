@@ -197,10 +197,11 @@ class McapSink:
 
         A frame's ``t_s`` and ``cycle`` are those of the last row written before it (frames
         and rows reach the writer in batches, so the frame's own cycle may be earlier or the
-        next); its own time (UNIX s) is ``timestamp_s``, which is also its log time; a frame the bus did not stamp (python-can's
-        0.0, as a lock-step bus leaves received frames) is logged at that row's log time. Frames
-        wait in the queue until a row is written (``final``: at close, a run without rows
-        writes them with ``t_s`` null and ``cycle`` -1)."""
+        next); its own time (UNIX s) is ``timestamp_s``, which is also its log time; a frame
+        the bus did not stamp (python-can's 0.0, as a lock-step bus leaves received frames) is
+        logged at that row's log time. Frames wait in the queue until a row is written
+        (``final``: at close, a run without rows writes them with ``t_s`` null and ``cycle``
+        -1)."""
         q = self.can_tap.queue
         if self._epoch_ns is None and not final:
             return
