@@ -97,15 +97,14 @@ def test_a_file_cut_after_a_flush_reads_in_the_stream_reader_up_to_it(tmp_path):
     rows = [_row(i, rng) for i in range(300)]
     path = tmp_path / RUN_MCAP
     sink = McapSink(path, COLS)
-    sink.write_rows(rows[:120])
-    sink.flush()
-    flushed = path.stat().st_size
-    sink.write_rows(rows[120:])
-    sink.flush()
-    whole = path.read_bytes()
-    sink.close()
+    ends = []  # the file's size after each flush
+    for part in (rows[:120], rows[120:]):
+        sink.write_rows(part)
+        sink.flush()
+        ends.append(path.stat().st_size)
     cut = tmp_path / "cut.mcap"
-    cut.write_bytes(whole[: (flushed + len(whole)) // 2])  # the writer killed mid-chunk
+    cut.write_bytes(path.read_bytes()[: sum(ends) // 2])  # the writer killed mid-chunk
+    sink.close()
     got = nodejs.read_mcap(cut, path)
     stream = got[str(cut)]["stream"]
     assert "error" not in stream and not stream["footer"] and stream["leftoverBytes"] > 0
