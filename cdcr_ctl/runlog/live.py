@@ -70,7 +70,7 @@ OLD_SUBPROTOCOL = "foxglove.websocket.v1"
 SDK_SERVER_LOGGER = "foxglove.websocket.server"
 UPGRADE_HINT = (
     f"the live view speaks the Foxglove WebSocket protocol as {SUBPROTOCOL}; a client offering"
-    f" only {OLD_SUBPROTOCOL} is refused (HTTP 400): use the Foxglove app or Lichtblick 1.22.1 or"
+    f" only {OLD_SUBPROTOCOL} is refused (HTTP 400): use the Foxglove app or Lichtblick 1.22.0 or"
     f" later, or make the client offer {SUBPROTOCOL} (docs/operating/channels.md)"
 )
 

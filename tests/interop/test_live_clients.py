@@ -95,4 +95,4 @@ def test_foxglove_ws_protocol_clients_on_the_live_view(caplog):
     }
     # The daemon's log says why and what to upgrade.
     (refusal,) = [r.getMessage() for r in caplog.records if "handshake failed" in r.getMessage()]
-    assert UPGRADE_HINT in refusal and "Lichtblick 1.22.1" in refusal
+    assert UPGRADE_HINT in refusal and "Lichtblick 1.22.0" in refusal
