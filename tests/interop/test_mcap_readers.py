@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import nodejs  # tests/interop/nodejs.py: npm ci from the lock, node scripts
 
 COLS = sample_columns(2, 3, (*LOOP_EXTRA_COLUMNS, "motor_temp_C"))
-ROWS = 3000
+ROWS = 1500
 FRAMES_PER_ROW = 2
 RATE_HZ = 1000.0
 
