@@ -6,9 +6,10 @@ attachments at the start; ``run.yaml`` goes in as an attachment and as metadata 
 run closes (a run killed before that has the start metadata ``run_start`` only).
 
 Durability: the ``mcap`` writer keeps the current chunk in memory. :meth:`McapSink.flush`
-closes it (zstd-compressed, with its message index) and writes it to the file; the run-log
-writer calls it every ``fsync_every_s`` right before its fsync, so a process killed by SIGKILL
-leaves a file whose complete chunks hold everything up to the last flush. Such a file has no
+closes it (zstd-compressed) and writes it to the file, its message indexes right after it; the
+run-log writer calls it every ``fsync_every_s`` right before its fsync, so a process killed by
+SIGKILL leaves a file whose complete chunks hold everything up to the last flush (a cut inside
+the message indexes after a chunk keeps the chunk). Such a file has no
 summary or footer; :mod:`cdcr_ctl.runlog.mcap_reader` reads it with the ``mcap`` package's
 streaming reader and stops at the cut.
 
