@@ -3,7 +3,9 @@
 Replays a logged run (its ``samples.csv`` rows and, when present, the CAN frames of its
 ``can.asc``) through the run-log writer with the MCAP sink attached, at full speed, and prints
 the size per logged row of each file, the hourly size at 1 kHz (bytes per row x 3.6 M rows), and
-the writer thread's CPU time per row with and without the MCAP sink.
+the process CPU time per row (replay and writer thread) for the CSV alone and with ``run.mcap``.
+``run.mcap`` is written twice: as the sink writes it (every index, message indexes included)
+and without message indexes, the difference being their cost.
 
     .venv/bin/python benchmarks/bench_runlog_size.py [RUN_DIR]
 
@@ -21,9 +23,10 @@ from pathlib import Path
 
 import can
 import numpy as np
+from mcap.writer import IndexType
 
 from cdcr_ctl.runlog import load_run
-from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
+from cdcr_ctl.runlog.mcap_sink import INDEXES, McapSinkFactory
 from cdcr_ctl.runlog.writer import RunLogWriter, RunMetadata
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,7 +51,13 @@ def make_source(tmp: Path) -> Path:
     )
 
 
-def replay(src, out: Path, mcap: bool) -> tuple[dict[str, float], int]:
+#: The indexes of ``run.mcap`` without message indexes.
+NO_MESSAGE_INDEX = INDEXES & ~IndexType.MESSAGE
+
+
+def replay(
+    src, out: Path, mcap: bool, index_types: IndexType = INDEXES
+) -> tuple[dict[str, float], int]:
     run = load_run(src)
     frames = list(can.LogReader(str(run.can_log))) if run.can_log is not None else []
     cols = [run.data[c] for c in run.columns]
@@ -60,7 +69,7 @@ def replay(src, out: Path, mcap: bool) -> tuple[dict[str, float], int]:
         out,
         run.columns,
         RunMetadata(name="size", rate_hz=1000.0),
-        second_sink=McapSinkFactory(None, 1000.0) if mcap else None,
+        second_sink=McapSinkFactory(None, 1000.0, index_types) if mcap else None,
         max_queued_rows=len(rows) + 1,
     )
     per_row = max(1, len(frames) // max(1, len(rows)))
@@ -79,18 +88,27 @@ def main(argv: list[str] | None = None) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         src = Path(argv[0]) if argv else make_source(Path(tmp) / "src")
         n = len(load_run(src))
-        t = time.process_time()
-        replay(src, Path(tmp) / "csv", mcap=False)
-        cpu_csv = time.process_time() - t
-        t = time.process_time()
-        sizes, n_frames = replay(src, Path(tmp) / "mcap", mcap=True)
-        cpu_mcap = time.process_time() - t
+        cpu: dict[str, float] = {}
+        sizes: dict[str, float] = {}
+        variants = (
+            ("csv", False, INDEXES),
+            ("mcap, message indexes", True, INDEXES),
+            ("mcap, no message indexes", True, NO_MESSAGE_INDEX),
+        )
+        for label, mcap, index_types in variants:
+            t = time.process_time()
+            got, n_frames = replay(src, Path(tmp) / label.replace(" ", ""), mcap, index_types)
+            cpu[label] = time.process_time() - t
+            if not mcap:
+                sizes["samples.csv"] = got["samples.csv"]
+            else:
+                sizes[f"run.mcap ({label[6:]})"] = got["run.mcap"]
     print(f"source: {src} ({n} rows, {n_frames} CAN frames replayed into run.mcap's /can)")
     for name, b in sizes.items():
         print(f"{name}: {b:.0f} B/row = {b * 3.6e6 / 1e6:.0f} MB/h at 1 kHz")
     print(
-        f"process CPU per row (replay + writer thread): csv {1e6 * cpu_csv / n:.0f} us, "
-        f"csv + mcap {1e6 * cpu_mcap / n:.0f} us"
+        "process CPU per row (replay + writer thread): "
+        + ", ".join(f"{label} {1e6 * c / n:.0f} us" for label, c in cpu.items())
     )
 
 

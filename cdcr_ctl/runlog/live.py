@@ -14,6 +14,13 @@ messages at once.
 
 Exposure: no authentication. The server binds ``live.host`` (127.0.0.1 unless the config names
 another address) and is off unless ``live.enabled``.
+
+Reach: the SDK's server names the Foxglove WebSocket protocol ``foxglove.sdk.v1`` (Foxglove's
+stance: the protocol of ``foxglove.websocket.v1`` under a new name) and refuses in the handshake,
+with HTTP 400 and the body ``Missing expected sec-websocket-protocol header``, a client that does
+not offer that name; the SDK has no setting for the old one. Such a client (a viewer from before
+the SDK) is told so in the daemon's log: :class:`RefusalNote` adds what to upgrade to the SDK's
+own "handshake failed" line. ``docs/operating/channels.md`` lists the viewers that connect.
 """
 
 from __future__ import annotations
@@ -55,6 +62,17 @@ ARCS_PER_SEGMENT = 12
 #: Frame of the 3D scene: the robot base frame.
 FRAME = "base"
 _MM = 1e-3  # Foxglove's 3D panel works in metres
+
+#: The WebSocket subprotocol the SDK's server accepts, and the name older clients offer.
+SUBPROTOCOL = "foxglove.sdk.v1"
+OLD_SUBPROTOCOL = "foxglove.websocket.v1"
+#: The SDK's logger of refused handshakes.
+SDK_SERVER_LOGGER = "foxglove.websocket.server"
+UPGRADE_HINT = (
+    f"the live view speaks the Foxglove WebSocket protocol as {SUBPROTOCOL}; a client offering"
+    f" only {OLD_SUBPROTOCOL} is refused (HTTP 400): use the Foxglove app or Lichtblick 1.22.0 or"
+    f" later, or make the client offer {SUBPROTOCOL} (docs/operating/channels.md)"
+)
 
 RowSource = Callable[[], Mapping[str, Any] | None]
 TripSource = Callable[[], Any]
@@ -124,6 +142,23 @@ def scene_of(points_mm: np.ndarray, tracked_mm: Sequence[float | None] | None) -
     return SceneUpdate(entities=entities)
 
 
+class RefusalNote(logging.Filter):
+    """Adds :data:`UPGRADE_HINT` to the SDK's "handshake failed" log line (a client that did not
+    offer :data:`SUBPROTOCOL`, most often an older viewer, or no WebSocket client at all)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        msg = record.getMessage()
+        if "handshake failed" in msg and UPGRADE_HINT not in msg:
+            record.msg, record.args = f"{msg} ({UPGRADE_HINT})", ()
+        return True
+
+
+def _note_refusals() -> None:
+    sdk_log = logging.getLogger(SDK_SERVER_LOGGER)
+    if not any(isinstance(f, RefusalNote) for f in sdk_log.filters):
+        sdk_log.addFilter(RefusalNote())
+
+
 class LiveView:
     """The live server and its publisher thread. ``start()`` / ``stop()``; a context manager.
 
@@ -166,6 +201,7 @@ class LiveView:
         return f"ws://{self.host}:{self.port}"
 
     def start(self) -> LiveView:
+        _note_refusals()
         self._ctx = foxglove.Context()
         try:
             self._server = foxglove.start_server(

@@ -6,17 +6,21 @@ length): ~6 us a message here, five messages a logged row, a third of the run-lo
 process's CPU per row. :class:`MessageAppender` does what it does, in the same order and to the
 same state (the file's statistics, the chunk's start and end times, its message index, the
 record bytes, the chunk closed when it exceeds its size) with one ``struct`` store of the
-record's head and one write of the payload. It reaches the writer's chunk builder and statistics
-through their (name-mangled) attributes: a writer without them (another ``mcap`` version) gets
-``add_message`` itself. ``tests/runlog/test_mcap_chunk.py`` holds the two paths' files equal
-byte for byte.
+record's head and one write of the payload; its message indexes (:class:`PackedMessageIndex`)
+are written with one ``struct`` store each instead of two per message (72 against 412 ns a
+message, ``benchmarks/bench_mcap_sink.py``). It reaches the writer's chunk builder and
+statistics through their (name-mangled) attributes: a writer without them (another ``mcap``
+version) gets ``add_message`` itself. ``tests/runlog/test_mcap_chunk.py`` holds the two paths'
+files equal byte for byte.
 """
 
 from __future__ import annotations
 
 import struct
+from itertools import chain
 from typing import Any
 
+from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import MessageIndex
 from mcap.writer import Writer
@@ -26,6 +30,19 @@ from mcap.writer import Writer
 MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 #: The record length of a message without its payload.
 _FIXED = MESSAGE_HEAD.size - 9
+
+
+class PackedMessageIndex(MessageIndex):
+    """``MessageIndex`` whose record is written with one ``struct`` store of all its (log time,
+    offset) pairs: the same bytes as the library's ``write`` (uint16 channel id, uint32 byte
+    length of the pairs, uint64 pairs, little-endian), without a call per value."""
+
+    def write(self, stream: RecordBuilder) -> None:
+        n = len(self.records)
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        pairs = chain.from_iterable(self.records)
+        stream.write(struct.pack(f"<HI{2 * n}Q", self.channel_id, 16 * n, *pairs))
+        stream.finish_record()
 
 
 class MessageAppender:
@@ -73,7 +90,7 @@ class MessageAppender:
         buf = chunk.record_writer._buffer  # a new one after each chunk
         index = chunk.message_indices.get(channel_id)
         if index is None:
-            index = chunk.message_indices[channel_id] = MessageIndex(
+            index = chunk.message_indices[channel_id] = PackedMessageIndex(
                 channel_id=channel_id, records=[]
             )
         index.records.append((log_time, buf.tell()))

@@ -6,9 +6,10 @@ attachments at the start; ``run.yaml`` goes in as an attachment and as metadata 
 run closes (a run killed before that has the start metadata ``run_start`` only).
 
 Durability: the ``mcap`` writer keeps the current chunk in memory. :meth:`McapSink.flush`
-closes it (zstd-compressed, with its message index) and writes it to the file; the run-log
-writer calls it every ``fsync_every_s`` right before its fsync, so a process killed by SIGKILL
-leaves a file whose complete chunks hold everything up to the last flush. Such a file has no
+closes it (zstd-compressed) and writes it to the file, its message indexes right after it; the
+run-log writer calls it every ``fsync_every_s`` right before its fsync, so a process killed by
+SIGKILL leaves a file whose complete chunks hold everything up to the last flush (a cut inside
+the message indexes after a chunk keeps the chunk). Such a file has no
 summary or footer; :mod:`cdcr_ctl.runlog.mcap_reader` reads it with the ``mcap`` package's
 streaming reader and stops at the cut.
 
@@ -53,10 +54,11 @@ LIBRARY = f"cdcr-ctl {__version__}"
 #: Small enough that compressing one (a few ms for 256 KiB here) never holds the writer thread
 #: long; the chunk is closed at each flush (``fsync_every_s``) in any case.
 CHUNK_BYTES = 256 * 1024
-#: Indexes written: chunk, attachment and metadata indexes, no per-message index (16 bytes per
-#: message outside the compressed chunks, ~30 % of the file at 1 kHz; readers find messages by
-#: chunk, and Foxglove and the ``mcap`` readers read chunk-indexed files).
-INDEXES = IndexType.CHUNK | IndexType.ATTACHMENT | IndexType.METADATA
+#: Indexes written: all of them. The message indexes (16 bytes per message, outside the
+#: compressed chunks) follow each chunk in the same flush; the official TypeScript reader
+#: (``McapIndexedReader`` of ``@mcap/core``, the Foxglove app's reader of seekable files) refuses
+#: a chunk index without them. Their size: ``benchmarks/bench_runlog_size.py``.
+INDEXES = IndexType.ALL
 #: Rows encoded between two voluntary releases of the GIL (the loop thread never waits long).
 YIELD_EVERY_ROWS = 4
 #: Bound of the CAN frame queue (frames); beyond it frames are counted as dropped.
@@ -115,6 +117,7 @@ class McapSink:
         model_tip: ModelTipSource | None = None,
         model_tip_every: int = 1,
         opener: Callable[[Path], IO[bytes]] | None = None,
+        index_types: IndexType = INDEXES,
     ) -> None:
         self.path = Path(path)
         self.rows = RowStreams(tuple(columns))
@@ -126,13 +129,17 @@ class McapSink:
         #: Rows encoded between two releases of the GIL (0: never; the run-log writer process
         #: has no real-time thread to give it to).
         self.yield_every = YIELD_EVERY_ROWS
+        #: UNIX time (ns) of loop time 0: the wall clock when the first row is written minus
+        #: its ``t_s`` (None before it).
         self._epoch_ns: int | None = None
+        #: ``t_s``, ``cycle`` and log time (ns) of the last row written (None, -1, 0 before it).
+        self._last_row: tuple[float | None, int, int] = (None, -1, 0)
         self._file = opener(self.path) if opener else open(self.path, "xb")  # noqa: SIM115
         self._w = Writer(
             self._file,
             chunk_size=CHUNK_BYTES,
             compression=CompressionType.ZSTD,
-            index_types=INDEXES,
+            index_types=index_types,
         )
         self._w.start(profile=PROFILE, library=LIBRARY)
         now = time.time_ns()
@@ -171,6 +178,9 @@ class McapSink:
                 self._epoch_ns = time.time_ns() - round(t * 1e9)
             log_ns = self._epoch_ns + round(t * 1e9)
             index = self.rows_written
+            cyc = d.get("cycle")
+            cyc = int(cyc) if cyc is not None and cyc == cyc else index
+            self._last_row = (t, cyc, log_ns)
             for topic, msg in self.rows.encoded(d, index):
                 self._add(topic, log_ns, msg)
             if self.model_tip is not None and S and index % self.model_tip_every == 0:
@@ -183,12 +193,25 @@ class McapSink:
                 time.sleep(0)
         self.write_can()
 
-    def write_can(self) -> None:
-        """Add the CAN frames queued by :attr:`can_tap` so far."""
+    def write_can(self, final: bool = False) -> None:
+        """Add the CAN frames queued by :attr:`can_tap` so far.
+
+        A frame's ``t_s`` and ``cycle`` are those of the last row written before it (frames
+        and rows reach the writer in batches, so the frame's own cycle may be earlier or the
+        next); its own time (UNIX s) is ``timestamp_s``, which is also its log time; a frame
+        the bus did not stamp (python-can's 0.0, as a lock-step bus leaves received frames) is
+        logged at that row's log time. Frames wait in the queue until a row is written
+        (``final``: at close, a run without rows writes them with ``t_s`` null and ``cycle``
+        -1)."""
         q = self.can_tap.queue
+        if self._epoch_ns is None and not final:
+            return
+        t_s, cycle, row_ns = self._last_row
         while q:
             ts, cob, ext, rx, err, rtr, dlc, data = q.popleft()
             msg = {
+                "t_s": t_s,
+                "cycle": cycle,
                 "timestamp_s": ts,
                 "id": cob,
                 "extended": ext,
@@ -198,7 +221,7 @@ class McapSink:
                 "dlc": dlc,
                 "data": data.hex(),
             }
-            self._add(streams.CAN, round(ts * 1e9), msg)
+            self._add(streams.CAN, round(ts * 1e9) if ts else row_ns, msg)
 
     def flush(self) -> None:
         """Close the chunk in progress and hand everything to the OS (no fsync)."""
@@ -212,7 +235,7 @@ class McapSink:
         keys, values as YAML), the summary and the footer; close the file. ``ok`` False (the
         run log failed) still tries, and never raises past an OSError of the file."""
         try:
-            self.write_can()
+            self.write_can(final=True)
             if run_yaml is not None:
                 now = time.time_ns()
                 self._w.add_attachment(now, now, "run.yaml", "application/yaml", run_yaml.encode())
@@ -226,17 +249,23 @@ class McapSink:
 
 
 def yaml_metadata(text: str) -> dict[str, str]:
-    """A YAML mapping as MCAP metadata (string -> string): each top-level value as YAML text."""
+    """A YAML mapping as MCAP metadata (string -> string): each top-level value as YAML text, a
+    scalar as its plain text (``250.0``, ``true``; no document end marker), a collection in flow
+    style (``{rows: 6001, ...}``); ``yaml.safe_load`` of a value gives the value back."""
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError:
         return {"yaml": text}
     if not isinstance(doc, dict):
         return {"yaml": text}
-    return {
-        str(k): v if isinstance(v, str) else yaml.safe_dump(v, default_flow_style=True).strip()
-        for k, v in doc.items()
-    }
+    return {str(k): v if isinstance(v, str) else _yaml_text(v) for k, v in doc.items()}
+
+
+def _yaml_text(value: Any) -> str:
+    text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30)
+    if text.endswith("\n...\n"):  # a plain scalar at the top ends its document explicitly
+        text = text[: -len("...\n")]
+    return text.strip()
 
 
 class McapSinkFactory:
@@ -246,10 +275,14 @@ class McapSinkFactory:
     most every :func:`~cdcr_ctl.runlog.streams.model_tip_every` cycles of ``rate_hz``."""
 
     def __init__(
-        self, model_tip: ModelTipSource | None = None, rate_hz: float | None = None
+        self,
+        model_tip: ModelTipSource | None = None,
+        rate_hz: float | None = None,
+        index_types: IndexType = INDEXES,
     ) -> None:
         self.model_tip = model_tip
         self.model_tip_every = streams.model_tip_every(rate_hz)
+        self.index_types = index_types
 
     def __call__(self, run_dir: Path, columns: list[str], files: dict[str, str]) -> McapSink:
         start = run_dir / RUN_YAML
@@ -261,4 +294,5 @@ class McapSinkFactory:
             start_metadata=meta,
             model_tip=self.model_tip,
             model_tip_every=self.model_tip_every,
+            index_types=self.index_types,
         )

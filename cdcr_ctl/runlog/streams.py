@@ -24,7 +24,10 @@ topic              schema               fields                                  
 =================  ===================  ==============================================  ==========
 
 Every message carries ``t_s`` (loop time, s) and ``cycle`` (loop cycle counter) so a reader
-joins the channels by cycle. ``/tip/model`` is written every :func:`model_tip_every` cycles
+joins the channels by cycle; a ``/can`` frame's are those of the last row written before it
+(:meth:`~cdcr_ctl.runlog.mcap_sink.McapSink.write_can`), its own time is ``timestamp_s``.
+``docs/operating/channels.md`` documents the channels (a test holds it to the files).
+``/tip/model`` is written every :func:`model_tip_every` cycles
 (at most :data:`MODEL_TIP_MAX_HZ`): the forward kinematics of some designs costs more than a
 cycle can spare, and the writer thread must keep up with the loop. Its message is made in
 :mod:`cdcr_ctl.runlog.model_tip` (numpy), apart: this module imports no numpy, so the run-log
@@ -156,7 +159,20 @@ SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
             "title": "Raw CAN frame",
             "type": "object",
             "properties": {
-                "timestamp_s": {"type": "number", "description": "s: UNIX time of the frame"},
+                "t_s": {
+                    "type": ["number", "null"],
+                    "description": "s: loop time of the last row logged before the frame"
+                    " was written (its own time: timestamp_s)",
+                },
+                "cycle": {
+                    "type": "integer",
+                    "description": "loop cycle counter of the last row logged before the frame"
+                    " was written (-1 before the first)",
+                },
+                "timestamp_s": {
+                    "type": "number",
+                    "description": "s: UNIX time of the frame (0: the bus did not stamp it)",
+                },
                 "id": {"type": "integer", "description": "arbitration id"},
                 "extended": {"type": "boolean"},
                 "rx": {"type": "boolean", "description": "received (else sent by us)"},

@@ -13,7 +13,7 @@ import yaml
 from cdcr_ctl.config.loader import load_rig_config
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, load_run, sample_columns
-from cdcr_ctl.runlog.mcap_sink import RUN_MCAP, McapSinkFactory
+from cdcr_ctl.runlog.mcap_sink import RUN_MCAP, McapSinkFactory, yaml_metadata
 from cdcr_ctl.runlog.model_tip import ModelTip
 from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
@@ -107,3 +107,22 @@ def test_live_host_must_be_an_address_and_the_error_names_the_key(tmp_path):
     path.write_text(yaml.safe_dump({"extends": base, "live": {"enabled": True}}))
     live = load_rig_config(path).live
     assert (live.host, live.port, live.enabled) == ("127.0.0.1", 8765, True)
+
+
+def test_metadata_values_are_plain_yaml_text():
+    text = (
+        "rate_hz: 250.0\nok: true\nname: x\nnothing: null\nstarted: 2026-11-29 01:59:56+00:00\n"
+        "ended: {outcome: completed, rows: {written: 3}}\ncables: [1, 2]\n"
+    )
+    meta = yaml_metadata(text)
+    assert meta == {
+        "rate_hz": "250.0",
+        "ok": "true",
+        "name": "x",
+        "nothing": "null",
+        "started": "2026-11-29 01:59:56+00:00",
+        "ended": "{outcome: completed, rows: {written: 3}}",
+        "cables": "[1, 2]",
+    }
+    doc = yaml.safe_load(text)
+    assert {k: yaml.safe_load(v) for k, v in meta.items()} == doc  # each value reads back

@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 import math
 import re
+import struct
 from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mcap.opcode import Opcode
 
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.runlog import load_run, streams
@@ -80,13 +82,20 @@ def test_a_cut_file_reads_up_to_its_last_flush(tmp_path):
     sink.flush()
     whole = path.read_bytes()
     sink.close()
-    for cut in (flushed, flushed + 1, (flushed + len(whole)) // 2, len(whole) - 3):
+    # The second flush wrote a chunk record, then its message indexes (one record a channel).
+    opcode, length = struct.unpack_from("<BQ", whole, flushed)
+    assert opcode == Opcode.CHUNK
+    chunk_end = flushed + 9 + length
+    assert struct.unpack_from("<B", whole, chunk_end)[0] == Opcode.MESSAGE_INDEX
+    cuts = {flushed: 120, flushed + 1: 120, (flushed + chunk_end) // 2: 120, chunk_end - 1: 120}
+    cuts |= {chunk_end: 300, chunk_end + 5: 300, len(whole) - 3: 300}  # only indexes cut
+    for cut, n in cuts.items():
         p = tmp_path / f"cut{cut}.mcap"
         p.write_bytes(whole[:cut] + b"\0" * 64)  # a tail the file system extended, never wrote
         run = load_run(p)
-        assert len(run) == 120
+        assert len(run) == n, cut
         assert run.warnings and "last flush" in run.warnings[0]
-        assert np.array_equal(run.t_s, [r["t_s"] for r in rows[:120]])
+        assert np.array_equal(run.t_s, [r["t_s"] for r in rows[:n]])
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file at all")
     with pytest.raises(ConfigError, match=r"junk.mcap.*not an MCAP file"):
         load_run(tmp_path / "junk.mcap")

@@ -9,10 +9,15 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
-from cdcr_ctl.runlog import load_run
+from cdcr_ctl.runlog import load_run, streams
+from cdcr_ctl.runlog.mcap_sink import RUN_MCAP
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "interop"))
+import nodejs  # tests/interop/nodejs.py: the viewers' own code on Node
 
 
 @pytest.mark.slow
@@ -45,3 +50,17 @@ def test_demo_runs_both_experiments_with_and_without_compensation(tmp_path):
         assert {"q_cmd", "q_act", "tension", "tip"} <= set(run.groups)
         assert (run_dir / "can.asc").stat().st_size > 0
         assert list((run_dir / "plots").glob("*.png"))
+    # Every demo run's run.mcap in the official TypeScript readers (tests/interop): every
+    # message, a message per logged row on each per-cycle channel.
+    read = nodejs.read_mcap(*(run_dir / RUN_MCAP for run_dir in runs))
+    for run_dir in runs:
+        n = len(load_run(run_dir))
+        got = read[str(run_dir / RUN_MCAP)]
+        for reader in ("indexed", "stream"):
+            res = got[reader]
+            assert "error" not in res, (run_dir.name, reader, res["error"])
+            assert {t: res["counts"][t] for t in streams.PER_CYCLE} == dict.fromkeys(
+                streams.PER_CYCLE, n
+            ), (run_dir.name, reader)
+            assert res["failures"] == {"json": 0, "missingHead": {}}, (run_dir.name, reader)
+        assert got["indexed"]["statisticsCount"] == sum(got["indexed"]["counts"].values())

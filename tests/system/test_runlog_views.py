@@ -3,7 +3,12 @@
 - ``cdcr-ctl watch`` under a pseudo-terminal shows state, drives, trips, tip error, lateness;
 - a Foxglove WebSocket client (written from the protocol document, tests/runlog/fgclient.py)
   subscribes during a run and receives tip and tension at the configured rate;
-- the run's ``run.mcap`` is read by the ``mcap`` package's own reader: every channel with its
+- at the same time the viewers' own client, ``@foxglove/ws-protocol``'s ``FoxgloveClient``
+  (tests/interop), offering both subprotocols as Lichtblick does and ``foxglove.sdk.v1`` alone
+  as the Foxglove app does, receives them at the configured rate; offering only
+  ``foxglove.websocket.v1`` it is refused in the handshake;
+- the run's ``run.mcap`` is read by the ``mcap`` package's own reader and by the official
+  TypeScript readers (``McapIndexedReader``, ``McapStreamReader``): every channel with its
   schema, message counts equal to the cycles logged (``samples.csv`` rows);
 - SIGKILL of the daemon mid-run: the writer process closes ``run.mcap`` and ``samples.csv``
   whole, every row the daemon handed over in both.
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import fcntl
 import itertools
+import json
 import math
 import os
 import pty
@@ -45,7 +51,9 @@ from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run, streams
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "runlog"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "interop"))
 import fgclient  # tests/runlog/fgclient.py: the protocol client
+import nodejs  # tests/interop/nodejs.py: the viewers' own code on Node
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(240)]
 
@@ -141,7 +149,15 @@ def test_live_client_and_the_mcap_file(rig_session):
     work, port = rig_session["work"], rig_session["port"]
     res = start_run(work, 6.0, "live")
     topics = [streams.TIP_TRACKED, streams.TENSION, streams.TIP_MODEL, streams.SCENE]
-    got = fgclient.collect(f"ws://127.0.0.1:{port}", topics, seconds=2.0)
+    url = f"ws://127.0.0.1:{port}"
+    node = nodejs.start_script("live_clients.mjs", url, "2.0", "0.3", *topics[:2])
+    try:
+        got = fgclient.collect(url, topics, seconds=2.0)
+        node_out, node_err = node.communicate(timeout=60)
+    finally:
+        if node.poll() is None:
+            node.kill()
+    assert node.returncode == 0, node_err[-2000:]
     assert got["info"].get("op") == "serverInfo"
     rx = got["received"]
     expected = LIVE_HZ * got["seconds"]
@@ -156,6 +172,16 @@ def test_live_client_and_the_mcap_file(rig_session):
     assert all(m["x_mm"] is not None for _, m in rx[streams.TIP_TRACKED])
     assert rx[streams.TIP_MODEL] and rx[streams.SCENE]
     assert got["channels"][streams.TENSION]["schemaName"] == "cdcr.Tension"
+    # The viewers' client (@foxglove/ws-protocol's FoxgloveClient) beside it.
+    clients = {c["kind"]: c for c in json.loads(node_out)["clients"]}
+    for kind in ("both", "sdk"):
+        c = clients[kind]
+        assert c["protocol"] == "foxglove.sdk.v1" and "refused" not in c, c
+        for topic in topics[:2]:
+            cycles = [cyc for _, cyc in c["received"][topic]]
+            assert 0.5 * expected <= len(cycles) <= expected + 2, (kind, topic, len(cycles))
+            assert all(b > a for a, b in itertools.pairwise(cycles))
+    assert clients["v1"]["refused"]["status"] == 400 and not clients["v1"]["received"]
 
     wait_run_end(work, res["run"])
     run_dir = Path(res["log_dir"])
@@ -192,6 +218,14 @@ def test_live_client_and_the_mcap_file(rig_session):
     assert counts[streams.CAN] > n_rows  # SYNC, RPDOs and TPDOs of every cycle
     assert {"config.yaml", "config_effective.yaml", "run.yaml"} <= attachments
     assert yaml.safe_load(metadata["run"]["ended"])["outcome"] == csv_run.ended["outcome"]
+
+    # The official TypeScript readers: every message, the same counts.
+    ts = nodejs.read_mcap(run_dir / "run.mcap")[str(run_dir / "run.mcap")]
+    for reader in ("indexed", "stream"):
+        res = ts[reader]
+        assert "error" not in res, (reader, res["error"])
+        assert res["counts"] == {t: n for t, n in counts.items() if n}, reader
+        assert res["failures"] == {"json": 0, "missingHead": {}}, reader
 
     # The project's reader gives the same columns from either file.
     mcap_run = load_run(run_dir / "run.mcap")
