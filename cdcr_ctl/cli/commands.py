@@ -12,6 +12,7 @@ import gc
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -52,7 +53,10 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
     a child process of their own (cdcr_ctl.daemon.front).
     """
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.config.control import run_log_dir
     from cdcr_ctl.daemon.front import FrontDaemon
+    from cdcr_ctl.ownership import Ownership, bus_key
+    from cdcr_ctl.runlog.writer.files import check_log_dir
 
     _setup_logging(verbose)
     if not obj.config:
@@ -63,6 +67,16 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
         cfg = cfg.model_copy(
             update={"daemon": cfg.daemon.model_copy(update={"socket_path": obj._socket})}
         )
+    # One daemon per bus and per control socket, before any frame is sent or socket replaced;
+    # held until this process exits (the rig process it spawns runs under it).
+    owner = Ownership().take_all(
+        [
+            bus_key(cfg.can.interface, cfg.can.channel),
+            f"socket:{os.path.abspath(cfg.daemon.socket_path)}",
+        ]
+    )
+    logs = check_log_dir(run_log_dir(cfg.logging))  # refuse now, not at the first run
+    logging.getLogger(__name__).info("run logs in %s (locks %s)", logs, owner.paths())
     if one_process:
         reason = _one_process_daemon(cfg, path)
         click.echo(f"daemon stopped: {reason}", err=True)

@@ -1,6 +1,7 @@
 """``cdcr-ctl scan``: the nodes on the rig's CAN bus, with device type 0x1000 and identity 0x1018,
 compared with the config (missing node, wrong product, wrong node id). The day-one bring-up tool:
-it opens the bus the config names itself, so stop the daemon first (one master on a bus)."""
+it opens the bus the config names itself, so it refuses while a daemon owns that bus (one master
+on a bus, :mod:`cdcr_ctl.ownership`): stop the daemon first."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import click
 
 from cdcr_ctl.cli.app import Ctx
 from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.ownership import Ownership, bus_key
 
 
 @click.command("scan")
@@ -30,11 +32,15 @@ def scan(obj: Ctx, timeout_s: float) -> None:
     if not obj.config:
         raise ConfigError("", "--config", "scan needs the rig config whose bus to scan")
     cfg = load_rig_config(obj.config)
-    bus = open_bus(cfg.can)
-    try:
-        nodes = scan_bus(bus, timeout_s=timeout_s)
-    finally:
-        bus.shutdown()
+    # The bus's lock, as a daemon takes it: while a daemon owns the bus this refuses before
+    # opening it (naming the daemon's pid), and a daemon started during the scan refuses.
+    with Ownership() as owner:
+        owner.take(bus_key(cfg.can.interface, cfg.can.channel))
+        bus = open_bus(cfg.can)
+        try:
+            nodes = scan_bus(bus, timeout_s=timeout_s)
+        finally:
+            bus.shutdown()
     issues = compare(nodes, cfg.drives)
     result = {
         "bus": f"{cfg.can.interface}:{cfg.can.channel} @ {cfg.can.bitrate} bit/s",
