@@ -53,9 +53,10 @@ class AlreadyOwned(RigError):
 
 
 def bus_key(interface: str, channel: str) -> str:
-    """The key of a CAN bus: a relative channel path is made absolute (the same pty link named
-    from two working directories is one bus)."""
-    if "/" in channel and not channel.startswith("socket://"):
+    """The key of a CAN bus: a device path (an slcan channel, or any channel with a ``/``) is
+    made absolute, so the same link named from two working directories is one bus; interface
+    names (``can0``) and URLs (``socket://...``) stay as they are."""
+    if "://" not in channel and (interface == "slcan" or "/" in channel):
         channel = os.path.abspath(channel)
     return f"can:{interface}:{channel}"
 

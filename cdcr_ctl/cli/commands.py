@@ -54,9 +54,7 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
     """
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.config.control import run_log_dir
-    from cdcr_ctl.daemon.front import FrontDaemon
     from cdcr_ctl.ownership import Ownership, bus_key
-    from cdcr_ctl.runlog.writer.files import check_log_dir
 
     _setup_logging(verbose)
     if not obj.config:
@@ -75,6 +73,9 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
             f"socket:{os.path.abspath(cfg.daemon.socket_path)}",
         ]
     )
+    from cdcr_ctl.daemon.front import FrontDaemon
+    from cdcr_ctl.runlog.writer.files import check_log_dir
+
     logs = check_log_dir(run_log_dir(cfg.logging))  # refuse now, not at the first run
     logging.getLogger(__name__).info("run logs in %s (locks %s)", logs, owner.paths())
     if one_process:
@@ -172,8 +173,8 @@ def sim(
     loop cycle, seeded noise: the same commands give the same logs byte for byte); the daemon's
     socket is that of --config (or --socket).
     """
-    from cdcr_ctl.sim.rig import SimRig
-    from cdcr_ctl.sim.simconfig import load_sim_config
+    from cdcr_ctl.ownership import Ownership
+    from cdcr_ctl.sim.simconfig import load_sim_config, sim_owned_keys
 
     _setup_logging(verbose)
     if lockstep:
@@ -188,10 +189,17 @@ def sim(
         click.echo(f"lock-step daemon stopped: {reason}", err=True)
         return
     loaded = load_sim_config(sim_config)
+    # A second simulator of the same rig refuses here, before it builds anything.
+    owner = Ownership().take_all(sim_owned_keys(loaded.rig))
+    from cdcr_ctl.sim.rig import SimRig
+
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    with SimRig(loaded, truth_worker=True) as rig, contextlib.ExitStack() as extras:
+    with (
+        SimRig(loaded, truth_worker=True, owner=owner) as rig,
+        contextlib.ExitStack() as extras,
+    ):
         info = {"ready": True, **rig.connection_info()}
         if faults_path:
             from cdcr_ctl.sim.faults import FaultServer

@@ -35,7 +35,7 @@ from cdcr_ctl.ownership import Ownership
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.loadcells import SensorNoise, sim_for_config
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
-from cdcr_ctl.sim.simconfig import LoadedSim
+from cdcr_ctl.sim.simconfig import LoadedSim, sim_owned_keys
 from cdcr_ctl.sim.tracker import sim_tracker_from_config
 
 log = logging.getLogger(__name__)
@@ -65,6 +65,7 @@ class SimRig:
         can_channel: str | None = None,
         link_paths: bool = True,
         truth_worker: bool = False,
+        owner: Ownership | None = None,
     ) -> None:
         self.loaded = loaded
         self.rig = loaded.rig
@@ -81,34 +82,16 @@ class SimRig:
         self.attitude: list[Any] = []
         self.joystick: Any = None
         self._links: list[Path] = []
-        self._owner = Ownership()
+        #: The locks of :meth:`owned_keys` (a caller that took them first may pass its own).
+        self._owner = owner or Ownership()
         #: Solve the truth in a worker process (``cdcr-ctl sim``), see :meth:`_physics`.
         self.truth_worker = truth_worker
         self._truth_proc: TruthProcess | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def owned_keys(self) -> list[str]:
-        """What this simulator stands in for, as :mod:`cdcr_ctl.ownership` keys: its pty links
-        (the CAN adapter's, the load cells', the attitude sensors') and its loopback ports."""
-        keys: list[str] = []
-        sensors = self.rig.sensors
-        if self.link_paths:
-            links = []
-            if self.can_interface == "slcan":
-                links.append(self.rig.can.channel)
-            if sensors.load_cells is not None:
-                links.append(sensors.load_cells.serial.port)
-            if sensors.attitude is not None:
-                links += [s.port for s in sensors.attitude.sensors]
-            keys += [f"sim:{os.path.abspath(link)}" for link in links]
-        if sensors.tracker is not None:
-            tr = sensors.tracker
-            port = tr.command_port if tr.kind == "natnet" else tr.port
-            keys.append(f"sim-port:{tr.host}:{port}")
-        js = sensors.joystick
-        if js is not None and js.tcp_address is not None:
-            keys.append("sim-port:{}:{}".format(*js.tcp_address))
-        return keys
+        """What this simulator stands in for (:func:`~cdcr_ctl.sim.simconfig.sim_owned_keys`)."""
+        return sim_owned_keys(self.rig, self.can_interface, self.link_paths)
 
     def start(self) -> SimRig:
         # First: a second simulator of the same rig refuses here, before it replaces the first
