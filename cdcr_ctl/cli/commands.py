@@ -306,5 +306,9 @@ def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     from cdcr_ctl.runlog.reader import load_run
 
     run = load_run(run_dir)
-    files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))
-    obj.emit({"plots": [str(f) for f in files]})
+    where = Path(out or Path(run_dir) / "plots").resolve()
+    files = plot_run(run, where, tip_from_psi=tip_from_psi_for_run(run))
+    result = {"out_dir": str(where), "plots": {name: str(p) for name, p in files.items()}}
+    lines = [f"{len(files)} plot(s) in {where}"]
+    lines += [f"  {p}" for p in result["plots"].values()]
+    obj.emit(result, "\n".join(lines))
