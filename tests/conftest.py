@@ -89,6 +89,7 @@ RIG_FILES = frozenset(
         "tests/system/test_ownership.py",
         "tests/system/test_runlog_views.py",
         "tests/system/test_service_start.py",
+        "tests/system/test_sim_ready.py",
         "tests/system/test_stop_battery.py",
     }
 )
