@@ -100,3 +100,31 @@ def test_daemon_refuses_to_start_when_it_cannot_write_its_logs(tmp_path):
     assert "no-such-can" not in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "c.sock").exists()
     print(f"refused in {time.monotonic() - t0:.2f} s")
+
+
+def test_status_text_is_a_summary_with_one_line_per_drive():
+    from cdcr_ctl.cli.app import status_text
+
+    drives = [
+        {"cable": f"c{k}", "state": "FAULT" if k == 1 else "SWITCH ON DISABLED",
+         "position_counts": 100 * k, "fault": "node 1: boot-up message" if k == 1 else ""}
+        for k in (1, 2, 3)
+    ]  # fmt: skip
+    st = {
+        "rig": "qi2023-sim", "design": "cc_disk", "state": "ready", "enabled": False,
+        "homed": True, "compensation": "model", "config": "/etc/cdcr-ctl/rig.yaml",
+        "drives": drives, "tension_N": [5.0, None, 4.25], "tip_mm": [1.0, 2.0, 88.5],
+        "tip_age_s": 0.004, "logging": True, "log_dir": "/var/lib/cdcr-ctl/runs/r1",
+        "fault": {"cause": "nmt:node1", "reaction": "QUICK_STOP", "detail": "drive restarted"},
+        "trips": [], "run": None, "runs": [],
+        "loop": {"cycles": 10, "missed_cycles": 0, "long_cycles": 0, "timing": {"p99_us": 412.5},
+                 "last": {f"x{i}": i for i in range(150)}},
+    }  # fmt: skip
+    lines = status_text(st).splitlines()
+    assert lines[0] == "qi2023-sim (cc_disk): ready, disabled, homed, compensation model"
+    assert "logging  /var/lib/cdcr-ctl/runs/r1" in lines
+    assert any(x.startswith("FAULT    nmt:node1 (QUICK_STOP)") for x in lines)
+    rows = [x for x in lines if x.startswith("  c")]
+    assert len(rows) == 3 and rows[0].endswith("fault: node 1: boot-up message")
+    assert "fault" not in rows[1] and "fault" not in rows[2] and " - N" in rows[1]
+    assert len(lines) < 20  # the loop's last row (150 fields) is in --json only
