@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 from faulthelp import rows_on_disk, start_sim_with_faults
-from syshelp import client, session, start_daemon, wait_for_socket
+from syshelp import client, session, start_daemon, wait_for_socket, wait_run_end
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.sim.faults import FaultClient
@@ -90,16 +90,8 @@ def test_second_daemon_scan_and_second_sim_refuse_sending_nothing(tmp_path):
         assert {p: os.readlink(work / p) for p in links} == links  # the first sim's links
         assert simproc.poll() is None and d.poll() is None
 
-        end = time.monotonic() + seconds + 60
-        while True:
-            with client(work) as c:
-                st = c.call("status")
-            done = [r for r in st["runs"] if r["id"] == res["run"]]
-            if done:
-                break
-            assert time.monotonic() < end, st["run"]
-            time.sleep(0.2)
-        assert done[0]["state"] == "completed", (done[0], st["fault"])
+        run, st = wait_run_end(work, res["run"], seconds + 60)
+        assert run["state"] == "completed", (run, st["fault"])
         assert st["fault"] is None and st["enabled"]
         # The refusal's own work (an interpreter, the CLI, the config) is within the bound; its
         # wall time is too unless other jobs oversubscribe the cores (then it is reported: an

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from syshelp import client, session, start_sim
+from syshelp import client, session, start_sim, wait_run_end
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.ownership import bus_key
@@ -160,16 +160,8 @@ def test_exec_start_runs_notifies_logs_under_the_state_directory_and_stops(tmp_p
             assert Path(res["log_dir"]).parent == state / "runs"
             with client(work) as c:
                 seen_logging = c.call("status")["logging"]
-            end = time.monotonic() + 60
-            while True:
-                with client(work) as c:
-                    st = c.call("status")
-                done = [r for r in st["runs"] if r["id"] == res["run"]]
-                if done:
-                    break
-                assert time.monotonic() < end, st["run"]
-                time.sleep(0.2)
-            assert done[0]["state"] == "completed", done[0]
+            run, _ = wait_run_end(work, res["run"], 60)
+            assert run["state"] == "completed", run
             assert seen_logging is True  # `watch` and `status` say a running run logs
             assert (Path(res["log_dir"]) / "samples.csv").is_file()
 
