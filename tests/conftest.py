@@ -86,7 +86,6 @@ RIG_FILES = frozenset(
         "tests/system/test_lockstep_vs_realtime.py",
         "tests/system/test_recovery.py",
         "tests/system/test_rig_process.py",
-        "tests/system/test_ownership.py",
         "tests/system/test_runlog_views.py",
         "tests/system/test_service_start.py",
         "tests/system/test_sim_ready.py",
