@@ -8,7 +8,7 @@ from __future__ import annotations
 import click
 
 from cdcr_ctl.cli.app import Ctx
-from cdcr_ctl.errors import ConfigError
+from cdcr_ctl.errors import CommError, ConfigError
 from cdcr_ctl.ownership import Ownership, bus_key
 
 
@@ -25,6 +25,8 @@ from cdcr_ctl.ownership import Ownership, bus_key
 def scan(obj: Ctx, timeout_s: float) -> None:
     """List the nodes on the bus of --config and compare them with its drives (read only: no NMT
     command, no SDO write). Exit status 1 when the bus and the config differ."""
+    import can
+
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.drives.canbus import open_bus
     from cdcr_ctl.drives.scan import compare, scan_bus
@@ -39,6 +41,10 @@ def scan(obj: Ctx, timeout_s: float) -> None:
         bus = open_bus(cfg.can)
         try:
             nodes = scan_bus(bus, timeout_s=timeout_s)
+        except (can.CanError, OSError) as exc:  # the adapter failed mid-scan: say so, no trace
+            raise CommError(
+                f"CAN {cfg.can.interface}:{cfg.can.channel}: scan failed ({exc})"
+            ) from exc
         finally:
             bus.shutdown()
     issues = compare(nodes, cfg.drives)
