@@ -73,7 +73,7 @@ def shared_options() -> list[click.Option]:
             type=click.Path(dir_okay=False),
             expose_value=False,
             callback=_set("config"),
-            help="Rig config (YAML); also after the command.",
+            help="Rig config (YAML); the same as before the command.",
         ),
         click.Option(
             ["--json"],

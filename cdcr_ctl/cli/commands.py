@@ -58,7 +58,7 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
 
     _setup_logging(verbose)
     if not obj.config:
-        raise click.UsageError("cdcr-ctl daemon needs --config RIG.yaml")
+        raise click.UsageError("cdcr-ctl daemon needs -c/--config RIG.yaml")
     path = Path(obj.config)
     cfg = load_rig_config(path)  # a bad config stops here: nothing opened, nothing enabled
     if obj._socket:
