@@ -37,11 +37,18 @@ suite run). After each test, the spares of the factories it made are ended.
 from __future__ import annotations
 
 import gc
+import os
+import tempfile
 
 import pytest
 from xdist.scheduler import LoadScopeScheduling
 
 from cdcr_ctl.runlog.writer.factory import RunLogFactory
+
+# The ownership locks (cdcr_ctl.ownership) of every daemon, scan and simulator the tests start
+# go to a directory of this test process's own, inherited by the processes it starts (as root,
+# the default would be /run/cdcr-ctl, shared with a lab's service).
+os.environ.setdefault("CDCR_CTL_LOCK_DIR", tempfile.mkdtemp(prefix="cdcr-locks-"))
 
 #: The work unit of the tests marked ``realtime`` or ``multicore``.
 RIG_GROUP = "rig"
@@ -80,6 +87,8 @@ RIG_FILES = frozenset(
         "tests/system/test_recovery.py",
         "tests/system/test_rig_process.py",
         "tests/system/test_runlog_views.py",
+        "tests/system/test_service_start.py",
+        "tests/system/test_sim_ready.py",
         "tests/system/test_stop_battery.py",
     }
 )

@@ -49,6 +49,63 @@ class Ctx:
             click.echo(text if text is not None else _as_text(result))
 
 
+def _set(attr: str) -> Any:
+    """A click callback that stores an option given after the subcommand into :class:`Ctx`."""
+
+    def callback(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+        if value is None or value is False:
+            return  # not given here: what the group got (or its default) stays
+        obj = ctx.find_object(Ctx)
+        if obj is not None:
+            setattr(obj, attr, value)
+
+    return callback
+
+
+def shared_options() -> list[click.Option]:
+    """``-c/--config``, ``--json`` and ``--socket`` for a subcommand: the same options as the
+    command group's, so each works before or after the subcommand (``cdcr-ctl -c RIG status``,
+    ``cdcr-ctl status -c RIG``). Given after it, a value overrides the group's. Fresh objects
+    each call (one set per command)."""
+    return [
+        click.Option(
+            ["--config", "-c"],
+            type=click.Path(dir_okay=False),
+            expose_value=False,
+            callback=_set("config"),
+            help="Rig config (YAML); the same as before the command.",
+        ),
+        click.Option(
+            ["--json"],
+            is_flag=True,
+            default=False,
+            expose_value=False,
+            callback=_set("as_json"),
+            help="Print machine-readable JSON.",
+        ),
+        click.Option(
+            ["--socket"],
+            envvar=None,
+            expose_value=False,
+            callback=_set("_socket"),
+            help="Control socket of the daemon.",
+        ),
+    ]
+
+
+def add_shared_options(command: click.Command) -> click.Command:
+    """Give ``command`` (and every subcommand of a group) the :func:`shared_options` it does
+    not define itself (an option of its own with the same name wins: ``joystick --json``)."""
+    taken = {o for p in command.params for o in (*p.opts, *p.secondary_opts)}
+    for option in shared_options():
+        if not taken.intersection(option.opts):
+            command.params.append(option)
+    if isinstance(command, click.Group):
+        for sub in command.commands.values():
+            add_shared_options(sub)
+    return command
+
+
 def _as_text(result: Any, indent: str = "") -> str:
     if isinstance(result, dict):
         lines = []
@@ -68,14 +125,18 @@ def _as_text(result: Any, indent: str = "") -> str:
 
 
 @click.command("check-config")
-@click.argument("path", type=click.Path(dir_okay=False))
+@click.argument("path", type=click.Path(dir_okay=False), required=False)
 @click.pass_obj
-def check_config(obj: Ctx, path: str) -> None:
-    """Validate a rig config and print a summary (nothing is opened or moved). Every SDO write
-    the drives' configuration plans is checked against their device descriptions too."""
+def check_config(obj: Ctx, path: str | None) -> None:
+    """Validate a rig config (PATH, else -c/--config) and print a summary (nothing is opened or
+    moved). Every SDO write the drives' configuration plans is checked against their device
+    descriptions too."""
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.drives.plan import check_plans
 
+    path = path or obj.config
+    if not path:
+        raise click.UsageError("check-config needs a rig config: PATH or -c/--config")
     cfg = load_rig_config(path)
     check_plans(cfg.drives, cfg.can, path)
     summary = {
@@ -92,8 +153,73 @@ def check_config(obj: Ctx, path: str) -> None:
 @click.command()
 @click.pass_obj
 def status(obj: Ctx) -> None:
-    """Daemon state, drives, sensors, supervisor trips, loop timing."""
-    obj.emit(obj.call("status"))
+    """Daemon state, drives, sensors, supervisor trips, loop timing (a summary; --json: all)."""
+    st = obj.call("status")
+    obj.emit(st, None if obj.as_json else status_text(st))
+
+
+def _num(v: Any, digits: int = 3) -> str:
+    return "-" if v is None else f"{v:.{digits}f}" if isinstance(v, float) else str(v)
+
+
+def status_text(st: dict[str, Any]) -> str:
+    """The ``status`` reply in a screenful: the rig's state, one line per drive, sensors, the
+    fault, the run and the loop's timing (``--json`` gives every field)."""
+    lines = [
+        f"{st.get('rig')} ({st.get('design')}): {st.get('state')}, "
+        + ("enabled" if st.get("enabled") else "disabled")
+        + (", homed" if st.get("homed") else ", not homed")
+        + f", compensation {st.get('compensation')}",
+        f"config   {st.get('config')}",
+        "logging  " + (str(st.get("log_dir") or "yes") if st.get("logging") else "no"),
+    ]
+    fault = st.get("fault")
+    if fault:
+        lines.append(
+            f"FAULT    {fault.get('cause')} ({fault.get('reaction')}): {fault.get('detail')}"
+        )
+    lines.append("drives")
+    tensions = st.get("tension_N") or []
+    for k, d in enumerate(st.get("drives") or []):
+        row = f"  {d.get('cable')!s:6s} {d.get('state')!s:24s}"
+        row += f" {d.get('position_counts')!s:>10s} counts"
+        if k < len(tensions):
+            row += f"  {_num(tensions[k], 2):>8s} N"
+        if d.get("state") == "STALE":
+            row += f"  (last {d.get('last_state')}, {d.get('age_s')} s old)"
+        if d.get("fault"):
+            row += f"  fault: {d['fault']}"
+        lines.append(row)
+    tip = st.get("tip_mm")
+    if tip is not None:
+        lines.append(
+            "tip      "
+            + " ".join(_num(v, 2) for v in tip)
+            + f" mm (age {_num(st.get('tip_age_s'))} s)"
+        )
+    run = st.get("run")
+    if run:
+        lines.append(
+            f"run      {run.get('name')} [{run.get('state')}] {_num(run.get('elapsed_s'), 1)}"
+            f"/{_num(run.get('duration_s'), 1)} s  log {run.get('log_dir') or '-'}"
+        )
+    for r in (st.get("runs") or [])[-3:]:
+        lines.append(
+            f"  ran    {r.get('name')} [{r.get('state')}] {r.get('end_reason') or ''}  "
+            f"log {r.get('log_dir') or '-'}"
+        )
+    loop = st.get("loop") or {}
+    timing = loop.get("timing") or {}
+    stats = ", ".join(f"{k} {_num(v, 1)}" for k, v in timing.items() if isinstance(v, int | float))
+    lines.append(
+        f"loop     {loop.get('cycles')} cycles, {loop.get('missed_cycles')} missed, "
+        f"{loop.get('long_cycles')} long" + (f"; {stats}" if stats else "")
+    )
+    trips = st.get("trips") or []
+    if trips:
+        last = trips[-1]
+        lines.append(f"trips    {len(trips)}, last {last.get('cause')}: {last.get('detail')}")
+    return "\n".join(lines)
 
 
 @click.command()
@@ -126,16 +252,10 @@ def home(obj: Ctx) -> None:
 @click.option("--speed", type=float, default=0.3, show_default=True, help="rad/s or mm/s.")
 @click.pass_obj
 def jog(obj: Ctx, **args: Any) -> None:
-    """Move one segment to (theta, phi) or one cable by delta, bounded by the rig's limits."""
-    if args.get("segment") is not None and obj.config:
-        # The daemon's bound, checked before sending: the refusal names the same limit.
-        from cdcr_ctl.config import load_rig_config
-        from cdcr_ctl.daemon.protocol import ProtocolError, check_jog_speed
+    """Move one segment to (theta, phi) or one cable by delta, bounded by the rig's limits.
 
-        try:
-            check_jog_speed(args["speed"], load_rig_config(obj.config).limits.bend_rad)
-        except ProtocolError as exc:
-            raise click.UsageError(f"--speed: {exc}") from exc
+    The daemon checks every bound (segment and cable numbers, bend, displacement, speed) and
+    refuses naming the allowed range and its unit (exit status 1)."""
     obj.emit(obj.call("jog", **args))
 
 

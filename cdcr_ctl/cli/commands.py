@@ -12,6 +12,7 @@ import gc
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -52,17 +53,31 @@ def daemon(obj: Ctx, verbose: bool, one_process: bool) -> None:
     a child process of their own (cdcr_ctl.daemon.front).
     """
     from cdcr_ctl.config import load_rig_config
-    from cdcr_ctl.daemon.front import FrontDaemon
+    from cdcr_ctl.config.control import run_log_dir
+    from cdcr_ctl.ownership import Ownership, bus_key
 
     _setup_logging(verbose)
     if not obj.config:
-        raise click.UsageError("cdcr-ctl daemon needs --config RIG.yaml")
+        raise click.UsageError("cdcr-ctl daemon needs -c/--config RIG.yaml")
     path = Path(obj.config)
     cfg = load_rig_config(path)  # a bad config stops here: nothing opened, nothing enabled
     if obj._socket:
         cfg = cfg.model_copy(
             update={"daemon": cfg.daemon.model_copy(update={"socket_path": obj._socket})}
         )
+    # One daemon per bus and per control socket, before any frame is sent or socket replaced;
+    # held until this process exits (the rig process it spawns runs under it).
+    owner = Ownership().take_all(
+        [
+            bus_key(cfg.can.interface, cfg.can.channel),
+            f"socket:{os.path.abspath(cfg.daemon.socket_path)}",
+        ]
+    )
+    from cdcr_ctl.daemon.front import FrontDaemon
+    from cdcr_ctl.runlog.writer.files import check_log_dir
+
+    logs = check_log_dir(run_log_dir(cfg.logging))  # refuse now, not at the first run
+    logging.getLogger(__name__).info("run logs in %s (locks %s)", logs, owner.paths())
     if one_process:
         reason = _one_process_daemon(cfg, path)
         click.echo(f"daemon stopped: {reason}", err=True)
@@ -158,8 +173,8 @@ def sim(
     loop cycle, seeded noise: the same commands give the same logs byte for byte); the daemon's
     socket is that of --config (or --socket).
     """
-    from cdcr_ctl.sim.rig import SimRig
-    from cdcr_ctl.sim.simconfig import load_sim_config
+    from cdcr_ctl.ownership import Ownership
+    from cdcr_ctl.sim.simconfig import load_sim_config, sim_owned_keys
 
     _setup_logging(verbose)
     if lockstep:
@@ -174,10 +189,17 @@ def sim(
         click.echo(f"lock-step daemon stopped: {reason}", err=True)
         return
     loaded = load_sim_config(sim_config)
+    # A second simulator of the same rig refuses here, before it builds anything.
+    owner = Ownership().take_all(sim_owned_keys(loaded.rig))
+    from cdcr_ctl.sim.rig import SimRig
+
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: stop.set())
-    with SimRig(loaded, truth_worker=True) as rig, contextlib.ExitStack() as extras:
+    with (
+        SimRig(loaded, truth_worker=True, owner=owner) as rig,
+        contextlib.ExitStack() as extras,
+    ):
         info = {"ready": True, **rig.connection_info()}
         if faults_path:
             from cdcr_ctl.sim.faults import FaultServer
@@ -284,5 +306,9 @@ def plot(obj: Ctx, run_dir: str, out: str | None) -> None:
     from cdcr_ctl.runlog.reader import load_run
 
     run = load_run(run_dir)
-    files = plot_run(run, out or Path(run_dir) / "plots", tip_from_psi=tip_from_psi_for_run(run))
-    obj.emit({"plots": [str(f) for f in files]})
+    where = Path(out or Path(run_dir) / "plots").resolve()
+    files = plot_run(run, where, tip_from_psi=tip_from_psi_for_run(run))
+    result = {"out_dir": str(where), "plots": {name: str(p) for name, p in files.items()}}
+    lines = [f"{len(files)} plot(s) in {where}"]
+    lines += [f"  {p}" for p in result["plots"].values()]
+    obj.emit(result, "\n".join(lines))

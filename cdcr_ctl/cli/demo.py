@@ -365,6 +365,12 @@ def demo(
     from cdcr_ctl.config import load_rig_config
 
     sim_config = sim_config or SIM_CONFIGS[design]
+    if not sim_config.is_file():
+        # The shipped configs are the checkout's config/, not part of an installed package.
+        raise click.UsageError(
+            f"{sim_config}: no such simulator config; the shipped ones are in a checkout's "
+            "config/sim/ (run cdcr-ctl from the checkout's .venv, or give --sim-config)"
+        )
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     session = (out / stamp).resolve()
     work = Path(f"/tmp/cdcr-demo-{os.getpid()}")

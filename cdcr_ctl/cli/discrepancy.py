@@ -34,7 +34,8 @@ def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
     "--rig-config",
     type=click.Path(exists=True, dir_okay=False),
     default=None,
-    help="The controller's rig config (default: the copy in each run directory).",
+    hidden=True,  # the old spelling of -c/--config, kept for scripts
+    help="Same as -c/--config.",
 )
 @click.option(
     "--out",
@@ -91,11 +92,13 @@ def discrepancy(
     Exit code 0 whatever the verdict; the verdict is the first line of the output. With
     ``--apply OVERLAY`` the fitted effect is written as an overlay for the rig config's
     ``overlays:`` list (the daemon loads it at start); no effect named: nothing written, exit 1.
+    The controller's rig config is -c/--config (default: the copy in each run directory).
     """
     from cdcr_ctl.discrepancy import analyse
     from cdcr_ctl.discrepancy.keypoint_path import analyse_keypoints, is_keypoint_log
     from cdcr_ctl.discrepancy.report import config_fragment, summary_lines, write_report
 
+    rig_config = rig_config or obj.config
     if all(is_keypoint_log(r) for r in run_dirs):
         _keypoint_discrepancy(obj, run_dirs, rig_config, max_points, analyse_keypoints)
         return
@@ -187,11 +190,11 @@ def _keypoint_discrepancy(obj: Ctx, run_dirs, rig_config, max_points, analyse_ke
     """Keypoint logs (rows seconds apart, no commanded pose): :mod:`..discrepancy.keypoint_path`."""
     from cdcr_ctl.config import load_rig_config
 
-    cfg_path = rig_config or obj.config
+    cfg_path = rig_config
     if cfg_path is None:
         cfg_file = Path(run_dirs[0]) / "config.yaml"
         if not cfg_file.is_file():
-            raise click.UsageError("keypoint logs carry no config: give --rig-config RIG")
+            raise click.UsageError("keypoint logs carry no config: give -c/--config RIG")
         cfg_path = str(cfg_file)
     res = analyse_keypoints(
         load_rig_config(cfg_path), list(run_dirs), max_points=min(max_points, 40)

@@ -116,13 +116,13 @@ def identify_cmd(
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, lost motion,
     mount tilt (gravity direction), pulleys.
 
-    Needs --config (the controller's rig config: nominal values, geometry, load-cell places).
+    Needs -c/--config (the controller's rig config: nominal values, geometry, load-cell places).
     Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does
     not explain its data (cdcr_ctl.identify.gate) writes no overlay and exits 1, unless
     --accept-misfit.
     """
     if not obj.config:
-        raise click.UsageError("identify needs --config RIG (the controller's rig config)")
+        raise click.UsageError("identify needs -c/--config RIG (the controller's rig config)")
     from cdcr_ctl.config import load_rig_config
 
     cfg_path = Path(obj.config)

@@ -11,7 +11,7 @@ help, so the command modules import their heavy dependencies inside the commands
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import click
@@ -22,10 +22,16 @@ class LazyGroup(click.Group):
     of a :class:`click.Command`, imported on first use."""
 
     def __init__(
-        self, *args: Any, lazy_subcommands: Mapping[str, str] | None = None, **kwargs: Any
+        self,
+        *args: Any,
+        lazy_subcommands: Mapping[str, str] | None = None,
+        shared_options: Callable[[click.Command], Any] | None = None,
+        **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
         self.lazy_subcommands = dict(lazy_subcommands or {})
+        #: Called once on each command when it is loaded (to add the group's shared options).
+        self.shared_options = shared_options
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*super().list_commands(ctx), *self.lazy_subcommands})
@@ -41,6 +47,9 @@ class LazyGroup(click.Group):
         command = getattr(importlib.import_module(module_name), attr)
         if not isinstance(command, click.Command):
             raise TypeError(f"{module_name}.{attr} is not a click command")
+        if self.shared_options is not None and not getattr(command, "_shared_added", False):
+            self.shared_options(command)
+            command._shared_added = True  # type: ignore[attr-defined]
         return command
 
 

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 import click
 
-from cdcr_ctl.cli.app import Ctx
+from cdcr_ctl.cli.app import Ctx, add_shared_options
 from cdcr_ctl.cli.lazy import LazyGroup
 from cdcr_ctl.daemon.client import DaemonError
 from cdcr_ctl.errors import RigError
@@ -52,6 +52,7 @@ COMMANDS: dict[str, str] = {
 @click.group(
     cls=LazyGroup,
     lazy_subcommands=COMMANDS,
+    shared_options=add_shared_options,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 @click.option("--socket", envvar="CDCR_CTL_SOCKET", help="Control socket of the daemon.")
@@ -62,6 +63,7 @@ COMMANDS: dict[str, str] = {
     help="Rig config (YAML); gives the socket path when --socket is not set.",
 )
 @click.option("--json", "as_json", is_flag=True, help="Print machine-readable JSON.")
+# -c/--config, --json and --socket are taken after the subcommand too (cli.app.shared_options).
 @click.version_option(package_name="cdcr-ctl")
 @click.pass_context
 def cli(ctx: click.Context, socket: str | None, config: str | None, as_json: bool) -> None:

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import ipaddress
 import math
+import os
+import re
+from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_serializer, field_validator, model_validator
 
 from cdcr_ctl.config.base import Section, Timeout
 
@@ -94,9 +97,16 @@ class LimitsConfig(Section):
 
 
 class LoggingConfig(Section):
-    """Run logs: one directory per run below ``directory``."""
+    """Run logs: one directory per run below ``directory``.
 
-    directory: str = "runs"
+    ``directory``: where the run directories go. A relative path is relative to the working
+    directory of the process that writes the logs (the daemon's; under the systemd unit
+    ``/var/lib/cdcr-ctl``), not to the config file. Not set: ``$STATE_DIRECTORY/runs`` when
+    systemd gives a state directory (the unit's ``StateDirectory=``: ``/var/lib/cdcr-ctl/runs``),
+    else ``runs`` in the working directory (:func:`run_log_dir`).
+    """
+
+    directory: str | None = None
     #: A deleted run directory or a full disk is seen within one interval: beyond 10 s a lost
     #: log goes unseen for too long.
     fsync_every_s: Timeout = 0.5
@@ -159,6 +169,19 @@ class DaemonConfig(Section):
     socket_mode: Annotated[int, Field(ge=0o600, le=0o770)] = 0o660
     watchdog: bool = True
 
+    @field_validator("socket_mode", mode="before")
+    @classmethod
+    def _octal_text(cls, value: object) -> object:
+        # A dumped config writes the mode as text, "0o660" (YAML 1.1 reads 0660 as octal, but
+        # the integer 432 it becomes reads as nothing); both load.
+        if isinstance(value, str) and re.fullmatch(r"0o?[0-7]{3,4}", value.strip()):
+            return int(value.strip().removeprefix("0o"), 8)
+        return value
+
+    @field_serializer("socket_mode", when_used="json")
+    def _octal(self, value: int) -> str:
+        return f"{value:#o}"
+
     @field_validator("socket_mode")
     @classmethod
     def _not_for_others(cls, value: int) -> int:
@@ -169,3 +192,16 @@ class DaemonConfig(Section):
         if value & 0o600 != 0o600:
             raise ValueError(f"{value:#o}: the owner needs read and write (0o600)")
         return value
+
+
+def run_log_dir(logging_cfg: LoggingConfig, env: dict[str, str] | None = None) -> Path:
+    """The directory run logs go to (see :class:`LoggingConfig`), absolute: ``directory``
+    against the working directory, else ``$STATE_DIRECTORY/runs`` (its first entry), else
+    ``./runs``. ``env``: the environment to read (default ``os.environ``)."""
+    env = os.environ if env is None else env
+    if logging_cfg.directory:
+        return Path(os.path.abspath(os.path.expanduser(logging_cfg.directory)))
+    state = env.get("STATE_DIRECTORY", "").split(":")[0]
+    if state:
+        return Path(os.path.abspath(state)) / "runs"
+    return Path(os.path.abspath("runs"))

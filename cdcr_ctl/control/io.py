@@ -164,10 +164,16 @@ class DriveGroupPort:
 
     def feedback(self) -> list[DriveState]:
         now = self._clock()
-        fault = self.group.first_fault()
-        text = fault[1] if fault else ""
+        fault = self.group.fault()
+        # The group's first fault belongs to its node only (node 0, the bus, to none of them:
+        # the status shows it as the rig's fault); a drive's own fault text otherwise.
         return [
-            DriveState(f.position_counts, f.state.value, text, now - f.t_s)
+            DriveState(
+                f.position_counts,
+                f.state.value,
+                f.fault or (fault.text if fault is not None and fault.node == f.node else ""),
+                now - f.t_s,
+            )
             for f in self.group.feedback()
         ]
 

@@ -42,10 +42,14 @@ class RunCommands:
         S, K = self.model.n_segments, self.model.n_cables
         if args.segment is not None:
             if args.segment > S:
-                raise ProtocolError(f"rig has {S} segment(s)", field="args.segment")
+                raise ProtocolError(
+                    f"segment {args.segment} outside [1, {S}]: the rig has {S} segment(s)",
+                    field="args.segment",
+                )
             if not 0 <= args.theta_rad <= self.cfg.limits.bend_rad:
                 raise ProtocolError(
-                    f"outside [0, {self.cfg.limits.bend_rad}] rad (limits.bend_rad)",
+                    f"{args.theta_rad:g} rad outside [0, {self.cfg.limits.bend_rad:g}] rad"
+                    " (limits.bend_rad)",
                     field="args.theta_rad",
                 )
             check_jog_speed(args.speed, self.cfg.limits.bend_rad)
@@ -58,10 +62,16 @@ class RunCommands:
             self._wait_picked_up(run)
             return {"run": run.id, "duration_s": run.duration_s}
         if args.cable > K:
-            raise ProtocolError(f"rig has {K} cables", field="args.cable")
+            raise ProtocolError(
+                f"cable {args.cable} outside [1, {K}]: the rig has {K} cables", field="args.cable"
+            )
         lo, hi = self.cfg.limits.cable_displacement_mm
         if not lo - hi <= args.delta_mm <= hi - lo:
-            raise ProtocolError("larger than the displacement range", field="args.delta_mm")
+            raise ProtocolError(
+                f"{args.delta_mm:g} mm outside [{lo - hi:g}, {hi - lo:g}] mm (the span of"
+                f" limits.cable_displacement_mm = [{lo:g}, {hi:g}] mm)",
+                field="args.delta_mm",
+            )
         self._require_ready()
         self.loop.jog_cable(args.cable - 1, args.delta_mm)
         return {"cable": args.cable, "delta_mm": args.delta_mm}

@@ -31,6 +31,7 @@ import os
 import signal
 import threading
 import time
+from multiprocessing.connection import wait
 from pathlib import Path
 from typing import Any
 
@@ -262,10 +263,12 @@ class FrontDaemon:
             self.flag.request(stop_reaction("halt"))
             with contextlib.suppress(Exception):
                 self._call("shutdown", None, 2.0)
-            self.proc.join(RIG_STOP_TIMEOUT_S)
-            if self.proc.is_alive():
+            # Its sentinel, not is_alive(): the pipe thread may be reaping it at the same
+            # moment (_rig_gone), and a waitpid lost to that thread reads as "alive".
+            if not wait([self.proc.sentinel], RIG_STOP_TIMEOUT_S):
                 log.error("rig process did not end in %g s; terminating", RIG_STOP_TIMEOUT_S)
                 self._kill_rig()
+            self.proc.join(5)
         for name, step in (
             ("close socket", lambda: self.server.close() if self.server else None),
             ("intake", self.intake.close),

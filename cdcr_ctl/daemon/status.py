@@ -22,6 +22,7 @@ class StatusCommands:
         tip, tip_age = self.io.tip.latest()
         trip = self.supervisor.trip
         snap = self.loop.snapshot()
+        run = snap.pop("run")
         return {
             "state": self.state,
             "rig": self.cfg.name,
@@ -40,10 +41,13 @@ class StatusCommands:
             "fault": None if trip is None else _trip_dict(trip),
             "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
             "safety": self._safety_status(),
-            "run": snap.pop("run"),
+            "run": run,
             "runs": [r.__dict__ for r in self.loop.history[-10:]],
             "loop": snap,
-            "logging": self._manual_sink is not None,
+            # A manual log, or the running run's own log (where rows go now).
+            "logging": self._manual_sink is not None
+            or bool(run and run.get("state") == "running" and run.get("log_dir")),
+            "log_dir": _log_dir(self._manual_sink, run),
             "joystick": None if self._session is None else self._session.status(),
         }
 
@@ -83,6 +87,15 @@ class StatusCommands:
         if trip:
             parts.append(f"trip {trip.cause}")
         return ", ".join(parts)
+
+
+def _log_dir(manual: Any, run: dict[str, Any] | None) -> str | None:
+    """The run directory rows are written to now: a manual log's, else the running run's."""
+    if manual is not None:
+        return str(getattr(manual, "run_dir", "")) or None
+    if run and run.get("state") == "running":
+        return run.get("log_dir") or None
+    return None
 
 
 def _trip_dict(t: Trip) -> dict[str, Any]:

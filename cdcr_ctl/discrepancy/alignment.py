@@ -111,7 +111,7 @@ def run_rig_config(run: Run, rig_config: str | Path | None = None) -> tuple[RigC
     cfg = run.run_dir / CONFIG_YAML
     if cfg.is_file():
         return load_rig_config(cfg), str(cfg)
-    raise RigError(f"{run.run_dir}: no {EFFECTIVE_CONFIG_YAML} or {CONFIG_YAML}; give --rig-config")
+    raise RigError(f"{run.run_dir}: no {EFFECTIVE_CONFIG_YAML} or {CONFIG_YAML}; give -c/--config")
 
 
 def model_switches(run: Run, override: dict[str, bool] | None = None) -> tuple[dict, str]:

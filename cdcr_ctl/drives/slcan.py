@@ -149,6 +149,9 @@ class SlcanBus(slcanBus):
         self._hook: Callable[[int, bytes, float], None] | None = None
         self._hook_ids: frozenset[int] = frozenset()
         self.bad_lines = 0
+        # The device path, for canopen's "Connected to ..." line and the errors below
+        # (python-can's slcan leaves BusABC's "unknown").
+        self.channel_info = str(channel)
         super().__init__(channel, *args, **kwargs)
         try:
             fd = self.serialPortOrig.fileno()

@@ -30,7 +30,8 @@ Faults (:data:`FAULTS`):
 
 Queries (:data:`QUERIES`): ``drives`` (per drive: state, SYNCs seen, when its CSP target last
 changed), ``transitions`` ``since_t_s`` (every state change of every drive after that time, with
-time and SYNC count), ``counters``.
+time and SYNC count), ``counters`` (the simulator's, and ``host_frames``: the controller's frames
+by CiA 301 service, :func:`cdcr_ctl.sim.epos.rig.frame_kind`).
 
 Production code never imports this module; tests and benchmarks talk to it with
 :class:`FaultClient`.
@@ -218,7 +219,9 @@ class FaultInjector:
 
     def counters(self, args: dict[str, Any]) -> dict[str, Any]:
         c = self.rig.counters
-        return {"counters": dict(c.__dict__), "injected": len(self.injected)}
+        # The controller's frames by CiA 301 service (what a second master would add to).
+        frames = dict(getattr(self.rig.drives, "host_frames", {}))
+        return {"counters": dict(c.__dict__), "injected": len(self.injected), "host_frames": frames}
 
     # ------------------------------------------------------------------ dispatch
     def handle(self, req: Any) -> dict[str, Any]:

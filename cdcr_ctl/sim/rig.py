@@ -31,10 +31,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cdcr_ctl.ownership import Ownership
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.loadcells import SensorNoise, sim_for_config
 from cdcr_ctl.sim.lockstep.truthproc import TruthProcess
-from cdcr_ctl.sim.simconfig import LoadedSim
+from cdcr_ctl.sim.simconfig import LoadedSim, sim_owned_keys
 from cdcr_ctl.sim.tracker import sim_tracker_from_config
 
 log = logging.getLogger(__name__)
@@ -64,6 +65,7 @@ class SimRig:
         can_channel: str | None = None,
         link_paths: bool = True,
         truth_worker: bool = False,
+        owner: Ownership | None = None,
     ) -> None:
         self.loaded = loaded
         self.rig = loaded.rig
@@ -80,12 +82,28 @@ class SimRig:
         self.attitude: list[Any] = []
         self.joystick: Any = None
         self._links: list[Path] = []
+        #: The locks of :meth:`owned_keys` (a caller that took them first may pass its own).
+        self._owner = owner or Ownership()
         #: Solve the truth in a worker process (``cdcr-ctl sim``), see :meth:`_physics`.
         self.truth_worker = truth_worker
         self._truth_proc: TruthProcess | None = None
 
     # ------------------------------------------------------------------ lifecycle
+    def owned_keys(self) -> list[str]:
+        """What this simulator stands in for (:func:`~cdcr_ctl.sim.simconfig.sim_owned_keys`)."""
+        return sim_owned_keys(self.rig, self.can_interface, self.link_paths)
+
     def start(self) -> SimRig:
+        # First: a second simulator of the same rig refuses here, before it replaces the first
+        # one's links or binds its ports (AlreadyOwned names the first one's pid).
+        self._owner.take_all(self.owned_keys())
+        try:
+            return self._start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def _start(self) -> SimRig:
         if self.truth_worker:
             # First, while this process has no other thread: forked then, the worker starts
             # with this process's imports (spawned, ~1.5 s of its own, which every rig start
@@ -187,6 +205,7 @@ class SimRig:
         for link in self._links:
             with contextlib.suppress(OSError):
                 link.unlink()
+        self._owner.release()
 
     def __enter__(self) -> SimRig:
         return self.start()
@@ -201,7 +220,14 @@ class SimRig:
             "pid": os.getpid(),
         }
         if self.load_cells is not None:
-            info["load_cells"] = {"port": str(self.load_cells.path)}
+            serial = self.rig.sensors.load_cells.serial
+            info["load_cells"] = {
+                "port": str(self.load_cells.path),
+                # What the daemon's side of the link must be set to (the rig config's).
+                "baudrate": serial.baudrate,
+                "parity": serial.parity,
+                "stopbits": serial.stopbits,
+            }
         if self.attitude:
             info["attitude"] = [str(dev.path) for dev in self.attitude]
         if self.joystick is not None:
@@ -211,11 +237,7 @@ class SimRig:
                 "format": "struct input_event, 24-byte records, little endian",
             }
         if self.tracker is not None:
-            info["tracker"] = {
-                "host": self.rig.sensors.tracker.host,
-                "command_port": getattr(self.tracker, "command_port", None),
-                "data_port": getattr(self.tracker, "data_port", None),
-            }
+            info["tracker"] = {"kind": self.rig.sensors.tracker.kind, **tracker_ports(self.tracker)}
         return info
 
     # ------------------------------------------------------------------ physics
@@ -308,3 +330,18 @@ def network_joystick(loaded: LoadedSim) -> Any:
         )
 
     return NetworkJoystickServer(source, host=host, port=port)
+
+
+def tracker_ports(server: Any) -> dict[str, Any]:
+    """The simulated tracker's bound addresses: a NatNet server's command and data sockets, a
+    line stream's one socket (host and port as the kernel reports them)."""
+    if hasattr(server, "command_address"):
+        host, command_port = server.command_address[:2]
+        return {"host": host, "command_port": command_port, "data_port": server.data_address[1]}
+    if getattr(server, "target", None) is not None:  # UDP: datagrams sent to the target
+        host, port = server.target[:2]
+        return {"host": host, "port": port, "source_port": server.address[1]}
+    if hasattr(server, "address"):
+        host, port = server.address[:2]
+        return {"host": host, "port": port}
+    return {}

@@ -11,6 +11,7 @@ error, tracker frame offset, sensor noise) live only here.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -139,3 +140,28 @@ def load_sim_config(path: str | Path) -> LoadedSim:
             str(path), "effects.counts_per_mm_scale", f"needs {len(rig.drives)} values", scale
         )
     return LoadedSim(path, sim, rig, truth)
+
+
+def sim_owned_keys(
+    rig: RigConfig, can_interface: str = "slcan", link_paths: bool = True
+) -> list[str]:
+    """What a simulator of ``rig`` stands in for, as :mod:`cdcr_ctl.ownership` keys: its pty
+    links (the CAN adapter's, the load cells', the attitude sensors'; with ``link_paths``) and
+    its loopback ports (tracker, network joystick). A second simulator of the same rig refuses
+    on the first of them, before it replaces a link or binds a port."""
+    keys: list[str] = []
+    sensors = rig.sensors
+    if link_paths:
+        links = [rig.can.channel] if can_interface == "slcan" else []
+        if sensors.load_cells is not None:
+            links.append(sensors.load_cells.serial.port)
+        if sensors.attitude is not None:
+            links += [s.port for s in sensors.attitude.sensors]
+        keys += [f"sim:{os.path.abspath(link)}" for link in links]
+    if sensors.tracker is not None:
+        tr = sensors.tracker
+        keys.append(f"sim-port:{tr.host}:{tr.command_port if tr.kind == 'natnet' else tr.port}")
+    js = sensors.joystick
+    if js is not None and js.tcp_address is not None:
+        keys.append("sim-port:{}:{}".format(*js.tcp_address))
+    return keys

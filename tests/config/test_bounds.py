@@ -69,3 +69,16 @@ def test_sane_values_at_the_bounds_load(tmp_path):
     )
     cfg = load_rig_config(path)
     assert cfg.daemon.socket_mode == 0o600
+
+
+def test_socket_mode_dumps_as_octal_and_loads_back(tmp_path):
+    """The effective config a run keeps says ``0o640``, not the integer 416, and loads again."""
+    import yaml
+
+    cfg = load_rig_config(_child(tmp_path, "daemon: {socket_mode: 0640}"))
+    dumped = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
+    assert "socket_mode: 0o640\n" in dumped
+    again = tmp_path / "again.yaml"
+    again.write_text(dumped)
+    assert load_rig_config(again).daemon.socket_mode == 0o640
+    assert cfg.model_dump()["daemon"]["socket_mode"] == 0o640  # Python dumps keep the number

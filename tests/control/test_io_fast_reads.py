@@ -19,22 +19,31 @@ class _State(enum.Enum):
 class _Group:
     clock = staticmethod(lambda: 10.0)
 
-    def __init__(self):
+    def __init__(self, fault=None):
         self.fb = [
-            SimpleNamespace(position_counts=p, state=_State.ENABLED, t_s=9.99)
-            for p in (12, -40000, 7)
+            SimpleNamespace(node=n, position_counts=p, state=_State.ENABLED, t_s=9.99, fault="")
+            for n, p in ((1, 12), (2, -40000), (3, 7))
         ]
+        self._fault = fault
 
     def feedback(self):
         return list(self.fb)
 
-    def first_fault(self):
-        return None
+    def fault(self):
+        return self._fault
 
 
 def test_positions_are_the_feedbacks():
     port = DriveGroupPort(_Group())  # type: ignore[arg-type]
     assert port.positions() == [f.position_counts for f in port.feedback()] == [12, -40000, 7]
+
+
+def test_a_nodes_fault_shows_on_that_drive_only():
+    boot = SimpleNamespace(node=1, text="node 1: boot-up message: the drive restarted")
+    port = DriveGroupPort(_Group(boot))  # type: ignore[arg-type]
+    assert [d.fault for d in port.feedback()] == [boot.text, "", ""]
+    bus = SimpleNamespace(node=0, text="bus: no frame received")  # the rig's, not a drive's
+    assert [d.fault for d in DriveGroupPort(_Group(bus)).feedback()] == ["", "", ""]  # type: ignore[arg-type]
 
 
 class _Sampler:

@@ -90,7 +90,7 @@ H1 = "t_s,seg1_theta_rad,seg1_phi_rad\n"
         ("t_s,seg1_theta_rad\n0,0\n", {}, "line 1", "header must be"),
         (H1 + "0,0,0\n1,0.1,x\n", {}, "line 3, seg1_phi_rad", "not a number"),
         (H1 + "0,0,0\n1,0.1\n", {}, "line 3", "2 fields for 3 columns"),
-        (H1 + "0,0,0\n1,0.1,0\n1,0.2,0\n", {}, "line 4, t_s", "time must increase"),
+        (H1 + "0,0,0\n1,0.1,0\n1,0.2,0\n", {}, "line 4, t_s", "(previous sample at 1.0 s)"),
         (H1 + "# c\n0,0,0\n\n1,-0.1,0\n", {}, "line 5, seg1_theta_rad", "must be >= 0"),
         (H1 + "0,0,0\n1,inf,0\n", {}, "line 3, seg1_theta_rad", "not a number"),
         (H1 + "0,0,0\n1,1e999,0\n", {}, "line 3, seg1_theta_rad", "not finite"),

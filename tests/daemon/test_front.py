@@ -126,3 +126,51 @@ def test_the_shared_memory_flag_is_raised_in_one_process_and_acted_on_in_another
         if proc.is_alive():
             proc.kill()
     assert proc.exitcode == 0
+
+
+def test_shutdown_trusts_the_rig_process_sentinel_not_a_lost_reap(caplog):
+    """The pipe thread may reap the ended rig process while shutdown waits for it; the front's
+    own waitpid then fails and ``is_alive()`` still says True. Shutdown must go by the process's
+    sentinel (readable once it ended, whoever reaped it): no "did not end in 12 s" error, no
+    12 s wait."""
+    import logging
+    import multiprocessing
+    import time
+    from types import SimpleNamespace
+
+    from cdcr_ctl.daemon.front import FrontDaemon
+    from cdcr_ctl.daemon.notify import SystemdNotifier
+
+    child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(0.0,))
+    child.start()
+    child.join(30)
+
+    class LostReap:  # what the front's Process looks like after the other thread reaped it
+        sentinel = child.sentinel
+        exitcode = None
+
+        def is_alive(self) -> bool:
+            return True
+
+        def join(self, timeout=None) -> None:
+            pass
+
+        def terminate(self) -> None:
+            raise AssertionError("an ended rig process was terminated")
+
+        kill = terminate
+
+    front = FrontDaemon.__new__(FrontDaemon)
+    front.notifier = SystemdNotifier("")
+    front.proc = LostReap()
+    front.flag = SimpleNamespace(request=lambda reaction: 0)
+    front._call = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("rig gone"))
+    front.server = None
+    front.intake = SimpleNamespace(close=lambda: None)
+    front._conn = SimpleNamespace(close=lambda: None)
+    t0 = time.monotonic()
+    with caplog.at_level(logging.INFO, logger="cdcr_ctl.daemon.front"):
+        front.shutdown("test")
+    assert time.monotonic() - t0 < 2.0
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR], caplog.text
+    assert front.state == "stopped"

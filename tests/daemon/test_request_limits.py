@@ -92,3 +92,27 @@ def test_big_lines_go_to_the_spooler(tmp_path):
         assert not list(tmp_path.glob("line*.json"))  # the spool is removed after parsing
     finally:
         srv.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "field", "says"),
+    [
+        (dict(segment=3, theta_rad=0.1, phi_rad=0.0), "args.segment", "segment 3 outside [1, 2]"),
+        (dict(segment=1, theta_rad=2.0, phi_rad=0), "args.theta_rad", "2 rad outside [0, 1.75]"),
+        ({"cable": 7, "delta_mm": 1.0}, "args.cable", "cable 7 outside [1, 6]"),
+        ({"cable": 1, "delta_mm": 40.0}, "args.delta_mm", "40 mm outside [-30, 30] mm"),
+    ],
+)  # fmt: skip
+def test_jog_refusals_state_the_allowed_range_and_unit(args, field, says):
+    """Refused on the request's own limits, before the rig's state is looked at."""
+    from types import SimpleNamespace
+
+    from cdcr_ctl.daemon.commands_run import RunCommands
+
+    limits = SimpleNamespace(bend_rad=1.75, cable_displacement_mm=(-10.0, 20.0))
+    daemon = SimpleNamespace(
+        model=SimpleNamespace(n_segments=2, n_cables=6), cfg=SimpleNamespace(limits=limits)
+    )
+    with pytest.raises(ProtocolError) as info:
+        RunCommands._cmd_jog(daemon, protocol.COMMANDS["jog"](**args))  # type: ignore[arg-type]
+    assert info.value.field == field and says in str(info.value), str(info.value)

@@ -88,3 +88,44 @@ def test_scan_command_against_the_simulated_rig(tmp_path, capsys):
         assert "3 node(s)" in text and "matches the config" in text
     finally:
         sim.stop()
+
+
+def test_scan_refuses_while_another_process_owns_the_bus(tmp_path, capsys):
+    """A daemon's bus lock (cdcr_ctl.ownership) held by another process: scan says who owns
+    the bus and sends nothing (the simulated nodes see no frame); options after the command."""
+    import subprocess
+    import sys
+
+    from cdcr_ctl.ownership import bus_key
+
+    ch = channel()
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        f"extends: {ROOT / 'config' / 'qi2023.yaml'}\ncan:\n  interface: virtual\n  channel: {ch}\n"
+    )
+    hold = (
+        "import sys; from cdcr_ctl.ownership import Ownership; o = Ownership(); "
+        f"o.take({bus_key('virtual', ch)!r}); print('held', flush=True); sys.stdin.read()"
+    )
+    owner = subprocess.Popen(
+        [sys.executable, "-c", hold], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
+    sim = SimDriveBus([(1, "epos4"), (2, "epos4"), (3, "epos4")], "virtual", ch).start()
+    probe = can.Bus(interface="virtual", channel=ch, receive_own_messages=False)
+    try:
+        assert owner.stdout is not None and owner.stdout.readline().strip() == "held"
+        while probe.recv(0.05) is not None:  # the nodes' boot-up messages
+            pass
+        assert main(["scan", "--config", str(cfg), "--json"]) == 1
+        err = capsys.readouterr().err
+        assert f"already running (pid {owner.pid};" in err, err
+        assert probe.recv(0.2) is None  # not one frame on the bus
+        owner.communicate("")
+        assert main(["scan", "-c", str(cfg), "--json"]) == 0  # the owner gone: the scan runs
+        assert json.loads(capsys.readouterr().out)["matches_config"] is True
+    finally:
+        probe.shutdown()
+        sim.stop()
+        if owner.poll() is None:
+            owner.kill()
+            owner.wait()

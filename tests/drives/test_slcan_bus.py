@@ -71,6 +71,8 @@ def test_set_up_and_frames_are_the_bytes_python_can_sends(pty):
     stock.shutdown()
     want = pty.read_all()
     ours = open_bus(pty.path)
+    # canopen logs "Connected to '<channel_info>'": the device, not BusABC's "unknown".
+    assert stock.channel_info == "unknown" and ours.channel_info == pty.path
     for m in sample:
         ours.send(m)
     ours.shutdown()

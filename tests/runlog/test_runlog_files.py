@@ -123,6 +123,7 @@ def test_round_trip_is_exact_with_metadata_and_counts(tmp_path):
     assert run.ended["write_error"] is None
     assert run.config_path.read_text() == config_text
     assert run.can_log is None
+    assert m["can_log"] is None  # run.yaml names no traffic file that was never written
 
 
 def test_sequence_rows_empty_fields_and_unknown_keys(tmp_path):
@@ -191,7 +192,9 @@ def test_can_log_name_is_reserved_and_listed(tmp_path):
     assert w.can_log_path("blf") == tmp_path / "r" / "can.blf"
     w.can_log_path().write_text("date Mon May 1 12:00:00.000 am 2024\n")
     w.close("done")
-    assert load_run(w.run_dir).can_log == can_log_path(w.run_dir)
+    run = load_run(w.run_dir)
+    assert run.can_log == can_log_path(w.run_dir)
+    assert run.metadata["can_log"] == "can.asc"  # the file written, not every name reserved
     with pytest.raises(ValueError, match="asc"):
         can_log_path(tmp_path, "trc")
 

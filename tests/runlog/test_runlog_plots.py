@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -78,3 +80,23 @@ def test_tip_from_psi_shape_is_checked(tmp_path):
     run = write_run(tmp_path, with_tension=False)
     with pytest.raises(ValueError, match="expected"):
         plot_run(run, tmp_path / "p", tip_from_psi=lambda psi: psi[:, 0, :])
+
+
+def test_plot_command_says_where_it_wrote(tmp_path, capsys):
+    import yaml
+
+    from cdcr_ctl.cli.main import main
+    from cdcr_ctl.config import load_rig_config
+
+    run = write_run(tmp_path, with_tip=False, with_tension=False)
+    rig = load_rig_config(Path(__file__).resolve().parents[2] / "config" / "qi2023.yaml")
+    (run.run_dir / "config_effective.yaml").write_text(yaml.safe_dump(rig.model_dump(mode="json")))
+    assert main(["plot", str(run.run_dir)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    where = (run.run_dir / "plots").resolve()
+    assert lines[0] == f"{len(lines) - 1} plot(s) in {where}" and len(lines) > 1
+    assert all(Path(p.strip()).parent == where and Path(p.strip()).is_file() for p in lines[1:])
+    assert main(["plot", str(run.run_dir), "--out", str(tmp_path / "o"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["out_dir"] == str((tmp_path / "o").resolve())
+    assert set(out["plots"]) == {"tip_path", "cables", "bend"}  # commanded tip from the config

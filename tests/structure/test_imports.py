@@ -25,6 +25,7 @@ LAYERS: dict[str, int] = {
     "blas": 0,
     "errors": 0,
     "firstuse": 0,  # package attributes imported on first use (standard library only)
+    "ownership": 0,  # one owner per bus, socket and simulator link (flock; standard library)
     "model": 0,
     "config": 1,
     "drives": 2,

@@ -59,6 +59,12 @@ def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
     raise AssertionError(f"status never matched; last: {st}")
 
 
+def wait_run_end(work: Path, run_id: str, timeout_s: float) -> tuple[dict, dict]:
+    """(the run's entry in ``status["runs"]``, that status) once run ``run_id`` has ended."""
+    st = wait_status(work, lambda s: any(r["id"] == run_id for r in s["runs"]), timeout_s)
+    return next(r for r in st["runs"] if r["id"] == run_id), st
+
+
 def relaunch(rig: Path, work: Path, log: Path) -> None:
     """A new daemon starts after a killed one, finds the drives disabled (their heartbeat
     consumers noticed the master's death), and enables them."""
@@ -80,6 +86,7 @@ __all__ = [
     "start_daemon",
     "start_sim",
     "wait_for_socket",
+    "wait_run_end",
     "wait_status",
 ]
 

@@ -272,7 +272,7 @@ class Trajectory:
                 raise ConfigError(
                     self.source,
                     where(n, -1, "t"),
-                    f"time must increase (previous sample at {t[n - 1]!r} s)",
+                    f"time must increase (previous sample at {float(t[n - 1])!r} s)",
                     float(t[n]),
                 )
         bad = ~np.isfinite(psi)

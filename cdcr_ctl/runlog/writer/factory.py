@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
+from cdcr_ctl.config.control import run_log_dir
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, sample_columns
 from cdcr_ctl.runlog.mcap_sink import McapSinkFactory
@@ -123,8 +124,9 @@ class RunLogFactory:
     ) -> RunLogFactory:
         """Factory for a validated rig config read from ``config_path``.
 
-        The log directory is ``cfg.logging.directory`` (relative to the config file's folder if
-        relative) unless ``base_dir`` is given; counts default to the config's segments and
+        The log directory is :func:`~cdcr_ctl.config.control.run_log_dir` of the config (its
+        ``logging.directory`` against the working directory, else the state directory's
+        ``runs``) unless ``base_dir`` is given; counts default to the config's segments and
         cables. The ring holds ``cfg.logging.ring_s`` of rows, ``cfg.logging.wait_ring_s`` for
         ``on_full="wait"`` (lock-step). Raises :class:`RigError` naming the file if the config
         cannot be re-read.
@@ -135,9 +137,7 @@ class RunLogFactory:
         except OSError as exc:
             raise RigError(f"{path}: cannot read the config for the run logs: {exc}") from exc
         if base_dir is None:
-            base_dir = Path(cfg.logging.directory)
-            if not base_dir.is_absolute():
-                base_dir = path.parent / base_dir
+            base_dir = run_log_dir(cfg.logging)
         effective = yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False)
         return cls(
             base_dir,

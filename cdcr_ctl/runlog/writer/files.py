@@ -10,6 +10,7 @@ import errno
 import logging
 import os
 import re
+import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -55,6 +56,23 @@ def run_dir_name(name: str, start: datetime | None = None) -> str:
     start = start or datetime.now(UTC)
     slug = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "run"
     return f"{start.astimezone(UTC):%Y%m%d-%H%M%S}_{slug[:60]}"
+
+
+def check_log_dir(base_dir: str | Path) -> Path:
+    """Make sure run directories can be created below ``base_dir``: create it if missing, then
+    create and remove a probe directory in it. Returns it; raises :class:`RigError` naming the
+    path otherwise (a daemon checks this at start rather than fail the first run)."""
+    base = Path(base_dir)
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+        probe = Path(tempfile.mkdtemp(prefix=".probe-", dir=base))
+        probe.rmdir()
+    except OSError as exc:
+        raise RigError(
+            f"{base}: the run-log directory is not writable: {exc.strerror or exc} "
+            "(set logging.directory in the rig config, or run where ./runs can be created)"
+        ) from exc
+    return base
 
 
 def new_run_dir(base_dir: str | Path, name: str, start: datetime | None = None) -> Path:

@@ -196,7 +196,9 @@ class RunFileFormats:
                 "columns": len(self.columns),
                 "config": {"files": self._files, "source": self._config_source},
                 "samples": SAMPLES_CSV,
-                "can_log": list(CAN_LOG_NAMES),
+                # The raw CAN traffic file the drives layer wrote into this run (None: none,
+                # e.g. ``can.log_traffic: false``); at the start it may not be there yet.
+                "can_log": next((n for n in CAN_LOG_NAMES if (self.run_dir / n).is_file()), None),
                 "fsync_every_s": self.fsync_every_s,
                 "extra": extra,
                 "ended": None,

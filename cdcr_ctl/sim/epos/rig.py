@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import itertools
 import logging
 import threading
@@ -117,6 +118,8 @@ class SimDriveBus:
             n.lag_cycles = lag_cycles
             n.sync_period_s = sync_period_s
         self.free_run = free_run
+        #: Frames the host (the controller) sent through the adapter, by :func:`frame_kind`.
+        self.host_frames: collections.Counter[str] = collections.Counter()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._background, name="sim-epos", daemon=True)
 
@@ -125,6 +128,7 @@ class SimDriveBus:
         MessageListener would pass it on."""
         if msg.is_error_frame or msg.is_remote_frame:
             return
+        self.host_frames[frame_kind(msg.arbitration_id)] += 1
         try:
             self.network.notify(msg.arbitration_id, msg.data, msg.timestamp)
         except Exception:  # a node's bug must not stop the adapter
@@ -229,6 +233,24 @@ class SimDriveBus:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def frame_kind(cob_id: int) -> str:
+    """The CiA 301 service of a host frame by its COB-ID: ``nmt``, ``sync``, ``time``,
+    ``rpdo``, ``sdo_request``, ``heartbeat`` (a master's own), else ``other``."""
+    if cob_id == 0x000:
+        return "nmt"
+    if cob_id == 0x080:
+        return "sync"
+    if cob_id == 0x100:
+        return "time"
+    if 0x200 <= cob_id <= 0x57F:
+        return "rpdo"
+    if 0x600 <= cob_id <= 0x67F:
+        return "sdo_request"
+    if 0x700 <= cob_id <= 0x77F:
+        return "heartbeat"
+    return "other"
 
 
 def _specs(
