@@ -264,3 +264,31 @@ def test_dead_zone_ignores_a_sub_count_dip_and_turns_after_one_count():
     assert dead_zone_inverse_list([1.0 - 1e-6], rows0, half)[0] == pytest.approx(
         1.0 - 0.15, abs=1e-5
     )
+
+
+def test_sideways_gravity_loads_a_straight_robot_as_the_disk_levers_say(tmp_path):
+    """``robot.gravity_mm_s2`` along +x (a robot mounted sideways) at the straight pose: disk j
+    of n at arc fraction s_j = j/n moves s_j^2 l / 2 per unit bending vector, so the weights
+    give Q_x = g_x sum_j m s_j^2 l / 2 and the demand -Q_x; along -z they give nothing there."""
+    path = _overlay(tmp_path, QI, "robot:\n  gravity_mm_s2: [9810.0, 0.0, 0.0]\n")
+    p = robot_params(load_rig_config(path).robot)
+    seg = p.segments[0]
+    gx_N_per_g = 9810.0 * 1e-6
+    Q = gx_N_per_g * sum(
+        seg.disk_mass_g * (j / seg.n_disks) ** 2 * seg.length_mm / 2
+        for j in range(1, seg.n_disks + 1)
+    )
+    m = np.array(ForceTransfer(p, Effects()).pose([0.0, 0.0]).m_req)
+    assert m[0] == pytest.approx([-Q, 0.0], rel=1e-12, abs=1e-15)
+    upright = robot_params(load_rig_config(QI).robot)
+    assert np.array(ForceTransfer(upright, Effects()).pose([0.0, 0.0]).m_req)[0] == pytest.approx(
+        [0.0, 0.0], abs=1e-15
+    )
+    # and the model built from the config commands it: c2/c3 (the -x side) carry it
+    bent = build_cc_disk_model(load_rig_config(path))
+    base = build_cc_disk_model(load_rig_config(QI))
+    psi = np.zeros((1, 2))
+    dT = np.asarray(bent.compensate(psi, [1.0] * 3).T_distal) - np.asarray(
+        base.compensate(psi, [1.0] * 3).T_distal
+    )
+    assert dT[0] == pytest.approx(0.0, abs=1e-12) and dT[1] > 0 and dT[2] > 0

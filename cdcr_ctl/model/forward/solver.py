@@ -277,8 +277,7 @@ class ForwardModel:
                 if k in crossing[i]:
                     ax, ay = P.arm[k][i]
                     w = Fb[k][i] * self.ft.arm_weight(k, i)
-                    J[2 * i, S2 + k] = w * ax
-                    J[2 * i + 1, S2 + k] = w * ay
+                    J[2 * i, S2 + k], J[2 * i + 1, S2 + k] = w * ax, w * ay
             h = 1e-6 * max(1.0, abs(T[k]))
             cp = self.ft.cable(P, k, T[k] + h, s[k], Fb[k], Eb[k])
             cm = self.ft.cable(P, k, T[k] - h, s[k], Fb[k], Eb[k])
