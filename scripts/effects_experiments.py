@@ -43,31 +43,26 @@ from cdcr_ctl.sim.lockstep.session import LockstepSession  # noqa: E402
 from cdcr_ctl.sim.simconfig import load_sim_config  # noqa: E402
 
 
+def _write(path: Path, doc: dict) -> Path:
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
 def _worlds(sim_path: Path, out: Path, payload_kg: float) -> tuple[Path, Path, Path, Path]:
     """(world without payload, world with it, controller without, controller with)."""
     doc = yaml.safe_load(sim_path.read_text())
     rig = (sim_path.parent / doc["rig"]).resolve()
     doc["rig"] = str(rig)
     truth_robot = dict(doc.get("truth_robot") or {})
-    world0 = out / "world.yaml"
-    world0.write_text(yaml.safe_dump(doc))
-    loaded = dict(doc)
-    loaded["truth_robot"] = {**truth_robot, "tip_load": {"payload_kg": payload_kg}}
-    world1 = out / "world-payload.yaml"
-    world1.write_text(yaml.safe_dump(loaded))
-    eff = doc.get("effects") or {}
-    ctl_doc = {
-        "extends": str(rig),
-        "robot": truth_robot,
-        "control": {"geometry": eff.get("geometry", "chord")},
-    }
-    ctl0 = out / "ctl.yaml"
-    ctl0.write_text(yaml.safe_dump(ctl_doc))
-    ctl_doc1 = dict(ctl_doc)
-    ctl_doc1["robot"] = {**truth_robot, "tip_load": {"payload_kg": payload_kg}}
-    ctl1 = out / "ctl-payload.yaml"
-    ctl1.write_text(yaml.safe_dump(ctl_doc1))
-    return world0, world1, ctl0, ctl1
+    loaded_robot = {**truth_robot, "tip_load": {"payload_kg": payload_kg}}
+    geometry = (doc.get("effects") or {}).get("geometry", "chord")
+    ctl = {"extends": str(rig), "control": {"geometry": geometry}}
+    return (
+        _write(out / "world.yaml", doc),
+        _write(out / "world-payload.yaml", {**doc, "truth_robot": loaded_robot}),
+        _write(out / "ctl.yaml", {**ctl, "robot": truth_robot}),
+        _write(out / "ctl-payload.yaml", {**ctl, "robot": loaded_robot}),
+    )
 
 
 def run_one(world: Path, ctl: Path, traj, out: Path, tag: str) -> dict:

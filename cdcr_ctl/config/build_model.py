@@ -107,16 +107,8 @@ def robot_params(robot: RobotConfig) -> RobotParams:
 
 def model_effects(cfg: RigConfig) -> Effects:
     """The controller model's effects from ``control.model_effects`` and ``control.geometry``."""
-    me = cfg.control.model_effects
-    return Effects(
-        disk_friction=me.disk_friction,
-        pulley_friction=me.pulley_friction,
-        elongation=me.elongation,
-        coupling=me.coupling,
-        gravity=me.gravity,
-        coupling_gain=me.coupling_gain,
-        geometry=cfg.control.geometry,
-    )
+    # the section's keys are the Effects fields of the same names (switches, coupling_gain)
+    return Effects(**cfg.control.model_effects.model_dump(), geometry=cfg.control.geometry)
 
 
 def loadcell_locations(cfg: RigConfig) -> list[Location]:
