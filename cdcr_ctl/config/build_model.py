@@ -142,6 +142,14 @@ def build_model(
             raise ConfigError(
                 source, "design", "effects/reversal band are cc_disk options", cfg.design
             )
+        tl = cfg.robot.tip_load
+        if tl.payload_kg or any(tl.force_N):
+            raise ConfigError(
+                source,
+                "robot.tip_load",
+                f"the {cfg.design} model has no tip load; only cc_disk carries one",
+                tl.model_dump(),
+            )
         return build_design_model(cfg, source)
     return build_cc_disk_model(cfg, effects, reversal_band_mm, source)
 

@@ -292,3 +292,14 @@ def test_sideways_gravity_loads_a_straight_robot_as_the_disk_levers_say(tmp_path
         base.compensate(psi, [1.0] * 3).T_distal
     )
     assert dT[0] == pytest.approx(0.0, abs=1e-12) and dT[1] > 0 and dT[2] > 0
+
+
+def test_a_tip_load_on_a_design_without_one_is_refused(tmp_path):
+    from cdcr_ctl.config.build_model import build_model
+
+    path = _overlay(
+        tmp_path, ROOT / "config" / "yang2022.yaml", "robot:\n  tip_load: {payload_kg: 0.01}\n"
+    )
+    with pytest.raises(ConfigError) as exc:
+        build_model(load_rig_config(path), source=str(path))
+    assert "robot.tip_load" in str(exc.value) and str(path) in str(exc.value)
