@@ -303,3 +303,26 @@ def test_a_tip_load_on_a_design_without_one_is_refused(tmp_path):
     with pytest.raises(ConfigError) as exc:
         build_model(load_rig_config(path), source=str(path))
     assert "robot.tip_load" in str(exc.value) and str(path) in str(exc.value)
+
+
+@pytest.mark.parametrize("geometry", ["cc", "chord"])
+def test_forward_model_under_a_tip_load_inverts_the_compensation(geometry):
+    """The simulated world's forward model carries the same tip load: the cable displacements
+    the compensation commands for a pose under a 5 g payload and a sideways tip force bring the
+    forward model (every effect on, stepped through a monotone path) to that pose (1e-8 rad
+    of bending vector: the Newton tolerance), and not the unloaded robot."""
+    from cdcr_ctl.model.forward import ForwardStepper
+    from cdcr_ctl.model.kinematics import psi_to_x
+
+    p = robot_params(load_rig_config(THREE).robot)
+    loaded = replace(p, tip_mass_g=5.0, tip_force_N=(0.02, -0.01, 0.0))
+    eff = Effects(geometry=geometry)
+    comp, fwd, bare = Compensator(loaded, eff), ForwardStepper(loaded, eff), ForwardStepper(p, eff)
+    st = comp.new_state()
+    for t in np.linspace(0.05, 0.6, 8):
+        psi = np.array([[t, 0.3], [0.8 * t, 1.0], [t, -0.5]])
+        q = np.asarray(comp.step(psi, st).q)
+        res = fwd.step(q)
+        off = bare.step(q)
+        assert np.max(np.abs(res.x - psi_to_x(psi).ravel())) < 1e-8
+    assert np.max(np.abs(off.x - psi_to_x(psi).ravel())) > 1e-3
