@@ -42,6 +42,15 @@ def dead_zone_step_mm(cfg: RigConfig) -> float:
     return DEAD_ZONE_STEP_FRACTION * cfg.limits.cable_velocity_mm_s / cfg.control.rate_hz
 
 
+def reversal_hysteresis_mm(cfg: RigConfig) -> float:
+    """Reversal threshold of the dead-zone inverse (mm of wanted cable position): one drive count
+    of the finest drive, 1/max(counts_per_mm). A wanted-position dip smaller than a count is no
+    motion the drive can make, so it must not flip the pre-travel across the play; declaring a
+    real reversal one count late costs at most one count of cable travel (0.8 um on the Qi et
+    al. 2023 rig, 1238.6 counts/mm)."""
+    return 1.0 / max(abs(d.counts_per_mm) for d in cfg.drives)
+
+
 def robot_params(robot: RobotConfig) -> RobotParams:
     """Segments, cables (with their pulleys in actuator -> robot order) and gravity, in model units.
 
@@ -86,7 +95,20 @@ def robot_params(robot: RobotConfig) -> RobotParams:
         for c in robot.cables
     )
     g = robot.gravity_mm_s2
-    return RobotParams(segments=segments, cables=cables, gravity_mm_s2=(g[0], g[1], g[2]))
+    f = robot.tip_load.force_N
+    return RobotParams(
+        segments=segments,
+        cables=cables,
+        gravity_mm_s2=(g[0], g[1], g[2]),
+        tip_mass_g=1000.0 * robot.tip_load.payload_kg,
+        tip_force_N=(f[0], f[1], f[2]),
+    )
+
+
+def model_effects(cfg: RigConfig) -> Effects:
+    """The controller model's effects from ``control.model_effects`` and ``control.geometry``."""
+    # the section's keys are the Effects fields of the same names (switches, coupling_gain)
+    return Effects(**cfg.control.model_effects.model_dump(), geometry=cfg.control.geometry)
 
 
 def loadcell_locations(cfg: RigConfig) -> list[Location]:
@@ -106,7 +128,8 @@ def build_model(
 ) -> RobotModelPort:
     """The control loop's model (``RobotModelPort``) for the rig's ``design``.
 
-    ``cc_disk``: ``effects`` defaults to every effect on, with the cable geometry of
+    ``cc_disk``: ``effects`` defaults to the switches of ``control.model_effects`` (every
+    effect on unless the config says otherwise), with the cable geometry of
     ``control.geometry``; the cables' lost motion (``backlash_mm``) is added to it as the first
     transmission effect, its inverse bounded by :func:`dead_zone_step_mm`;
     ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
@@ -118,6 +141,14 @@ def build_model(
         if effects is not None or reversal_band_mm is not None:
             raise ConfigError(
                 source, "design", "effects/reversal band are cc_disk options", cfg.design
+            )
+        tl = cfg.robot.tip_load
+        if tl.payload_kg or any(tl.force_N):
+            raise ConfigError(
+                source,
+                "robot.tip_load",
+                f"the {cfg.design} model has no tip load; only cc_disk carries one",
+                tl.model_dump(),
             )
         return build_design_model(cfg, source)
     return build_cc_disk_model(cfg, effects, reversal_band_mm, source)
@@ -148,7 +179,7 @@ def build_cc_disk_model(
 ) -> CCDiskModel:
     """The constant-curvature disk model of a ``cc_disk`` rig (see :func:`build_model`)."""
     if effects is None:
-        effects = Effects(geometry=cfg.control.geometry)
+        effects = model_effects(cfg)
     if reversal_band_mm is None:
         reversal_band_mm = cfg.control.reversal_band_mm
     if cfg.design != "cc_disk":
@@ -157,7 +188,7 @@ def build_cc_disk_model(
         )
     params = robot_params(cfg.robot)
     # The cables' lost motion (robot.cables[].backlash_mm) is part of every cc_disk model.
-    effects = with_cable_play(params, effects, dead_zone_step_mm(cfg))
+    effects = with_cable_play(params, effects, dead_zone_step_mm(cfg), reversal_hysteresis_mm(cfg))
     return CCDiskModel(
         params,
         effects,

@@ -14,6 +14,25 @@ from pydantic import Field, field_serializer, field_validator, model_validator
 from cdcr_ctl.config.base import Section, Timeout
 
 
+class ModelEffectsConfig(Section):
+    """Which effects the controller's model (the ``cc_disk`` compensation) includes.
+
+    Each switch is an effect of Qi et al. 2023 the compensation can leave out: ``disk_friction``
+    (capstan friction in the disk holes, eq. 16-24), ``pulley_friction`` (eq. 25-32),
+    ``elongation`` (elastic cables, eq. 33-36; off: rigid), ``coupling`` (distal cables load the
+    proximal segments, eq. 11-15), ``gravity`` (disk weights). ``coupling_gain``: weight of the
+    distal cables' load on the proximal segments when ``coupling`` is on (1 as derived; a fitted
+    value from the discrepancy workflow otherwise), dimensionless in [0, 2].
+    """
+
+    disk_friction: bool = True
+    pulley_friction: bool = True
+    elongation: bool = True
+    coupling: bool = True
+    gravity: bool = True
+    coupling_gain: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 1.0
+
+
 class ControlConfig(Section):
     """The real-time loop.
 
@@ -36,6 +55,8 @@ class ControlConfig(Section):
     geometry: Literal["chord", "cc"] = "chord"
     #: Actuator travel over which friction reverses in the compensation (0: the model's stick rule).
     reversal_band_mm: Annotated[float, Field(ge=0, le=10)] = 0.0
+    #: Effects of the controller's model (switches and the coupling gain), all on by default.
+    model_effects: ModelEffectsConfig = Field(default_factory=ModelEffectsConfig)
     realtime_priority: Annotated[int, Field(ge=0, le=99)] = 0
     lock_memory: bool = False
 

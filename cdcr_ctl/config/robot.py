@@ -117,8 +117,34 @@ class CableConfig(Section):
         return self.E_MPa * math.pi * self.diameter_mm**2 / 4.0
 
 
+#: Largest payload (kg) and tip force (N) a config may name: 5 kg / 100 N are above any load a
+#: continuum arm of this controller carries (the shipped rigs bend under 2-10 g at the tip);
+#: beyond them the value is a typo (grams written as kg), not a rig.
+TIP_PAYLOAD_MAX_KG = 5.0
+TIP_FORCE_MAX_N = 100.0
+
+
+class TipLoadConfig(Section):
+    """A load at the tip disk of the last segment (a camera, a tool, a tether).
+
+    ``payload_kg``: a point mass at the tip, kg; its weight acts along ``robot.gravity_mm_s2``.
+    ``force_N``: a force at the tip in the robot base frame, N (x, y, z). Both enter the statics
+    and the compensation as the generalised force J_tip^T F (Qi et al. 2023 eq. 7-9, W_e).
+    """
+
+    payload_kg: Annotated[float, Field(ge=0, le=TIP_PAYLOAD_MAX_KG, allow_inf_nan=False)] = 0.0
+    force_N: Annotated[
+        list[Annotated[float, Field(ge=-TIP_FORCE_MAX_N, le=TIP_FORCE_MAX_N, allow_inf_nan=False)]],
+        Field(min_length=3, max_length=3),
+    ] = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+
+
 class RobotConfig(Section):
-    """The robot: segments base to tip, cables, guide pulleys and gravity in the base frame."""
+    """The robot: segments base to tip, cables, guide pulleys, gravity and the tip load.
+
+    ``gravity_mm_s2`` is gravity in the base frame, any direction (a mount turned sideways or
+    upside down is a gravity vector along x or +z); ``tip_load`` the payload and tip force.
+    """
 
     segments: Annotated[list[SegmentConfig], Field(min_length=1)]
     cables: Annotated[list[CableConfig], Field(min_length=1)]
@@ -126,3 +152,4 @@ class RobotConfig(Section):
     gravity_mm_s2: Annotated[list[float], Field(min_length=3, max_length=3)] = Field(
         default_factory=lambda: [0.0, 0.0, -9810.0]
     )
+    tip_load: TipLoadConfig = Field(default_factory=TipLoadConfig)

@@ -88,20 +88,49 @@ def dead_zone_inverse_list(
     state: list[list[float]],
     half_mm: list[float],
     max_step_mm: float = math.inf,
+    hysteresis_mm: float = 0.0,
 ) -> list[float]:
     """:func:`dead_zone_inverse` on plain floats for the control loop's few cables (the numpy
-    call costs ~7 us for K = 3, this ~2 us); ``state`` rows [y_prev, c] are updated in place."""
+    call costs ~7 us for K = 3, this ~2 us); ``state`` rows [y_prev, c, y_ext, dir] are updated
+    in place (rows of two, [y_prev, c], are widened on first use).
+
+    Reversal rule with hysteresis h = max(``hysteresis_mm``, :data:`DIRECTION_EPS_MM`): the
+    direction of motion ``dir`` (+1, -1, 0 before the first move) turns only once the wanted
+    position has come back from its extremum in the current direction (``y_ext``) by more than
+    h (a Schmitt trigger on y). A dip of the wanted position smaller than h (float noise, a
+    sub-count wiggle of the compensation at a slow reversal) keeps the pre-travel where it is;
+    a real reversal is declared h late, which costs at most h of cable motion. With h =
+    :data:`DIRECTION_EPS_MM` the rule is the sample-to-sample one (y_ext is then y_prev).
+    While y holds (|dy| <= eps) the pre-travel holds too, mid-crossing or not.
+    """
+    h = hysteresis_mm if hysteresis_mm > DIRECTION_EPS_MM else DIRECTION_EPS_MM
     out = []
     for k, y in enumerate(y_mm):
         row = state[k]
+        if len(row) < 4:
+            row.extend([row[0], 0.0][len(row) - 2 :])
         dy = y - row[0]
         c = row[1]
-        if dy > DIRECTION_EPS_MM:
-            target = half_mm[k]
-        elif dy < -DIRECTION_EPS_MM:
-            target = -half_mm[k]
-        else:
+        y_ext, d = row[2], row[3]
+        if d > 0.0:
+            if y > y_ext:
+                y_ext = y
+            elif y < y_ext - h:
+                d, y_ext = -1.0, y
+        elif d < 0.0:
+            if y < y_ext:
+                y_ext = y
+            elif y > y_ext + h:
+                d, y_ext = 1.0, y
+        elif y > y_ext + h:
+            d, y_ext = 1.0, y
+        elif y < y_ext - h:
+            d, y_ext = -1.0, y
+        row[2], row[3] = y_ext, d
+        if -DIRECTION_EPS_MM <= dy <= DIRECTION_EPS_MM or d == 0.0:
             target = c
+        else:
+            target = half_mm[k] if d > 0.0 else -half_mm[k]
         d = target - c
         if d > max_step_mm:
             d = max_step_mm

@@ -82,13 +82,15 @@ class DiskFriction(EffectTerm):
     """Capstan friction of the cables in the disk holes (eq. 16-24) with a corrected mu.
 
     Parameter ``d_mu_scale`` (dimensionless, common to all cables): mu_k = (a0 + d) * mu_ref_k,
-    a0 = 1 when the model has disk friction on, 0 when off; mu_ref_k = the config's ``mu_disk``
-    of cable k (the cables' ratios are kept: they come from the same holes and the same cable), or
-    :data:`REFERENCE_MU_DISK` for every cable when the config gives none. The refit evaluates the
-    forward model itself with the friction switched on (direction-dependent capstan factors per
-    cable and disk, stick at reversals, the friction state carried from sample to sample as the
-    simulated world does), not a linearisation. Signature: direction-dependent (hysteresis),
-    growing with the bend (the wrap angles add up to about theta), stick at reversals.
+    a0 = 1 when the model has disk friction on with some ``mu_disk`` > 0, else 0 (a switch on
+    with every mu 0 is a model without disk friction: d = 0 must leave it so); mu_ref_k = the
+    config's ``mu_disk`` of cable k (the cables' ratios are kept: they come from the same holes
+    and the same cable), or :data:`REFERENCE_MU_DISK` for every cable when the config gives
+    none. The refit evaluates the forward model itself with the friction switched on
+    (direction-dependent capstan factors per cable and disk, stick at reversals, the friction
+    state carried from sample to sample as the simulated world does), not a linearisation.
+    Signature: direction-dependent (hysteresis), growing with the bend (the wrap angles add up
+    to about theta), stick at reversals.
     """
 
     name = "disk_friction"
@@ -97,7 +99,8 @@ class DiskFriction(EffectTerm):
     reference = "Qi et al. 2023 eq. 16-24"
 
     def _a0(self, base: ModelSpec) -> float:
-        return 1.0 if base.effects.disk_friction else 0.0
+        on = base.effects.disk_friction and any(c.mu_disk > 0 for c in base.params.cables)
+        return 1.0 if on else 0.0
 
     def _mu_ref(self, base: ModelSpec) -> np.ndarray:
         mu = np.array([c.mu_disk for c in base.params.cables], dtype=float)
@@ -111,9 +114,12 @@ class DiskFriction(EffectTerm):
         return max(self._a0(base) + float(values[0]), 0.0) * self._mu_ref(base)
 
     def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
+        mu = self._mu(base, values)
+        if not np.any(mu > 0):
+            return replace(base, effects=replace(base.effects, disk_friction=False))
         return replace(
             base,
-            params=_cables(base.params, mu_disk=self._mu(base, values).tolist()),
+            params=_cables(base.params, mu_disk=mu.tolist()),
             effects=replace(base.effects, disk_friction=True),
         )
 
@@ -263,14 +269,18 @@ class GravitySag(EffectTerm):
 class GravityDirection(EffectTerm):
     """The mount direction: gravity in the base frame turned away from the config's vector.
 
-    Parameters ``tilt_x``/``tilt_y`` (rad): g_new = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg, the
-    config's gravity vector (standard gravity along -z if it is zero) turned about the base x
-    and y axes; its size is kept (the mount is tilted, gravity is not stronger). A turn about
-    the gravity vector itself changes nothing, so two angles are all the direction has. When
-    the model has no disk mass or gravity off, the reference masses
-    (:data:`REFERENCE_DISK_MASS_G`) carry the sag. Signature: a sag whose direction in the base
-    frame is fixed and not the config's (sideways for a robot whose config says upright): the
-    error depends on the bending direction relative to the true gravity, not on time.
+    Parameters ``tilt_x``/``tilt_y`` (rad): g_new = R(w) g_cfg with the rotation vector
+    w = tilt_x e_1 + tilt_y e_2, e_1 and e_2 the mount's x and y axes: the base x and y axes
+    carried by the shortest rotation from -z onto the config's gravity direction (the base x and
+    y themselves when the config says -z; standard gravity along -z if the config's is zero).
+    Both axes are perpendicular to g_cfg, so every w turns g by |w| (a turn about g itself
+    would change nothing), and with |w| up to pi the turned vector reaches every direction on
+    the sphere: polar angle |w| from g_cfg, azimuth the direction of w. The size of g is kept
+    (the mount is turned, gravity is not stronger). When the model has no disk mass or gravity
+    off, the reference masses (:data:`REFERENCE_DISK_MASS_G`) carry the sag. Signature: a sag
+    whose direction in the base frame is fixed and not the config's (sideways for a robot whose
+    config says upright): the error depends on the bending direction relative to the true
+    gravity, not on time.
     """
 
     name = "gravity_direction"
@@ -280,15 +290,16 @@ class GravityDirection(EffectTerm):
 
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (
-            EffectParam("tilt_x", "rad", 0.05, -math.pi / 2, math.pi / 2),
-            EffectParam("tilt_y", "rad", 0.05, -math.pi / 2, math.pi / 2),
+            EffectParam("tilt_x", "rad", 0.05, -math.pi, math.pi),
+            EffectParam("tilt_y", "rad", 0.05, -math.pi, math.pi),
         )
 
     def _gravity(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
         g = np.asarray(base.params.gravity_mm_s2, dtype=float)
         if np.linalg.norm(g) == 0:
             g = np.asarray(STANDARD_GRAVITY_MM_S2)
-        R = rotation_from_rotvec((float(values[0]), float(values[1]), 0.0))
+        e1, e2 = mount_axes(g)
+        R = rotation_from_rotvec(float(values[0]) * e1 + float(values[1]) * e2)
         return R @ g
 
     def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
@@ -311,6 +322,25 @@ class GravityDirection(EffectTerm):
         if not base.effects.gravity:
             out.append(FittedValue("model_effects", "", "gravity", True))
         return out
+
+
+def mount_axes(g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The mount's x and y axes in the base frame for gravity ``g`` (any size > 0).
+
+    The base x and y axes turned by the shortest rotation that takes -z onto g/|g|; for g
+    along +z (a robot hanging from its base upside down) the half turn about x. Both are unit
+    vectors perpendicular to g (and to each other).
+    """
+    d = np.asarray(g, dtype=float) / float(np.linalg.norm(g))
+    down = np.array([0.0, 0.0, -1.0])
+    axis = np.cross(down, d)
+    s = float(np.linalg.norm(axis))
+    c = float(down @ d)
+    if s < 1e-12:
+        R = np.eye(3) if c > 0 else rotation_from_rotvec((math.pi, 0.0, 0.0))
+    else:
+        R = rotation_from_rotvec(axis / s * math.atan2(s, c))
+    return R[:, 0], R[:, 1]
 
 
 class PulleyLosses(EffectTerm):

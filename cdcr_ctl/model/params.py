@@ -98,11 +98,19 @@ class CableParams:
 
 @dataclass(frozen=True)
 class RobotParams:
-    """The whole robot: segments base to tip, cables, gravity in the base frame (mm/s^2)."""
+    """The whole robot: segments base to tip, cables, gravity in the base frame (mm/s^2).
+
+    Tip load (a payload or a tool at the tip disk of the last segment): ``tip_mass_g`` (g, its
+    weight m g acts at the tip with the gravity vector) and ``tip_force_N`` (N, base frame, a
+    force at the tip, e.g. a contact or a tether). Both enter the statics as the generalised
+    force J_tip^T F of the tip point (Qi et al. 2023 eq. 7-9, external load W_e).
+    """
 
     segments: tuple[SegmentParams, ...]
     cables: tuple[CableParams, ...]
     gravity_mm_s2: tuple[float, float, float] = (0.0, 0.0, -9810.0)
+    tip_mass_g: float = 0.0
+    tip_force_N: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         S = len(self.segments)
@@ -116,6 +124,15 @@ class RobotParams:
                 raise ModelError(f"segment {seg.name}: no cable ends in it")
         if len(self.gravity_mm_s2) != 3:
             raise ModelError("gravity_mm_s2 must have 3 components")
+        if not (self.tip_mass_g >= 0 and math.isfinite(self.tip_mass_g)):
+            raise ModelError("tip_mass_g must be finite and >= 0")
+        if len(self.tip_force_N) != 3 or not all(math.isfinite(f) for f in self.tip_force_N):
+            raise ModelError("tip_force_N must be 3 finite components (N, base frame)")
+
+    @property
+    def has_tip_force(self) -> bool:
+        """True when a tip force (not the payload's weight) acts."""
+        return any(f != 0.0 for f in self.tip_force_N)
 
     @property
     def n_segments(self) -> int:
@@ -166,6 +183,8 @@ class Effects:
     backlash or a scale error), listed from the actuator outwards: the simulator applies their
     ``to_cable`` in this order, the compensation their ``to_actuator`` in reverse order.
     ``capstan_points``: size of the load-time tension table of each pulley (eq. 29).
+    ``coupling_gain``: weight lambda of the distal cables' load on the proximal segments when
+    ``coupling`` is on (1: eq. 11-15 as derived; the discrepancy workflow may fit another).
     """
 
     disk_friction: bool = True
@@ -176,6 +195,7 @@ class Effects:
     geometry: Geometry = "cc"
     actuator: tuple[ActuatorEffect, ...] = field(default=())
     capstan_points: int = 121
+    coupling_gain: float = 1.0
 
     @classmethod
     def none(cls) -> Effects:

@@ -89,12 +89,46 @@ def gravity_force(psi: np.ndarray, params: RobotParams, coords: str = "psi") -> 
     return Q
 
 
+def xs_to_psi(xs: list[float]) -> np.ndarray:
+    """Flat bending vectors [x_1, y_1, ...] -> (S, 2) rows (theta, phi), rad."""
+    a = np.asarray(xs, dtype=float).reshape(-1, 2)
+    return np.column_stack((np.hypot(a[:, 0], a[:, 1]), np.arctan2(a[:, 1], a[:, 0])))
+
+
+def tip_load_force(
+    psi: np.ndarray, params: RobotParams, coords: str = "psi", weight: bool = True
+) -> np.ndarray:
+    """Generalised force of the tip load (2S,), J_tip^T F (N*mm per rad).
+
+    F = m_tip g + F_tip: the payload's weight (``params.tip_mass_g``, g; left out with
+    ``weight=False``) and the tip force (``params.tip_force_N``, N, base frame), both acting at
+    the tip point of the last segment (arc fraction 1); J_tip its linear Jacobian
+    (:func:`cdcr_ctl.model.kinematics.point_jacobian`). Virtual work of a point force: the
+    force F at a point p does F . dp = F . J dpsi, so it enters eq. 9 as Q = J^T F, like the
+    disk weights.
+    """
+    psi = np.asarray(psi, dtype=float).reshape(-1, 2)
+    F = np.asarray(params.tip_force_N, dtype=float)
+    if weight:
+        F = F + params.tip_mass_g * G_MM_S2_TO_N * np.asarray(params.gravity_mm_s2, dtype=float)
+    if not np.any(F):
+        return np.zeros(2 * psi.shape[0])
+    S = params.n_segments
+    _, Jv, _ = point_jacobian(psi, params.lengths_mm, S - 1, 1.0, coords)
+    return Jv.T @ F
+
+
 def moment_demand(psi: np.ndarray, params: RobotParams, effects: Effects) -> np.ndarray:
-    """m_i = (EI_i/l_i) x_i - Q_x,i for every segment, (S, 2) in N*mm (moment-vector form)."""
+    """m_i = (EI_i/l_i) x_i - Q_x,i for every segment, (S, 2) in N*mm (moment-vector form).
+
+    Q_x: the disk weights (when ``effects.gravity``) and the tip load (always: a payload or tip
+    force the config names acts whatever the disk-weight switch).
+    """
     x = psi_to_x(psi)
     m = np.array([seg.EI_Nmm2 / seg.length_mm * x[i] for i, seg in enumerate(params.segments)])
     if effects.gravity:
         m = m - gravity_force(psi, params, "x").reshape(-1, 2)
+    m = m - tip_load_force(psi, params, "x").reshape(-1, 2)
     return m
 
 
@@ -182,7 +216,7 @@ def solve_tensions(
         if effects.coupling:
             for k, c in enumerate(params.cables):
                 if c.segment > i:
-                    b -= T[k] * F[k, i] * arms[k]
+                    b -= effects.coupling_gain * T[k] * F[k, i] * arms[k]
         own = list(params.cables_of(i))
         A = np.array([arms[k] for k in own]).T
         T0 = np.array([params.cables[k].pretension_N for k in own])
@@ -202,6 +236,8 @@ def solve_tensions_all_cables(psi: np.ndarray, params: RobotParams, effects: Eff
     rhs = elastic_gradient(psi, params)
     if effects.gravity:
         rhs = rhs - gravity_force(psi, params, "psi")
+    rhs = rhs - tip_load_force(psi, params, "psi")
+    Q_tip_x = tip_load_force(psi, params, "x")
     rows, vals = [], []
     for i in range(psi.shape[0]):
         rows.append(J[:, 2 * i])
@@ -217,10 +253,10 @@ def solve_tensions_all_cables(psi: np.ndarray, params: RobotParams, effects: Eff
                     Bx[k] = c.routing_radius_mm * math.sin(c.hole_angle_rad - psi[i, 1])
             rows.append(Bx)
             g_phi = 0.0
+            u_perp = np.array([-math.sin(psi[i, 1]), math.cos(psi[i, 1])])
             if effects.gravity:
-                g_phi = -gravity_force(psi, params, "x")[2 * i : 2 * i + 2] @ np.array(
-                    [-math.sin(psi[i, 1]), math.cos(psi[i, 1])]
-                )
+                g_phi = -gravity_force(psi, params, "x")[2 * i : 2 * i + 2] @ u_perp
+            g_phi -= Q_tip_x[2 * i : 2 * i + 2] @ u_perp
             vals.append(g_phi)
     A_eq = np.array(rows)
     b_eq = np.array(vals)
@@ -261,6 +297,8 @@ def moment_residual(
             [math.cos(c.hole_angle_rad), math.sin(c.hole_angle_rad)]
         )
         for i in range(c.segment + 1):
-            if effects.coupling or i == c.segment:
+            if i == c.segment:
                 out[i] += T[k] * F[k, i] * arm
+            elif effects.coupling:
+                out[i] += effects.coupling_gain * T[k] * F[k, i] * arm
     return out

@@ -98,12 +98,15 @@ class TensionChain:
         """
         T = [0.0] * self.K
         coupling = self.effects.coupling
+        gain = self.effects.coupling_gain
         arm = pose.arm
         for i in range(self.S - 1, -1, -1):
             bx, by = pose.m_req[i]
             if coupling:
                 for k in self._distal[i]:
                     f = T[k] * Fb[k][i]
+                    if gain != 1.0:
+                        f *= gain
                     ax, ay = arm[k][i]
                     bx -= f * ax
                     by -= f * ay
@@ -126,6 +129,15 @@ class TensionChain:
                 T[k] = (self._T0[k] + extra[j]) / Fb[k][i]
         return T
 
+    def arm_weight(self, k: int, i: int) -> float:
+        """Weight of cable k's load in segment i's moment balance: 1 in its own segment, the
+        coupling gain (``Effects.coupling_gain``) in a proximal one it crosses, 0 uncoupled."""
+        if self._a[k] == i:
+            return 1.0
+        if not self.effects.coupling or self._a[k] < i:
+            return 0.0
+        return self.effects.coupling_gain
+
     def moment_residual(self, pose: Pose, Fb: list[list[float]], T: list[float]) -> list[float]:
         """Flat (2S,) residual sum T Fbar arm - m_req (N*mm) of the moment-vector equations."""
         out = []
@@ -134,7 +146,7 @@ class TensionChain:
             rx, ry = pose.m_req[i]
             rx, ry = -rx, -ry
             for k in self._crossing[i] if coupling else self._own[i]:
-                f = T[k] * Fb[k][i]
+                f = T[k] * Fb[k][i] * self.arm_weight(k, i)
                 ax, ay = pose.arm[k][i]
                 rx += f * ax
                 ry += f * ay

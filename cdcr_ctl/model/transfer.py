@@ -27,7 +27,7 @@ from cdcr_ctl.model.capstan import PulleyTransfer
 from cdcr_ctl.model.kinematics import SERIES_BELOW
 from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
 from cdcr_ctl.model.routing import tangent_angle
-from cdcr_ctl.model.statics import G_MM_S2_TO_N
+from cdcr_ctl.model.statics import G_MM_S2_TO_N, tip_load_force, xs_to_psi
 from cdcr_ctl.model.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
 
 __all__ = ["ForceTransfer", "Pose", "TensionChain", "Transfer", "_min_sum_pair", "_ratios"]
@@ -77,15 +77,22 @@ class ForceTransfer(TensionChain):
         self._tk = [s.disk_thickness_mm for s in segs]
         self._inner_frac = [(s.n_disks - 1) / s.n_disks for s in segs]
         self._half0 = 0.5 / segs[0].n_disks
-        self._gravity = eff.gravity and any(s.disk_mass_g > 0 for s in segs)
+        disk_weights = eff.gravity and any(s.disk_mass_g > 0 for s in segs)
+        # a payload at the tip weighs whatever the disk-weight switch says: it is a load the
+        # config names, a point mass at arc fraction 1 of the last segment
+        self._gravity = disk_weights or params.tip_mass_g > 0.0
         g = params.gravity_mm_s2
         self._g = (g[0] * G_MM_S2_TO_N, g[1] * G_MM_S2_TO_N, g[2] * G_MM_S2_TO_N)
         self._disks = [
             [(m / s.n_disks, s.disk_mass_g) for m in range(1, s.n_disks + 1)]
-            if s.disk_mass_g > 0
+            if s.disk_mass_g > 0 and disk_weights
             else []
             for s in segs
         ]
+        if params.tip_mass_g > 0.0:
+            self._disks[-1].append((1.0, params.tip_mass_g))
+        #: tip force (N, base frame), None when there is none (see :meth:`_tip_force_demand`)
+        self._tip_F = tuple(params.tip_force_N) if params.has_tip_force else None
         self._disk_mass = [sum(m for _, m in d) for d in self._disks]
         #: per disk (sig, m sig^2, m sig^3, m sig^4, m sig): the weights' pose-free factors, each
         #: the product _moment_demand formed left to right (the same floats)
@@ -198,7 +205,17 @@ class ForceTransfer(TensionChain):
         else:
             q_geom, arm = self._chord_geometry(xs, theta, ux, uy)
         m_req = self._moment_demand(xs, theta)
+        if self._tip_F is not None:
+            m_req = self._tip_force_demand(xs, m_req)
         return Pose(theta, q_geom, arm, Zb, inner, m_req)
+
+    def _tip_force_demand(
+        self, xs: list[float], m_req: list[tuple[float, float]]
+    ) -> list[tuple[float, float]]:
+        """m_i - Q_F,i: the generalised force Q_F = J_tip^T F of the tip force (bending-vector
+        coordinates, :func:`cdcr_ctl.statics.tip_load_force`), N*mm."""
+        Q = tip_load_force(xs_to_psi(xs), self.params, "x", weight=False)
+        return [(m_req[i][0] - Q[2 * i], m_req[i][1] - Q[2 * i + 1]) for i in range(self.S)]
 
     def _chord_geometry(self, xs, theta, ux, uy):
         """q_geom and arms with the exact chords (routing.segment_chord_shortening and its

@@ -29,14 +29,18 @@ class BacklashPlay:
     y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred (y = 0 at x = 0). Inverse
     (:meth:`to_actuator`): :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`, x = y + c with
     the pre-travel c moving towards +-b/2 in the direction of the last motion of the wanted cable
-    position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse).
-    State: (K, 2) array of [last cable position (forward) or last wanted cable position
-    (inverse), pre-travel c (inverse only)], mm; made by :meth:`new_state` and owned by the
-    caller (the control loop keeps it from cycle to cycle). Yang et al. 2022 eq. 13-17.
+    position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse);
+    the direction turns once the wanted position has come back from its extremum by more than
+    ``hysteresis_mm`` (see :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse_list`).
+    State: (K, 4) array of [last cable position (forward) or last wanted cable position
+    (inverse), pre-travel c, extremum of the wanted position, direction (inverse only)], mm;
+    made by :meth:`new_state` and owned by the caller (the control loop keeps it from cycle to
+    cycle). Yang et al. 2022 eq. 13-17.
     """
 
     width_mm: float | tuple[float, ...]
     max_step_mm: float = math.inf
+    hysteresis_mm: float = 0.0
     #: half widths per cable count, made on first use (the loop's path stays in plain floats)
     _halves: dict[int, list[float]] = field(
         default_factory=dict, init=False, repr=False, compare=False, hash=False
@@ -49,7 +53,7 @@ class BacklashPlay:
         return b
 
     def new_state(self, n_cables: int) -> np.ndarray:
-        return np.zeros((n_cables, 2))
+        return np.zeros((n_cables, 4))
 
     def _half(self, n: int) -> list[float]:
         half = self._halves.get(n)
@@ -67,25 +71,29 @@ class BacklashPlay:
         y = np.asarray(q_cable_mm, dtype=float).tolist()
         half = self._half(len(y))
         rows = state.tolist()
-        x = dead_zone_inverse_list(y, rows, half, self.max_step_mm)
+        x = dead_zone_inverse_list(y, rows, half, self.max_step_mm, self.hysteresis_mm)
         state[:, :] = rows
         return np.array(x)
 
 
 def with_cable_play(
-    params: RobotParams, effects: Effects, max_step_mm: float = math.inf
+    params: RobotParams,
+    effects: Effects,
+    max_step_mm: float = math.inf,
+    hysteresis_mm: float = 0.0,
 ) -> Effects:
     """``effects`` with the cables' own lost motion (``CableParams.backlash_mm``) as the first
     (drive-side) transmission effect, :class:`BacklashPlay` with per-cable widths (mm).
 
     Unchanged when every cable has zero play or ``effects.actuator`` already holds a play (a
     discrepancy candidate that brings its own). ``max_step_mm``: the inverse's pre-travel step
-    bound per call (see :mod:`cdcr_ctl.model.deadzone`).
+    bound per call, ``hysteresis_mm`` its reversal threshold (see :mod:`cdcr_ctl.model.deadzone`).
     """
     widths = tuple(c.backlash_mm for c in params.cables)
     if not any(w > 0 for w in widths) or any(isinstance(e, BacklashPlay) for e in effects.actuator):
         return effects
-    return replace(effects, actuator=(BacklashPlay(widths, max_step_mm), *effects.actuator))
+    play = BacklashPlay(widths, max_step_mm, hysteresis_mm)
+    return replace(effects, actuator=(play, *effects.actuator))
 
 
 @dataclass(frozen=True)

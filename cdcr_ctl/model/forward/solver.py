@@ -276,8 +276,8 @@ class ForwardModel:
             for i in range(self.S):
                 if k in crossing[i]:
                     ax, ay = P.arm[k][i]
-                    J[2 * i, S2 + k] = Fb[k][i] * ax
-                    J[2 * i + 1, S2 + k] = Fb[k][i] * ay
+                    w = Fb[k][i] * self.ft.arm_weight(k, i)
+                    J[2 * i, S2 + k], J[2 * i + 1, S2 + k] = w * ax, w * ay
             h = 1e-6 * max(1.0, abs(T[k]))
             cp = self.ft.cable(P, k, T[k] + h, s[k], Fb[k], Eb[k])
             cm = self.ft.cable(P, k, T[k] - h, s[k], Fb[k], Eb[k])
@@ -291,7 +291,7 @@ class ForwardModel:
                 for i in range(self.S):
                     if k in crossing[i]:
                         ax, ay = P.arm[k][i]
-                        d = T[k] * (rp[i] - rm[i]) / (2 * _H_S)
+                        d = T[k] * (rp[i] - rm[i]) / (2 * _H_S) * self.ft.arm_weight(k, i)
                         J[2 * i, S2 + K + k] = d * ax
                         J[2 * i + 1, S2 + K + k] = d * ay
                 cp = self.ft.cable(P, k, T[k], sp, rp, ep)
