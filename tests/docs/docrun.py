@@ -39,13 +39,22 @@ ROOT = Path(__file__).resolve().parents[2]
 VENV_BIN = ROOT / ".venv" / "bin"
 #: The simulated rig's config as the pages name it; swapped for the shared rig's.
 SIM_RIG = "config/qi2023-sim.yaml"
-#: The world of the shared rig unless a page's ``cdcr-ctl sim`` line names another.
-DEFAULT_WORLD = "config/sim/qi2023-truth.yaml"
+#: The world of the shared rig unless a page's ``cdcr-ctl sim`` line names another: the clean
+#: world, as the system tests use (the default world's lost motion slackens an uncompensated
+#: cable, which the tension limit rightly trips on; the pages exercise the commands).
+DEFAULT_WORLD = "config/sim/qi2023-truth-clean.yaml"
 MARK = re.compile(r"^<!--\s*cmd:\s*(.*?)\s*-->\s*$")
 #: Words that are the shell's or the interpreter's, not the command's (for ``covered-by``).
 NOT_WORDS = {"cdcr-ctl", "sudo", "nice", "python", "time", "env", "bin", "venv"}
 #: One command's time limit (s): the runner's whole budget is about a minute.
 COMMAND_TIMEOUT_S = 90.0
+#: Trips that a loaded machine causes on the simulated rig, not the documented command: the
+#: stand-in drives' heartbeats and feedback and the stand-in sensors' samples come late when the
+#: simulator gets no CPU (the system tests retry a run for the same causes).
+#: (An EMCY 0x8130 is a drive that missed the controller's heartbeat.)
+LOAD_TRIPS = re.compile(
+    r"^(heartbeat:|no_feedback:|stale_tension:|stale_tracker|emcy:node\d+:0x8130)"
+)
 
 
 @dataclass
@@ -210,6 +219,22 @@ class DocRig:
             return f"reset a trip latched between pages: {st['fault']}"
         return None
 
+    def recover_load_trip(self, text: str) -> str | None:
+        """After a failed command: when the daemon holds a trip the machine's load caused
+        (:data:`LOAD_TRIPS`), recover as the manual says (``reset-fault``, then ``enable`` unless
+        the command was one of the two) and return what was recovered; else None."""
+        try:
+            st = self.call("status")
+        except Exception:
+            return None
+        fault = (st or {}).get("fault") or {}
+        if not LOAD_TRIPS.match(str(fault.get("cause", ""))):
+            return None
+        self.call("reset_fault", confirm=True)
+        if not re.search(r"\b(enable|reset-fault)\b", text):
+            self.call("enable")
+        return f"recovered from a trip of the loaded machine: {fault['cause']} ({fault['detail']})"
+
     def close(self) -> None:
         self._stack.close()
         self._daemon = None
@@ -322,6 +347,9 @@ def run_page(rig: DocRig, page: Path) -> list[str]:
                     failures.append(f"{rel}:{c.line}: `{c.text}` ran over {COMMAND_TIMEOUT_S} s")
                     continue
                 print(f"{rel}:{c.line}: {time.monotonic() - t0:5.1f} s  {c.text}")
+                if res.returncode != 0 and (note := rig.recover_load_trip(c.text)):
+                    print(f"{rel}:{c.line}: {note}; running it again")
+                    res = rig.run(cmd)
                 if res.returncode != 0:
                     failures.append(
                         f"{rel}:{c.line}: `{c.text}` exited {res.returncode}\n"
