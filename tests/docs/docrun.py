@@ -55,6 +55,8 @@ COMMAND_TIMEOUT_S = 90.0
 LOAD_TRIPS = re.compile(
     r"^(heartbeat:|no_feedback:|stale_tension:|stale_tracker|emcy:node\d+:0x8130)"
 )
+#: The same causes in a command's own error (an ``enable`` during which a heartbeat was lost).
+LOAD_ERRORS = re.compile(r"heartbeat lost|no TPDO from any drive|bus not answering")
 
 
 @dataclass
@@ -213,26 +215,36 @@ class DocRig:
         """Before a page: a trip latched since the last page (a drive's heartbeat lost while the
         machine was loaded, between two pages) is acknowledged, as a reader would. Returns what
         was reset, for the test's output."""
-        st = self.call("status")
+        try:
+            st = self.call("status")
+        except Exception as exc:
+            return f"the daemon did not answer status: {exc}"
         if st and st.get("fault"):
-            self.call("reset_fault", confirm=True)
+            with contextlib.suppress(Exception):
+                self.call("reset_fault", confirm=True)
             return f"reset a trip latched between pages: {st['fault']}"
         return None
 
-    def recover_load_trip(self, text: str) -> str | None:
-        """After a failed command: when the daemon holds a trip the machine's load caused
-        (:data:`LOAD_TRIPS`), recover as the manual says (``reset-fault``, then ``enable`` unless
-        the command was one of the two) and return what was recovered; else None."""
+    def recover_load_trip(self, text: str, stderr: str = "") -> str | None:
+        """After a failed ``cdcr-ctl`` command: when the daemon holds a trip the machine's load
+        caused (:data:`LOAD_TRIPS`), or the command failed on one (:data:`LOAD_ERRORS`), recover
+        as the manual says (``reset-fault``, then ``enable`` unless the command was one of the
+        two) and return what was recovered; else None."""
+        if not text.startswith("cdcr-ctl "):
+            return None
         try:
             st = self.call("status")
         except Exception:
             return None
         fault = (st or {}).get("fault") or {}
         if not LOAD_TRIPS.match(str(fault.get("cause", ""))):
-            return None
-        self.call("reset_fault", confirm=True)
-        if not re.search(r"\b(enable|reset-fault)\b", text):
-            self.call("enable")
+            if not LOAD_ERRORS.search(stderr):
+                return None
+            fault = {"cause": "during the command", "detail": stderr.strip()[-200:]}
+        with contextlib.suppress(Exception):  # the retried command says what still fails
+            self.call("reset_fault", confirm=True)
+            if not re.search(r"\b(enable|reset-fault)\b", text):
+                self.call("enable")
         return f"recovered from a trip of the loaded machine: {fault['cause']} ({fault['detail']})"
 
     def close(self) -> None:
@@ -347,7 +359,7 @@ def run_page(rig: DocRig, page: Path) -> list[str]:
                     failures.append(f"{rel}:{c.line}: `{c.text}` ran over {COMMAND_TIMEOUT_S} s")
                     continue
                 print(f"{rel}:{c.line}: {time.monotonic() - t0:5.1f} s  {c.text}")
-                if res.returncode != 0 and (note := rig.recover_load_trip(c.text)):
+                if res.returncode != 0 and (note := rig.recover_load_trip(c.text, res.stderr)):
                     print(f"{rel}:{c.line}: {note}; running it again")
                     res = rig.run(cmd)
                 if res.returncode != 0:
