@@ -25,7 +25,7 @@ def rig(tmp_path_factory):
 
 
 @pytest.mark.realtime
-@pytest.mark.timeout(300)
+@pytest.mark.timeout(600)
 @pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
 def test_page_commands_run(rig, page):
     failures = run_page(rig, page)
