@@ -60,6 +60,7 @@ RIG_GROUP = "rig"
 RIG_FILES = frozenset(
     {
         "tests/discrepancy/test_keypoint_discrepancy.py",
+        "tests/docs/test_doc_commands.py",
         "tests/drives/test_csp.py",
         "tests/drives/test_diagnosis.py",
         "tests/drives/test_epos2.py",

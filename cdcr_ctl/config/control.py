@@ -41,6 +41,7 @@ class ControlConfig(Section):
     load-cell tensions in place of modelled ones.
     """
 
+    #: Loop rate (Hz); the drives follow the SYNC, whose period is ``can.sync_period_s``.
     rate_hz: Annotated[float, Field(gt=0, le=4000)] = 1000.0
     compensation: Literal["off", "model", "measured"] = "model"
 
@@ -57,7 +58,11 @@ class ControlConfig(Section):
     reversal_band_mm: Annotated[float, Field(ge=0, le=10)] = 0.0
     #: Effects of the controller's model (switches and the coupling gain), all on by default.
     model_effects: ModelEffectsConfig = Field(default_factory=ModelEffectsConfig)
+    #: SCHED_FIFO priority of the loop's threads (0: ordinary scheduling); needs ``LimitRTPRIO`` or
+    #: root.
     realtime_priority: Annotated[int, Field(ge=0, le=99)] = 0
+    #: Lock the daemon's memory (``mlockall``) so the loop never waits on a page fault; needs
+    #: ``LimitMEMLOCK``.
     lock_memory: bool = False
 
 
@@ -82,6 +87,8 @@ DIVERGENCE_MAX_MM = 1000.0
 class LimitsConfig(Section):
     """Safety limits, checked every cycle by the supervisor (bounds: the constants above)."""
 
+    #: Cable displacement window [min, max] from straight; a command outside it is
+    #: held (``displacement_limit``, HOLD).
     cable_displacement_mm: Annotated[
         list[
             Annotated[
@@ -95,17 +102,26 @@ class LimitsConfig(Section):
         ],
         Field(min_length=2, max_length=2),
     ] = Field(default_factory=lambda: [-20.0, 20.0])
+    #: Fastest a commanded cable may move; faster trips
+    #: ``velocity_limit`` (HALT).
     cable_velocity_mm_s: Annotated[
         float, Field(gt=0, le=CABLE_VELOCITY_MAX_MM_S, allow_inf_nan=False)
     ] = 50.0
+    #: Cable tension window [slack, max]: below the first the command is held (slack), above the
+    #: second the rig trips ``tension_high``.
     tension_N: Annotated[
         list[Annotated[float, Field(ge=-TENSION_MAX_N, le=TENSION_MAX_N, allow_inf_nan=False)]],
         Field(min_length=2, max_length=2),
     ] = Field(default_factory=lambda: [0.2, 60.0])
+    #: Largest segment bend a command or trajectory may ask for.
     bend_rad: Annotated[float, Field(gt=0, le=BEND_MAX_RAD, allow_inf_nan=False)] = 2.0
+    #: Tracked tip further than this from the model tip of the command trips ``tracker_divergence``
+    #: (HALT).
     tracker_divergence_mm: Annotated[
         float, Field(gt=0, le=DIVERGENCE_MAX_MM, allow_inf_nan=False)
     ] = 30.0
+    #: A load-cell or tracker sample older than this trips ``stale_tension`` / ``stale_tracker``
+    #: (HALT).
     sensor_timeout_s: Timeout = 0.2
 
     @model_validator(mode="after")
@@ -136,14 +152,14 @@ class LoggingConfig(Section):
     mcap: bool = True
     #: Where the rows are encoded and written: ``process`` (a writer process of its own; the
     #: loop only copies each row's numbers into shared memory, so the encoding never holds the
-    #: loop's interpreter lock) or ``thread`` (a thread of the daemon, as before).
+    #: loop's interpreter lock) or ``thread`` (a thread of the daemon).
     writer: Literal["process", "thread"] = "process"
     #: Rows the loop may hand over before the writer has taken them, in seconds of the loop's
     #: rate (the shared-memory ring of ``writer: process``, the queue of ``writer: thread``).
     #: In real time a full ring trips ``log_overflow`` (quick stop, the log kept) rather than
     #: drop rows unseen; a loop on simulated time (lock-step) waits for the writer instead.
     #: The writer process under a 2-core ``stress-ng --cpu 2`` held at most ~1 s of a 1 kHz
-    #: loop's rows (README, run logs), so 10 s is a tenfold margin for ~14 MB of memory.
+    #: loop's rows (benchmarks/bench_loop.py), so 10 s is a tenfold margin for ~14 MB of memory.
     ring_s: Annotated[float, Field(gt=0, le=60)] = 10.0
     #: The ring of a loop on simulated time (lock-step), in seconds of simulated time at the
     #: loop's rate: its writer drains it only once it is half full or the run ends
@@ -164,6 +180,7 @@ class LiveViewConfig(Section):
 
     enabled: bool = False
     host: str = "127.0.0.1"
+    #: TCP port of the Foxglove WebSocket server (0: any free port).
     port: Annotated[int, Field(ge=0, le=65535)] = 8765
     rate_hz: Annotated[float, Field(gt=0, le=200)] = 50.0
     scene_hz: Annotated[float, Field(gt=0, le=60)] = 10.0
@@ -186,8 +203,11 @@ class DaemonConfig(Section):
     others (whoever connects can move the arm; widen access with the socket's group instead).
     """
 
+    #: The control socket the CLI talks to; under systemd ``/run/cdcr-ctl`` is the unit's runtime
+    #: directory.
     socket_path: str = "/run/cdcr-ctl/control.sock"
     socket_mode: Annotated[int, Field(ge=0o600, le=0o770)] = 0o660
+    #: Pet systemd's watchdog (``WatchdogSec=``) while the loop runs.
     watchdog: bool = True
 
     @field_validator("socket_mode", mode="before")

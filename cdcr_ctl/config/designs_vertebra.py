@@ -50,8 +50,11 @@ class FollowConfig(Section):
     at the limits); the rest is left for the compensation (``compensation_max_rate_mm_s``)."""
 
     step_rad: PositiveFloat = 0.05
+    #: Distal bend change per joystick tick at full deflection.
     theta_increment_rad: NonNegativeFloat = 0.02
+    #: Distal direction change per joystick tick at full deflection.
     phi_increment_rad: NonNegativeFloat = 0.05
+    #: Largest distal bend the joystick may ask for.
     theta_max_rad: Annotated[float, Field(gt=0, le=math.pi)] = math.pi / 2
     speed_fraction: Annotated[float, Field(gt=0, le=1)] = SPEED_FRACTION
 
@@ -91,6 +94,7 @@ class VertebraConfig(Section):
     prototype's 10 mm/s for the trajectory's interpolation.
     """
 
+    #: Mass carried at the tip (g), in the gravity sag model.
     tip_mass_g: NonNegativeFloat = 0.0
     linear_module: LinearModuleConfig
     module_overrides: dict[str, LinearModuleConfig] = Field(default_factory=dict)

@@ -41,7 +41,9 @@ class CanBusConfig(Section):
     interface: Annotated[str, Field(min_length=1)] = "virtual"
     channel: Annotated[str, Field(min_length=1)] = "cdcr"
     bitrate: int = 1_000_000
+    #: SYNC period = the control loop's period on the bus and the drives' interpolation period (s).
     sync_period_s: Annotated[float, Field(gt=0, le=1.0)] = 0.001
+    #: The controller's own CANopen node id (its heartbeat's COB-ID 0x700 + id).
     master_node_id: Annotated[int, Field(ge=1, le=127)] = 127
     #: The controller's heartbeat the drives watch (0: none, and then no drive can see the
     #: controller die: refused). At most 5 s.
@@ -50,6 +52,7 @@ class CanBusConfig(Section):
     #: A drive whose TPDO feedback is older than this has stopped answering (s). Default: three
     #: SYNC periods. Links with more latency (an slcan pty between processes) need more.
     feedback_timeout_s: Annotated[float, Field(gt=0, le=10.0)] | None = None
+    #: Log every CAN frame of a run (``can.asc`` and the MCAP ``/can`` channel).
     log_traffic: bool = True
 
     @field_validator("bitrate")
@@ -70,9 +73,13 @@ class HomingConfig(Section):
     Speeds go to 0x6099 (switch search, zero search), the acceleration to 0x609A.
     """
 
+    #: CiA 402 homing method (0x6098): 37 = the actual position, -3/-4 = current threshold (hard
+    #: stop).
     method: int = 37
     current_threshold_mA: Annotated[int, Field(gt=0, le=65_535)] = 500
+    #: Homing speed for the switch and zero searches (0x6099), motor rpm.
     speed_rpm: Annotated[int, Field(gt=0, le=100_000)] = 100
+    #: Homing acceleration (0x609A), motor rpm/s.
     acceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 1000
     offset_counts: int = 0
     home_position_counts: int = 0
@@ -104,22 +111,38 @@ class DriveConfig(Section):
     it, against the project's EPOS4/EPOS2 limits table (:mod:`cdcr_ctl.drives.limits`).
     """
 
+    #: The drive's name in status, logs and errors.
     name: Name
+    #: Name of the cable (``robot.cables[].name``) this drive pulls.
     cable: Name
+    #: CANopen node id of the drive (set on the EPOS with its DIP switches or EPOS Studio).
     node_id: Annotated[int, Field(ge=1, le=127)]
+    #: Drive family: ``epos4`` or ``epos2`` (objects, modes and limits differ).
     type: Literal["epos4", "epos2"] = "epos4"
+    #: Operation mode: ``csp``, ``pp``, ``ip`` or ``pm`` (module docstring of
+    #: :mod:`cdcr_ctl.config.drives`).
     mode: Literal["csp", "pp", "ip", "pm"] = "csp"
+    #: Encoder counts per mm of cable pulled in, sign included (negative: the motor turns the other
+    #: way to pull).
     counts_per_mm: float
     encoder_counts_per_rev: Annotated[int, Field(gt=0, le=2**24)] = 2048
+    #: Following error window (0x6065): the drive faults when its position leaves the target by
+    #: more.
     following_error_window_counts: Annotated[int, Field(ge=0, le=2**31 - 1)] = 20_000
+    #: Following error timeout (0x6066): EPOS4 takes only 0; the EPOS2 has no such object.
     following_error_timeout_ms: Annotated[int, Field(ge=0, le=65535)] = 0
+    #: Software position limits [min, max] (0x607D) the drive enforces itself.
     software_limits_counts: Annotated[list[int], Field(min_length=2, max_length=2)] = Field(
         default_factory=lambda: [-2_000_000, 2_000_000]
     )
+    #: Maximum profile velocity (0x607F), motor rpm.
     max_profile_velocity_rpm: Annotated[int, Field(gt=0, le=100_000)] = 5000
+    #: Profile acceleration and deceleration (0x6083/0x6084), motor rpm/s.
     profile_acceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 10_000
+    #: Quick-stop deceleration (0x6085), motor rpm/s: the ramp of every quick stop.
     quick_stop_deceleration_rpm_s: Annotated[int, Field(gt=0, le=10_000_000)] = 50_000
     quick_stop_option_code: Literal[1, 2, 5, 6] = 2
+    #: The drive's heartbeat period (0x1017); the controller trips when it misses 3 (0: none).
     heartbeat_producer_ms: Annotated[int, Field(ge=0, le=65535)] = 50
     #: The drive's watch on the master's heartbeat (0x1016). 0 would switch it off: a dead
     #: controller would leave the drive following its last target. At least twice the master's

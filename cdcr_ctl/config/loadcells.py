@@ -16,9 +16,13 @@ class SerialPortConfig(Section):
     ``timeout_s``: how long the Modbus master waits for a reply to one request (s).
     """
 
+    #: Device path or pyserial URL of the port.
     port: Annotated[str, Field(min_length=1)]
+    #: Bit rate of the line (bit/s).
     baudrate: Annotated[int, Field(gt=0, le=4_000_000)] = 115200
+    #: Parity: ``N`` none, ``E`` even, ``O`` odd.
     parity: Literal["N", "E", "O"] = "N"
+    #: Stop bits per character.
     stopbits: Literal[1, 2] = 1
     timeout_s: Timeout = 0.05
 
@@ -36,6 +40,7 @@ class ModbusRegisterMap(Section):
     """
 
     register_kind: Literal["holding", "input"] = "holding"
+    #: Register of the reading (0-based; int32 takes it and the next one).
     value_register: Annotated[int, Field(ge=0, le=65535)] = 0
     value_type: Literal["int16", "int32"] = "int32"
     decimals_register: Annotated[int, Field(ge=0, le=65535)] | None = 2
@@ -51,9 +56,13 @@ class LoadCellConfig(Section):
     force_N = span * (reading_in_N - zero_N). ``location`` says where on the cable path it sits.
     """
 
+    #: Name of the cable this cell measures.
     cable: Name
+    #: Modbus slave address of the cell's transmitter (1-247).
     slave: Annotated[int, Field(ge=1, le=247)] = 1
+    #: Reading at zero tension (N), subtracted before ``span``.
     zero_N: float = 0.0
+    #: Scale from the zeroed reading to the cable force.
     span: PositiveFloat = 1.0
     location: Literal["robot_base", "actuator"] = "robot_base"
 
@@ -66,6 +75,8 @@ class LoadCellsConfig(Section):
     (3.5 characters, fixed 1.75 ms above 19200 bit/s). Raise it for slow transmitters.
     """
 
+    #: How the transmitter talks: ``modbus_rtu`` (polled, several slaves on one RS-485 bus) or
+    #: ``ascii`` (one cell streaming lines).
     protocol: Literal["modbus_rtu", "ascii"] = "modbus_rtu"
     serial: SerialPortConfig
     register_map: ModbusRegisterMap = Field(default_factory=ModbusRegisterMap)

@@ -49,13 +49,16 @@ class DisksConfig(Section):
     """Spacer disks of a segment, equally spaced; ``count`` disks after the base disk."""
 
     count: Annotated[int, Field(ge=1, le=200)]
+    #: Mass of each disk (gravity in the statics).
     mass_g: NonNegativeFloat = 0.0
+    #: Thickness of each disk along the backbone.
     thickness_mm: NonNegativeFloat = 0.0
 
 
 class SegmentConfig(Section):
     """One bending segment, base to tip. ``length_mm`` is the backbone arc length."""
 
+    #: The segment's name, which cables name in ``segment``.
     name: Name
     length_mm: PositiveFloat
     backbone: BackboneConfig
@@ -69,7 +72,9 @@ class PulleyConfig(Section):
     alpha = mu is Amontons' law. ``wrap_angle_rad`` is the contact angle of the cable on the pulley.
     """
 
+    #: The pulley's name, which cables list in ``pulleys``.
     name: Name
+    #: Pulley radius.
     radius_mm: PositiveFloat
     wrap_angle_rad: Annotated[float, Field(ge=0, le=2 * math.pi)]
     alpha: NonNegativeFloat
@@ -89,13 +94,17 @@ class CableConfig(Section):
     controller's command pre-travels it at every reversal, ``cdcr-ctl identify`` fits it.
     """
 
+    #: The cable's name, which drives and load cells name in ``cable``.
     name: Name
     segment: Name
+    #: Angle of the cable's hole about the base z axis, from x (same in every disk).
     hole_angle_rad: Annotated[float, Field(ge=-2 * math.pi, le=2 * math.pi)]
+    #: Distance of the hole from the backbone axis.
     routing_radius_mm: PositiveFloat
     diameter_mm: PositiveFloat
     E_MPa: PositiveFloat | None = None
     EA_N: PositiveFloat | None = None
+    #: Tension of the cable at the straight pose.
     pretension_N: NonNegativeFloat
     mu_disk: NonNegativeFloat = 0.0
     free_length_mm: NonNegativeFloat = 0.0
@@ -149,6 +158,8 @@ class RobotConfig(Section):
     segments: Annotated[list[SegmentConfig], Field(min_length=1)]
     cables: Annotated[list[CableConfig], Field(min_length=1)]
     pulleys: list[PulleyConfig] = Field(default_factory=list)
+    #: Gravity in the robot base frame (mm/s^2): straight down for a robot mounted upright; ``cdcr-
+    #: ctl identify`` fits its direction (the mount tilt).
     gravity_mm_s2: Annotated[list[float], Field(min_length=3, max_length=3)] = Field(
         default_factory=lambda: [0.0, 0.0, -9810.0]
     )

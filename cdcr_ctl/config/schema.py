@@ -43,7 +43,10 @@ class RigConfig(Section):
     for that design and refused for the others; ``cc_disk`` rigs have neither.
     """
 
+    #: The rig's name: in run logs, ``status`` and the live view.
     name: Name
+    #: The robot design, which picks the model: ``cc_disk`` (Qi et al. 2023), ``ujoint`` (Yang et
+    #: al. 2022) or ``vertebra`` (the vertebra arm).
     design: Design = "cc_disk"
     robot: RobotConfig
     can: CanBusConfig = Field(default_factory=CanBusConfig)

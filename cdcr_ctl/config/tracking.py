@@ -24,7 +24,9 @@ class RigidTransformConfig(Section):
     As a map of points: ``x_to = R(rotvec_rad) @ x_from + translation_mm``.
     """
 
+    #: Rotation as a rotation vector (axis times angle).
     rotvec_rad: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
+    #: Translation after the rotation.
     translation_mm: Vec3 = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
@@ -47,12 +49,15 @@ class TrackerConfig(Section):
     (s); ``connect_timeout_s``: wait for the server's reply at start-up (s).
     """
 
+    #: Which tracker: ``natnet`` (OptiTrack Motive) or a plain ``udp_stream`` / ``tcp_stream`` of
+    #: lines (laser tracker).
     kind: Literal["natnet", "udp_stream", "tcp_stream"] = "natnet"
     host: str = "127.0.0.1"
     port: Port = 1511
     command_port: Port = 1510
     multicast_group: str | None = None
     local_address: str | None = None
+    #: NatNet rigid-body id of the tip marker set (Motive's Streaming ID).
     rigid_body_id: int = 1
     units_to_mm: PositiveFloat | None = None
     base_from_tracker: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
@@ -111,7 +116,9 @@ class AxisRangeConfig(Section):
     """Raw range of the steering axes (device units): what evdev's absinfo says for a local
     device. A network joystick sends only events (no absinfo), so its range comes from here."""
 
+    #: Lowest raw axis value (full deflection one way).
     min: int = -32768
+    #: Highest raw axis value (full deflection the other way).
     max: int = 32767
 
     @model_validator(mode="after")
