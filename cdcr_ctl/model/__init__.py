@@ -17,18 +17,31 @@ Modules, one job each:
 - :mod:`~cdcr_ctl.model.identification` least-squares fits with confidence intervals, eq. 38
 """
 
-from cdcr_ctl.model.compensation import CCDiskModel, CompensationState, Compensator
-from cdcr_ctl.model.forward import ForwardModel, ForwardResult, ForwardStepper, Replay, replay
-from cdcr_ctl.model.friction import FrictionState
-from cdcr_ctl.model.params import (
-    ActuatorEffect,
-    CableParams,
-    Effects,
-    PulleyParams,
-    RobotParams,
-    SegmentParams,
-)
-from cdcr_ctl.model.transfer import ForceTransfer, Transfer
+from cdcr_ctl.firstuse import first_use
+
+#: The package's public names and the modules defining them, imported on first use
+#: (:mod:`cdcr_ctl.firstuse`): ``cdcr_ctl.model.ujoint`` or ``.vertebra`` (what the config's design
+#: checks import) no longer pays for the disk robot's chain and scipy.integrate.
+LAZY = {
+    "ActuatorEffect": "cdcr_ctl.model.params",
+    "CCDiskModel": "cdcr_ctl.model.compensation",
+    "CableParams": "cdcr_ctl.model.params",
+    "CompensationState": "cdcr_ctl.model.compensation",
+    "Compensator": "cdcr_ctl.model.compensation",
+    "Effects": "cdcr_ctl.model.params",
+    "ForceTransfer": "cdcr_ctl.model.transfer",
+    "ForwardModel": "cdcr_ctl.model.forward",
+    "ForwardResult": "cdcr_ctl.model.forward",
+    "ForwardStepper": "cdcr_ctl.model.forward",
+    "FrictionState": "cdcr_ctl.model.friction",
+    "PulleyParams": "cdcr_ctl.model.params",
+    "Replay": "cdcr_ctl.model.forward",
+    "RobotParams": "cdcr_ctl.model.params",
+    "SegmentParams": "cdcr_ctl.model.params",
+    "Transfer": "cdcr_ctl.model.transfer",
+    "replay": "cdcr_ctl.model.forward",
+}
+__getattr__ = first_use(globals(), LAZY)
 
 __all__ = [
     "ActuatorEffect",
