@@ -53,7 +53,6 @@ from faulthelp import (  # noqa: E402
     status,
     wait_for,
 )
-
 from soakverdict import SoakRun, verdict  # noqa: E402
 
 from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket  # noqa: E402
