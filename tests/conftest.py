@@ -61,6 +61,7 @@ RIG_FILES = frozenset(
         "tests/drives/test_lag.py",
         "tests/drives/test_lifecycle.py",
         "tests/drives/test_limits.py",
+        "tests/drives/test_nmt_in_flight.py",
         "tests/drives/test_scan.py",
         "tests/drives/test_sdo_frames.py",
         "tests/drives/test_sim_node.py",
@@ -81,6 +82,7 @@ RIG_FILES = frozenset(
         "tests/system/test_rig_process.py",
         "tests/system/test_runlog_views.py",
         "tests/system/test_stop_battery.py",
+        "tests/system/test_stop_under_load.py",
     }
 )
 
