@@ -12,8 +12,7 @@ import socket
 from pathlib import Path
 from typing import Any
 
-from cdcr_ctl.daemon.protocol import ProtocolError, encode_request
-from cdcr_ctl.daemon.stopline import stop_socket_path
+from cdcr_ctl.daemon.protocol import ProtocolError, encode_request, stop_socket_path
 from cdcr_ctl.errors import CommError, RigError
 
 #: How long the CLI waits for one reply (s); long operations (home) reply when started.

@@ -47,11 +47,11 @@ from cdcr_ctl.daemon.coalesce import Coalescer
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.outcome import outcome
-from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed
+from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed, stop_socket_path
 from cdcr_ctl.daemon.rigshare import HEARTBEAT, SHARED_SLOTS, STOP_ACK_TIMEOUT_S, stop_reaction
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
-from cdcr_ctl.daemon.stopline import stop_main, stop_socket_path
+from cdcr_ctl.daemon.stopline import stop_main
 from cdcr_ctl.errors import RigError
 
 log = logging.getLogger(__name__)

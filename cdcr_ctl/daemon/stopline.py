@@ -5,9 +5,10 @@ The control socket's front process (:mod:`cdcr_ctl.daemon.front`) serves every c
 thread; hundreds of clients flooding ``status``, 16 MB requests or slow clients share its
 interpreter lock, and a ``stop`` sent there waits behind them before the front can raise the flag.
 This process shares no lock with them: it only accepts connections on the stop socket
-(:func:`stop_socket_path`: ``control-stop.sock`` beside ``control.sock``), reads one short line per
-connection, and writes the shared-memory :class:`~cdcr_ctl.control.stopflag.StopFlag` that the rig
-process's loop reads at the start of every cycle. Then it forwards the request over a pipe of its
+(:func:`~cdcr_ctl.daemon.protocol.stop_socket_path`: ``control-stop.sock`` beside
+``control.sock``), reads one short line per connection, and writes the shared-memory
+:class:`~cdcr_ctl.control.stopflag.StopFlag` that the rig process's loop reads at the start of
+every cycle. Then it forwards the request over a pipe of its
 own to the rig process (which times the stop on the bus and updates the daemon's state:
 :func:`cdcr_ctl.daemon.recovery.await_stop`) and relays the answer; if none comes within
 :data:`STOP_REPLY_TIMEOUT_S` it answers from the flag (the cycle that acted).
@@ -42,7 +43,11 @@ from typing import Any
 
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.daemon.outcome import outcome
-from cdcr_ctl.daemon.protocol import ProtocolError, encode_reply, parse_request
+from cdcr_ctl.daemon.protocol import (
+    ProtocolError,
+    encode_reply,
+    parse_request,
+)
 from cdcr_ctl.daemon.rigshare import STOP_ACK_TIMEOUT_S, stop_reaction
 from cdcr_ctl.daemon.server import (
     _answers,
@@ -67,12 +72,6 @@ STOP_REPLY_TIMEOUT_S = STOP_ACK_TIMEOUT_S + 3.0
 STOP_NICE = -10
 #: How often the process checks that its parent is alive (s).
 PARENT_CHECK_S = 0.5
-
-
-def stop_socket_path(control_path: str | Path) -> Path:
-    """The stop socket beside the control socket: ``control.sock`` -> ``control-stop.sock``."""
-    p = Path(control_path)
-    return p.with_name(f"{p.stem}-stop{p.suffix}")
 
 
 class _Conn:
@@ -319,5 +318,4 @@ __all__ = [
     "STOP_REPLY_TIMEOUT_S",
     "StopLine",
     "stop_main",
-    "stop_socket_path",
 ]

@@ -34,7 +34,7 @@ from typing import Any
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.client import ControlClient, DaemonError
-from cdcr_ctl.daemon.stopline import stop_socket_path
+from cdcr_ctl.daemon.protocol import stop_socket_path
 from cdcr_ctl.errors import RigError
 
 #: Bytes of one ``big`` request line (16 MB of numbers: longer than ``MAX_LINE_BYTES``).

@@ -14,7 +14,7 @@ from faulthelp import start_sim_with_faults
 from stopload import loaded, trials
 from syshelp import session, start_daemon, wait_for_socket
 
-from cdcr_ctl.daemon.stopline import stop_socket_path
+from cdcr_ctl.daemon.protocol import stop_socket_path
 from cdcr_ctl.sim.faults import FaultClient
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(400)]
