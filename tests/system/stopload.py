@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import socket
 import threading
 import time
@@ -101,7 +102,12 @@ def _loris(path: str, stop: Any, count: Any) -> None:
 
 def load_process(kind: str, n: int, control: str, stop: Any, count: Any) -> None:
     """(a process's target) ``n`` clients of ``kind`` (see the module) until ``stop`` is set;
-    ``count`` counts their answers (``status``, ``big``) or connections (``slowloris``)."""
+    ``count`` counts their answers (``status``, ``big``) or connections (``slowloris``).
+
+    In a session of its own, as a script started elsewhere is: the kernel's fair scheduler
+    shares the CPU between sessions (autogroups) first, and the operator's ``stop`` comes from
+    another session than the flood's."""
+    os.setsid()
     threads = []
     if kind == "status":
         threads = [
@@ -131,7 +137,7 @@ def load_process(kind: str, n: int, control: str, stop: Any, count: Any) -> None
 
 
 @contextlib.contextmanager
-def loaded(kind: str, n: int, control: Path, warm_s: float = 1.0) -> Iterator[Any]:
+def loaded(kind: str, n: int, control: Path, warm_s: float = 0.5) -> Iterator[Any]:
     """``kind`` load with ``n`` clients in a process of its own while the block runs; yields the
     answer (or connection) counter. ``warm_s``: time for the clients to connect first."""
     ctx = multiprocessing.get_context("spawn")
