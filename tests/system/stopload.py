@@ -18,7 +18,9 @@ fault channel (:mod:`cdcr_ctl.sim.faults`, ``transitions``). A trial's latency i
 ``time.monotonic()`` taken just before the client opens its connection and sends ``stop``, to the
 first drive entering QUICK STOP ACTIVE (it has received controlword 0x0002 off the bus: the RPDO,
 or the SDO to 0x6040 for a drive not OPERATIONAL); the SYNC frames that drive saw in between are
-counted from its SYNC count just before the send.
+counted from its SYNC count just before the send. The daemon's own record of the frame (its CAN
+traffic log's stop tap, the reply's ``bus``: when the adapter took the frame) is kept beside it
+(``daemon_bus_ms``), from the send's ``time.time()``.
 """
 
 from __future__ import annotations
@@ -162,13 +164,14 @@ def loaded(kind: str, n: int, control: Path, warm_s: float = 0.5) -> Iterator[An
 
 # ---------------------------------------------------------------------------- one trial
 def start_run(control: Path, seed: int, duration_s: float = 30.0) -> None:
-    """Clear the last stop's trip, enable, and start a slow random trajectory (not logged)."""
+    """Clear the last stop's trip, enable, and start a slow random trajectory, logged (its CAN
+    traffic log times the stop on the daemon's side: the reply's ``bus``)."""
     with ControlClient(control, timeout_s=60) as c:
         with contextlib.suppress(DaemonError):
             c.call("reset_fault", confirm=True)
         c.call("enable")
         traj = tj.random_smooth(1, duration_s, 0.6, 0.3, seed=seed)
-        c.call("trajectory", name=f"stopload{seed}", samples=traj.rows(), log=False)
+        c.call("trajectory", name=f"stopload{seed}", samples=traj.rows(), log=True)
 
 
 def stop_trial(control: Path, fc: Any, period_s: float) -> dict[str, Any]:
@@ -176,6 +179,7 @@ def stop_trial(control: Path, fc: Any, period_s: float) -> dict[str, Any]:
     latency (ms), in loop periods, the SYNCs the first drive saw in between, the budget (2
     periods + :data:`ALLOWANCE_S`) and whether it held, and the reply."""
     syncs0 = {d["node"]: d["syncs"] for d in fc.query("drives")["drives"]}
+    t_wall = time.time()
     t_send = time.monotonic()
     with ControlClient(control, timeout_s=60) as c:
         reply = c.call("stop")
@@ -194,6 +198,10 @@ def stop_trial(control: Path, fc: Any, period_s: float) -> dict[str, Any]:
         "reply": {k: reply.get(k) for k in ("cycles_waited", "note") if k in reply},
         "budget_ms": round(budget_ms, 1),
     }
+    bus = reply.get("bus")
+    if bus:
+        # The daemon's own record: the quick-stop frame handed to the CAN adapter (wall clock).
+        out["daemon_bus_ms"] = round((bus["quick_stop_wall_s"] - t_wall) * 1e3, 2)
     if first is None:
         out.update(latency_ms=None, holds=False)
         return out
