@@ -51,19 +51,20 @@ SIM_RT = 50
 LOADS = [("status", 200), ("big", 50), ("slowloris", 100)]
 
 
-def set_rate(rig: Path, rate_hz: float) -> None:
+def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     doc = yaml.safe_load(rig.read_text())
     doc.setdefault("control", {})["rate_hz"] = rate_hz
+    doc["control"]["realtime_priority"] = rt
     doc.setdefault("can", {})["sync_period_s"] = 1.0 / rate_hz
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
-def one_rate(rate_hz: float, n_trials: int, sim_rt: int) -> list[dict]:
+def one_rate(rate_hz: float, n_trials: int, sim_rt: int, rt: int) -> list[dict]:
     period_s = 1.0 / rate_hz
     tmp = Path(tempfile.mkdtemp(prefix="cdcr-stopload-"))
     rows = []
     with session(tmp) as (work, rig, sim, _runs):
-        set_rate(rig, rate_hz)
+        set_rate(rig, rate_hz, rt)
         with (
             start_sim_with_faults(sim, work / "faults.sock", tmp / "sim.log") as sim_proc,
             start_daemon(rig, tmp / "d.log") as d,
@@ -129,6 +130,13 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=20)
     ap.add_argument("--rates", type=float, nargs="+", default=[250.0, 1000.0])
     ap.add_argument(
+        "--rt",
+        type=int,
+        default=0,
+        help="control.realtime_priority of the daemon under test (its rig process and stop "
+        "process at SCHED_FIFO, as the shipped qi2023.yaml runs them); 0: SCHED_OTHER",
+    )
+    ap.add_argument(
         "--sim-rt",
         type=int,
         default=SIM_RT,
@@ -138,11 +146,12 @@ def main() -> None:
     a = ap.parse_args()
     print(
         f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at the start; simulated rig"
-        f" {'SCHED_FIFO ' + str(a.sim_rt) if a.sim_rt else 'SCHED_OTHER'}, daemon SCHED_OTHER"
+        f" {'SCHED_FIFO ' + str(a.sim_rt) if a.sim_rt else 'SCHED_OTHER'}, daemon"
+        f" {'SCHED_FIFO ' + str(a.rt) if a.rt else 'SCHED_OTHER'} (control.realtime_priority)"
     )
     rows = []
     for rate in a.rates:
-        rows += one_rate(rate, a.trials, a.sim_rt)
+        rows += one_rate(rate, a.trials, a.sim_rt, a.rt)
     held = sum(r["holds"] for r in rows)
     total = sum(r["trials"] for r in rows)
     print(f"stop within 2 cycles + 50 ms of the client's send: {held}/{total} trials")

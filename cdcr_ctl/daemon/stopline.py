@@ -31,7 +31,6 @@ own to the rig process (which times the stop on the bus and updates the daemon's
 from __future__ import annotations
 
 import contextlib
-import errno
 import logging
 import os
 import selectors
@@ -50,8 +49,8 @@ from cdcr_ctl.daemon.protocol import (
 )
 from cdcr_ctl.daemon.rigshare import STOP_ACK_TIMEOUT_S, stop_reaction
 from cdcr_ctl.daemon.server import (
-    _answers,
     _supplementary_groups,
+    bind_unix_socket,
     peer_allowed,
     peer_credentials,
 )
@@ -65,6 +64,8 @@ MAX_STOP_LINE_BYTES = 4096
 LINE_TIMEOUT_S = 2.0
 #: Connections open at once; beyond, the oldest one without a request is dropped.
 MAX_CONNECTIONS = 64
+#: Connections the kernel queues before this process accepts them (all are accepted at once).
+LISTEN_BACKLOG = 512
 #: Longest wait for the rig process's answer before answering from the flag (s): the loop's
 #: acknowledgement wait and the bus tap's (``recovery.BUS_TAP_WAIT_S``), and a second.
 STOP_REPLY_TIMEOUT_S = STOP_ACK_TIMEOUT_S + 3.0
@@ -99,20 +100,7 @@ class StopLine:
         #: tag -> (connection, request id, seq, cycle at arrival, mode, deadline)
         self.pending: dict[int, tuple[_Conn, int, int, int, str, float]] = {}
         self._tag = 0
-        with contextlib.suppress(FileNotFoundError):
-            # A socket left by a killed daemon: removed only if nobody answers on it.
-            if self.path.is_socket() and not _answers(self.path):
-                self.path.unlink()
-        if self.path.exists():
-            raise OSError(errno.EADDRINUSE, "exists and is in use (another daemon running?)")
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        old = os.umask(0o777 & ~mode)
-        try:
-            self.sock.bind(str(self.path))
-        finally:
-            os.umask(old)
-        os.chmod(self.path, mode)
-        self.sock.listen(MAX_CONNECTIONS)
+        self.sock = bind_unix_socket(self.path, mode, LISTEN_BACKLOG)
         self.sock.setblocking(False)
         self._sock_gid = self.path.stat().st_gid
         self._own_uid = os.getuid()
@@ -149,10 +137,17 @@ class StopLine:
         return max(0.0, min(min(deadlines) - time.monotonic(), PARENT_CHECK_S))
 
     def _accept(self) -> None:
-        try:
-            sock, _ = self.sock.accept()
-        except (BlockingIOError, InterruptedError):
-            return
+        """Every connection waiting in the backlog (a burst must not fill it)."""
+        while True:
+            try:
+                sock, _ = self.sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            self._admit(sock)
+
+    def _admit(self, sock: socket.socket) -> None:
         pid, uid, gid = peer_credentials(sock)
         if not any(
             peer_allowed(uid, g, self._sock_gid, self._own_uid)
@@ -288,8 +283,8 @@ def stop_main(
     notes = _raise_priority(rt_priority)
     try:
         line = StopLine(path, mode, shared, rig_conn, os.getppid())
-    except OSError as exc:
-        ready_conn.send(("failed", f"{path}: {exc}"))
+    except (OSError, RigError) as exc:
+        ready_conn.send(("failed", str(exc)))
         return
     ready_conn.send(("ready", notes))
     ready_conn.close()
