@@ -102,6 +102,13 @@ def _loris(path: str, stop: Any, count: Any) -> None:
             s.close()
 
 
+def _orphaned(parent: int, stop: Any) -> None:
+    """Ends the load when the process that started it is gone (killed before its cleanup)."""
+    while not stop.wait(0.5):
+        if os.getppid() != parent:
+            os._exit(0)
+
+
 def load_process(kind: str, n: int, control: str, stop: Any, count: Any) -> None:
     """(a process's target) ``n`` clients of ``kind`` (see the module) until ``stop`` is set;
     ``count`` counts their answers (``status``, ``big``) or connections (``slowloris``).
@@ -109,7 +116,9 @@ def load_process(kind: str, n: int, control: str, stop: Any, count: Any) -> None
     In a session of its own, as a script started elsewhere is: the kernel's fair scheduler
     shares the CPU between sessions (autogroups) first, and the operator's ``stop`` comes from
     another session than the flood's."""
+    parent = os.getppid()
     os.setsid()
+    threading.Thread(target=_orphaned, args=(parent, stop), daemon=True).start()
     threads = []
     if kind == "status":
         threads = [
