@@ -3,14 +3,15 @@ that took the quick-stop controlword off the CAN bus, behind 200 clients floodin
 clients sending 16 MB requests, and slow-loris clients (100 on the control socket and 100 on the
 stop socket), at the loop rates given (default 250 Hz and 1 kHz); TRIALS stops per load and rate.
 
-Run: ``nice -n 5 .venv/bin/python benchmarks/bench_stop_load.py [--trials 20] [--rates 250 1000]``
+Run: ``.venv/bin/python benchmarks/bench_stop_load.py [--trials 20] [--rates 250 1000]``
 (about 15 minutes for the defaults on a 2-core VM).
 
 How measured (``tests/system/stopload.py``): ``cdcr-ctl sim`` with its fault channel and
 ``cdcr-ctl daemon`` as processes, on a session's rig config whose loop rate and SYNC period are set
 to the rate; each load runs in a process of its own; per trial the rig is enabled and a slow random
 trajectory started (under the load), then a new client sends ``stop`` (as ``cdcr-ctl stop`` does:
-to the stop socket). Start: ``time.monotonic()`` before the client connects. End: the first drive's
+to the stop socket). Start: ``time.monotonic()`` just before the client sends the line on its
+connection. End: the first drive's
 change to QUICK STOP ACTIVE as the simulator stamped it (``time.monotonic()``, one clock for every
 process on Linux), read over the fault channel; SYNCs: the SYNC frames that drive saw in between.
 The simulated rig runs at SCHED_FIFO ``--sim-rt`` (50; it stands in for drives with processors of
@@ -33,14 +34,13 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
 
 from faulthelp import start_sim_with_faults  # noqa: E402
 from stopload import loaded, trials  # noqa: E402
-from syshelp import session, start_daemon, wait_for_socket  # noqa: E402
+from syshelp import session, set_rate, start_daemon, wait_for_socket  # noqa: E402
 
 from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
 
@@ -49,14 +49,6 @@ from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
 SIM_RT = 50
 
 LOADS = [("status", 200), ("big", 50), ("slowloris", 100)]
-
-
-def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
-    doc = yaml.safe_load(rig.read_text())
-    doc.setdefault("control", {})["rate_hz"] = rate_hz
-    doc["control"]["realtime_priority"] = rt
-    doc.setdefault("can", {})["sync_period_s"] = 1.0 / rate_hz
-    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
 def one_rate(rate_hz: float, n_trials: int, sim_rt: int, rt: int) -> list[dict]:

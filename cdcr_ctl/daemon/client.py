@@ -19,6 +19,18 @@ from cdcr_ctl.errors import CommError, RigError
 REPLY_TIMEOUT_S = 30.0
 
 
+def recv_line(sock: socket.socket, name: str) -> bytes:
+    """One reply line (without its newline) from a fresh connection ``sock`` (``name`` for the
+    error); CommError if the other end closes first."""
+    buf = b""
+    while b"\n" not in buf:
+        chunk = sock.recv(4096)
+        if not chunk:
+            raise CommError(f"{name}: the daemon closed the connection")
+        buf += chunk
+    return buf.split(b"\n", 1)[0]
+
+
 class DaemonError(RigError):
     """The daemon refused or failed a request; ``field`` names the argument at fault, if any."""
 
@@ -75,15 +87,9 @@ class ControlClient:
                 return None
             try:
                 s.sendall(line)
-                buf = b""
-                while b"\n" not in buf:
-                    chunk = s.recv(4096)
-                    if not chunk:
-                        raise CommError(f"{path}: the stop line closed the connection")
-                    buf += chunk
+                return recv_line(s, str(path))
             except (OSError, TimeoutError) as exc:
                 raise CommError(f"{path}: daemon did not answer 'stop' ({exc})") from exc
-            return buf.split(b"\n", 1)[0]
         finally:
             s.close()
 

@@ -17,7 +17,7 @@ import pytest
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import Reaction
 from cdcr_ctl.daemon import stopline
-from cdcr_ctl.daemon.client import ControlClient
+from cdcr_ctl.daemon.client import ControlClient, recv_line
 from cdcr_ctl.daemon.outcome import encode_outcome
 from cdcr_ctl.daemon.protocol import stop_socket_path
 
@@ -46,20 +46,11 @@ def line(tmp_path, monkeypatch):
 
 
 def _send(path, data: bytes, timeout_s: float = 5.0) -> dict:
-    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    s.settimeout(timeout_s)
-    s.connect(str(path))
-    try:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(timeout_s)
+        s.connect(str(path))
         s.sendall(data)
-        buf = b""
-        while b"\n" not in buf:
-            part = s.recv(4096)
-            if not part:
-                break
-            buf += part
-        return json.loads(buf)
-    finally:
-        s.close()
+        return json.loads(recv_line(s, str(path)))
 
 
 def test_the_flag_is_raised_then_the_rigs_answer_relayed(line):

@@ -15,7 +15,7 @@ none with a misbehaving script:
 The independent listener is the simulated drive itself: the simulator stamps each drive's state
 changes with ``time.monotonic()`` (one clock for every process on Linux) and serves them on its
 fault channel (:mod:`cdcr_ctl.sim.faults`, ``transitions``). A trial's latency is from the
-``time.monotonic()`` taken just before the client opens its connection and sends ``stop``, to the
+``time.monotonic()`` taken just before the client sends ``stop`` on its connection, to the
 first drive entering QUICK STOP ACTIVE (it has received controlword 0x0002 off the bus: the RPDO,
 or the SDO to 0x6040 for a drive not OPERATIONAL); the SYNC frames that drive saw in between are
 counted from its SYNC count just before the send. The daemon's own record of the frame (its CAN
@@ -26,6 +26,7 @@ traffic log's stop tap, the reply's ``bus``: when the adapter took the frame) is
 from __future__ import annotations
 
 import contextlib
+import json
 import multiprocessing
 import os
 import socket
@@ -36,8 +37,8 @@ from pathlib import Path
 from typing import Any
 
 from cdcr_ctl.control import trajectory as tj
-from cdcr_ctl.daemon.client import ControlClient, DaemonError
-from cdcr_ctl.daemon.protocol import stop_socket_path
+from cdcr_ctl.daemon.client import ControlClient, DaemonError, recv_line
+from cdcr_ctl.daemon.protocol import encode_request, stop_socket_path
 from cdcr_ctl.errors import RigError
 
 #: Bytes of one ``big`` request line (16 MB of numbers: longer than ``MAX_LINE_BYTES``).
@@ -184,14 +185,20 @@ def start_run(control: Path, seed: int, duration_s: float = 30.0) -> None:
 
 
 def stop_trial(control: Path, fc: Any, period_s: float) -> dict[str, Any]:
-    """Send ``stop`` as ``cdcr-ctl stop`` does (a new client) and time it on the drives: the
+    """Send ``stop`` as ``cdcr-ctl stop`` does (a new connection to the stop socket, the same
+    line), timed from just before the send, and time it on the drives: the
     latency (ms), in loop periods, the SYNCs the first drive saw in between, the budget (2
     periods + :data:`ALLOWANCE_S`) and whether it held, and the reply."""
     syncs0 = {d["node"]: d["syncs"] for d in fc.query("drives")["drives"]}
-    t_wall = time.time()
-    t_send = time.monotonic()
-    with ControlClient(control, timeout_s=60) as c:
-        reply = c.call("stop")
+    path = stop_socket_path(control)
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC) as s:
+        s.settimeout(60)
+        s.connect(str(path))
+        line = encode_request("stop", {}, 1)  # what ControlClient.call("stop") sends there
+        t_wall = time.time()
+        t_send = time.monotonic()
+        s.sendall(line)
+        reply = json.loads(recv_line(s, str(path)))["result"]
     t_reply = time.monotonic()
     first = None
     end = time.monotonic() + OBSERVE_TIMEOUT_S
