@@ -281,13 +281,19 @@ def stop_main(
     signal.signal(signal.SIGTERM, _exit)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the front's Ctrl-C is the front's
     notes = _raise_priority(rt_priority)
+    parent = os.getppid()
     try:
-        line = StopLine(path, mode, shared, rig_conn, os.getppid())
+        line = StopLine(path, mode, shared, rig_conn, parent)
     except (OSError, RigError) as exc:
-        ready_conn.send(("failed", str(exc)))
+        with contextlib.suppress(OSError):
+            ready_conn.send(("failed", str(exc)))
         return
-    ready_conn.send(("ready", notes))
-    ready_conn.close()
+    try:
+        ready_conn.send(("ready", notes))
+        ready_conn.close()
+    except OSError:
+        line.close()  # the front is gone (killed during its start): leave no socket behind
+        return
     with contextlib.suppress(SystemExit, KeyboardInterrupt):
         line.serve()
     line.close()
