@@ -91,7 +91,7 @@ def summary(rate_hz: float, kind: str, n: int, got: list[dict], per_s: float) ->
         "median_ms": float(np.median(lat)) if len(lat) else float("nan"),
         "p95_ms": float(np.percentile(lat, 95)) if len(lat) else float("nan"),
         "max_ms": float(lat.max()) if len(lat) else float("nan"),
-        "max_periods": max((g.get("periods", float("nan")) for g in got), default=float("nan")),
+        "max_periods": max((g["periods"] for g in got if "periods" in g), default=float("nan")),
         "max_syncs": max((g.get("syncs", -1) for g in got), default=-1),
         "budget_ms": got[0]["budget_ms"] if got else float("nan"),
         "reply_max_ms": max((g["reply_ms"] for g in got), default=float("nan")),
