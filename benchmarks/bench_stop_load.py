@@ -4,7 +4,7 @@ clients sending 16 MB requests, and slow-loris clients (100 on the control socke
 stop socket), at the loop rates given (default 250 Hz and 1 kHz); TRIALS stops per load and rate.
 
 Run: ``.venv/bin/python benchmarks/bench_stop_load.py [--trials 20] [--rates 250 1000]``
-(about 15 minutes for the defaults on a 2-core VM).
+(18 minutes for the defaults with --rt 50 on the 2-core VM at load average 24-35).
 
 How measured (``tests/system/stopload.py``): ``cdcr-ctl sim`` with its fault channel and
 ``cdcr-ctl daemon`` as processes, on a session's rig config whose loop rate and SYNC period are set
