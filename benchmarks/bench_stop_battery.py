@@ -47,7 +47,6 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
@@ -63,18 +62,9 @@ from battery import (  # noqa: E402
     slow_client,
     tiny_jog,
 )
-from syshelp import session, start_daemon, start_sim, wait_for_socket  # noqa: E402
+from syshelp import session, set_rate, start_daemon, start_sim, wait_for_socket  # noqa: E402
 
 from cdcr_ctl.cli.demo import _cli, running  # noqa: E402
-
-
-def _set_rate(rig: Path, rate_hz: float, rt: int) -> None:
-    doc = yaml.safe_load(rig.read_text())
-    doc.setdefault("control", {})["rate_hz"] = rate_hz
-    doc["control"]["realtime_priority"] = rt
-    doc.setdefault("can", {})["sync_period_s"] = 1.0 / rate_hz
-    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
-
 
 #: Bins of the stop's delay from arrival to the first quick-stop frame (loop periods).
 STOP_BINS = (0.0, 0.5, 1.0, 1.5, 2.0, 3.0, 5.0, float("inf"))
@@ -234,7 +224,7 @@ def within_floor(loop_q: dict, floor_q: dict, period_us: float) -> bool:
 
 @contextlib.contextmanager
 def _with_rate(rig: Path, rate_hz: float, rt: int):
-    _set_rate(rig, rate_hz, rt)
+    set_rate(rig, rate_hz, rt)
     yield
 
 

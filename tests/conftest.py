@@ -69,6 +69,7 @@ RIG_FILES = frozenset(
         "tests/drives/test_lag.py",
         "tests/drives/test_lifecycle.py",
         "tests/drives/test_limits.py",
+        "tests/drives/test_nmt_in_flight.py",
         "tests/drives/test_scan.py",
         "tests/drives/test_sdo_frames.py",
         "tests/drives/test_sim_node.py",
@@ -91,6 +92,7 @@ RIG_FILES = frozenset(
         "tests/system/test_service_start.py",
         "tests/system/test_sim_ready.py",
         "tests/system/test_stop_battery.py",
+        "tests/system/test_stop_under_load.py",
     }
 )
 

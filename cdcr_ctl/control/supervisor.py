@@ -4,7 +4,8 @@ Pure logic, no I/O: the loop feeds it one :class:`CycleCheck` per cycle and appl
 :class:`Verdict`. Each limit has one defined reaction, in increasing severity:
 
 - ``HOLD``: the offending command is not sent; the last safe command is held and the running
-  trajectory ends (displacement limit, slack cable).
+  trajectory ends (displacement limit, slack cable; a cable the loop is pulling back in after a
+  recovery, ``retensioning``, is not slack by fault).
 - ``HALT``: the trajectory ends and the drives hold the last command, still enabled (velocity limit,
   stale sensor, tracker-vs-model divergence, log write failure).
 - ``QUICK_STOP``: CiA 402 quick stop of every drive, then disabled (overload tension, drive fault,
@@ -50,7 +51,10 @@ class CycleCheck:
     ``q_cmd_mm``: displacement about to be sent; ``q_prev_mm``: the one sent last cycle;
     ``tension_N``/``tension_age_s``: latest load-cell samples and their ages (s);
     ``tip_error_mm``: distance between tracked tip and model tip (NaN when no tracker);
-    ``tip_age_s``: age of the tracker sample (inf when none yet).
+    ``tip_age_s``: age of the tracker sample (inf when none yet);
+    ``retensioning``: per cable, whether the loop is pulling a paid-out cable back in (its offset
+    ramping towards the model's command after a recovery): a slack reading there is what the
+    ramp is removing, not a ``tension_low`` trip; empty: none.
     """
 
     t_s: float
@@ -62,6 +66,7 @@ class CycleCheck:
     tip_error_mm: float = math.nan
     tip_age_s: float = math.inf
     moving: bool = True
+    retensioning: Sequence[bool] = ()
 
 
 @dataclass
@@ -104,6 +109,7 @@ class Supervisor:
             c.tip_error_mm,
             c.tip_age_s,
             c.moving,
+            c.retensioning,
         )
         for extra in self.extra_checks:
             trip = extra(c)
@@ -122,6 +128,7 @@ class Supervisor:
         tip_error_mm: float = math.nan,
         tip_age_s: float = math.inf,
         moving: bool = True,
+        retensioning: Sequence[bool] = (),
     ) -> Trip | None:
         """:meth:`check` of ``CycleCheck(t_s, dt_s, ...)`` (the same fields, the same result and
         latching); the record is made only for the :attr:`extra_checks` (the loop's every cycle
@@ -136,6 +143,7 @@ class Supervisor:
             tip_error_mm,
             tip_age_s,
             moving,
+            retensioning,
         )
         if self.extra_checks:
             c = CycleCheck(
@@ -148,6 +156,7 @@ class Supervisor:
                 tip_error_mm,
                 tip_age_s,
                 moving,
+                tuple(retensioning),
             )
             for extra in self.extra_checks:
                 trip = extra(c)
@@ -199,6 +208,7 @@ class Supervisor:
         tip_error_mm: float,
         tip_age_s: float,
         moving: bool,
+        retensioning: Sequence[bool] = (),
     ) -> list[Trip]:
         """The limits the cycle's values (the fields of :class:`CycleCheck`) violate."""
         lim = self.limits
@@ -252,7 +262,7 @@ class Supervisor:
                             t_s,
                         )
                     )
-                elif f < t_lo and moving:
+                elif f < t_lo and moving and not (k < len(retensioning) and retensioning[k]):
                     out.append(
                         Trip(
                             f"tension_low:cable{k + 1}",

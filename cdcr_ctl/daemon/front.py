@@ -8,7 +8,13 @@ clients) and the :class:`~cdcr_ctl.daemon.intake.Intake` worker; each validated 
 the rig process over a pipe, and the reply comes back. None of that holds the rig process's
 interpreter lock.
 
-- ``stop`` and ``shutdown``: the front writes the shared-memory
+- the operator's ``stop`` line: a process of its own (:mod:`cdcr_ctl.daemon.stopline`) serves
+  the stop socket beside the control socket, writes the shared stop flag and forwards the request
+  to the rig process over a pipe of its own: no client of the control socket can delay it. It is
+  started beside the rig process and waited for before the control socket opens.
+- the front runs :data:`FRONT_NICE` nicer than the rig and stop processes: a flood of clients
+  takes its CPU, not theirs.
+- ``stop`` and ``shutdown`` on the control socket: the front writes the shared-memory
   :class:`~cdcr_ctl.control.stopflag.StopFlag` itself (no pipe, no lock, nothing queued before
   it), then forwards the request for the bus timing and bookkeeping; if the rig process does not
   answer in time the front answers from the flag's acted cycle.
@@ -38,13 +44,15 @@ from typing import Any
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.stopflag import StopFlag
+from cdcr_ctl.daemon.coalesce import Coalescer
 from cdcr_ctl.daemon.intake import Intake
 from cdcr_ctl.daemon.notify import SystemdNotifier
 from cdcr_ctl.daemon.outcome import outcome
-from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed
+from cdcr_ctl.daemon.protocol import COMMANDS, Request, check_jog_speed, stop_socket_path
 from cdcr_ctl.daemon.rigshare import HEARTBEAT, SHARED_SLOTS, STOP_ACK_TIMEOUT_S, stop_reaction
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
+from cdcr_ctl.daemon.stopline import stop_main
 from cdcr_ctl.errors import RigError
 
 log = logging.getLogger(__name__)
@@ -63,6 +71,12 @@ STATUS_TIMEOUT_S = 10.0
 STOP_REPLY_SLACK_S = 1.0
 #: Exit status of the front when the rig process died under it.
 EXIT_RIG_DIED = 3
+#: How much nicer than the rig and stop processes the front runs once they are started (its
+#: threads serve every client: under a flood of clients they must not take the CPU the loop and
+#: the stop line need; nice 10 weighs a tenth of nice 0 in the kernel's fair scheduler).
+FRONT_NICE = 10
+#: Longest wait for the stop process to open the stop socket (s): an interpreter's start.
+STOP_LINE_START_TIMEOUT_S = 30.0
 
 
 class _Pending:
@@ -73,81 +87,6 @@ class _Pending:
     def __init__(self) -> None:
         self.done = threading.Event()
         self.out: tuple[Any, ...] = ("rig", "no reply")
-
-
-class _Batch:
-    """One status round trip shared by the requests that joined it."""
-
-    __slots__ = ("done", "error", "value")
-
-    def __init__(self) -> None:
-        self.done = threading.Event()
-        self.value: Any = None
-        self.error: BaseException | None = None
-
-    def result(self) -> Any:
-        self.done.wait()
-        if self.error is not None:
-            raise self.error
-        return self.value
-
-
-class Coalescer:
-    """At most one ``fetch()`` in flight; callers that arrive while one runs share the next one,
-    which starts when it ends (so every answer was fetched after its caller asked)."""
-
-    def __init__(self, fetch: Any) -> None:
-        self._fetch = fetch
-        self._lock = threading.Lock()
-        self._running: _Batch | None = None
-        self._next: _Batch | None = None
-        #: Round trips made, and calls (a flood of calls costs few round trips).
-        self.fetches = 0
-        self.calls = 0
-        #: Callers inside :meth:`get` now.
-        self.waiting = 0
-
-    def get(self) -> Any:
-        with self._lock:
-            self.calls += 1
-            self.waiting += 1
-        try:
-            return self._get()
-        finally:
-            with self._lock:
-                self.waiting -= 1
-
-    def _get(self) -> Any:
-        prev: _Batch | None = None
-        with self._lock:
-            if self._next is not None:
-                return_batch = self._next
-                lead = False
-            elif self._running is None:
-                return_batch = self._running = _Batch()
-                lead = True
-            else:
-                prev = self._running
-                return_batch = self._next = _Batch()
-                lead = True
-        batch = return_batch
-        if not lead:
-            return batch.result()
-        if prev is not None:
-            prev.done.wait()
-            with self._lock:
-                self._running, self._next = batch, None
-        try:
-            self.fetches += 1
-            batch.value = self._fetch()
-        except BaseException as exc:
-            batch.error = exc
-        finally:
-            with self._lock:
-                if self._running is batch:
-                    self._running = None
-            batch.done.set()
-        return batch.result()
 
 
 def rig_process(*args: Any) -> None:
@@ -184,6 +123,8 @@ class FrontDaemon:
         n_segments = build_model(cfg, source=str(config_path)).n_segments
         self.intake = Intake(n_segments, cfg.limits.bend_rad)
         self._conn, child_conn = ctx.Pipe()
+        # The stop line's own pipe to the rig process (see :mod:`.stopline`).
+        self._stop_rig_conn, rig_stop_conn = ctx.Pipe()
         self.proc = ctx.Process(
             target=rig_process,
             args=(
@@ -193,9 +134,26 @@ class FrontDaemon:
                 socket_path,
                 str(self.intake.dir),
                 verbose,
+                rig_stop_conn,
             ),
             name="cdcr-rig",
         )
+        self._rig_stop_conn = rig_stop_conn
+        self._stop_ready, stop_ready_child = ctx.Pipe(duplex=False)
+        self.stop_path = stop_socket_path(socket_path or cfg.daemon.socket_path)
+        self.stop_proc = ctx.Process(
+            target=stop_main,
+            args=(
+                str(self.stop_path),
+                cfg.daemon.socket_mode,
+                self.shared,
+                self._stop_rig_conn,
+                stop_ready_child,
+                cfg.control.realtime_priority,
+            ),
+            name="cdcr-stop",
+        )
+        self._stop_ready_child = stop_ready_child
         self._child_conn = child_conn
         self._send_lock = threading.Lock()
         self._pending: dict[int, _Pending] = {}
@@ -216,8 +174,18 @@ class FrontDaemon:
         """Spawn the rig process, wait for its ``ready``, then open the control socket."""
         self.proc.start()
         self._child_conn.close()
+        self._rig_stop_conn.close()
+        # Started beside the rig process (its interpreter starts meanwhile); waited for below.
+        self.stop_proc.start()
+        self._stop_ready_child.close()
+        self._stop_rig_conn.close()  # the stop process holds it now
+        # This thread's nice is inherited by every thread and process the front starts later
+        # (client threads, the intake); the rig and stop processes keep theirs.
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, 0, os.getpriority(os.PRIO_PROCESS, 0) + FRONT_NICE)
         if not self._conn.poll(RIG_START_TIMEOUT_S):
             self._kill_rig()
+            self._end_stop_line()
             raise RigError(f"rig process did not start within {RIG_START_TIMEOUT_S:g} s")
         try:
             _, (kind, detail) = self._conn.recv()
@@ -228,6 +196,11 @@ class FrontDaemon:
             self.proc.join(10)
             raise RigError(f"rig process failed to start: {detail}")
         threading.Thread(target=self._read, name="front-pipe", daemon=True).start()
+        try:
+            self._start_stop_line()
+        except RigError:
+            self.shutdown("stop line failed to start")
+            raise
         self.server = open_control_server(self.cfg, self.handle, self.intake)
         self.state = "ready"
         self.notifier.ready(f"ready: {self.cfg.name}, drives disabled (rig pid {self.proc.pid})")
@@ -270,6 +243,7 @@ class FrontDaemon:
                 self._kill_rig()
             self.proc.join(5)
         for name, step in (
+            ("stop line", self._end_stop_line),
             ("close socket", lambda: self.server.close() if self.server else None),
             ("intake", self.intake.close),
             ("pipe", self._conn.close),
@@ -280,6 +254,27 @@ class FrontDaemon:
                 log.exception("shutdown step %r failed", name)
         self.state = "stopped"
         log.info("daemon stopped: %s (rig process exit %s)", reason, self.proc.exitcode)
+
+    def _start_stop_line(self) -> None:
+        """Wait for the stop process's socket (see :mod:`.stopline`)."""
+        if not self._stop_ready.poll(STOP_LINE_START_TIMEOUT_S):
+            raise RigError(f"stop process did not start within {STOP_LINE_START_TIMEOUT_S:g} s")
+        try:
+            kind, detail = self._stop_ready.recv()
+        except (EOFError, OSError) as exc:
+            raise RigError(f"stop process exited {self.stop_proc.exitcode} at start") from exc
+        if kind != "ready":
+            raise RigError(f"stop process failed to start: {detail}")
+        log.info("stop line on %s (pid %d, %s)", self.stop_path, self.stop_proc.pid, detail)
+
+    def _end_stop_line(self) -> None:
+        if self.stop_proc.pid is None:
+            return
+        self.stop_proc.terminate()
+        self.stop_proc.join(5)
+        if self.stop_proc.is_alive():
+            self.stop_proc.kill()
+            self.stop_proc.join(5)
 
     def _kill_rig(self) -> None:
         self.proc.terminate()

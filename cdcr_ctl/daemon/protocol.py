@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
@@ -243,6 +244,13 @@ def parse_request(line: bytes | str) -> Request:
         msg = err["msg"].removeprefix("Value error, ")
         raise ProtocolError(msg, field=_field(("args", *err["loc"]))) from exc
     return Request(id=rid, cmd=cmd, args=args)
+
+
+def stop_socket_path(control_path: str | Path) -> Path:
+    """The daemon's stop socket beside its control socket (:mod:`cdcr_ctl.daemon.stopline`):
+    ``control.sock`` -> ``control-stop.sock``."""
+    p = Path(control_path)
+    return p.with_name(f"{p.stem}-stop{p.suffix}")
 
 
 def encode_request(cmd: str, args: dict[str, Any] | None = None, rid: int = 0) -> bytes:

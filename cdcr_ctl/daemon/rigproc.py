@@ -20,6 +20,9 @@ already parsed and validated, as ``(tag, Request, extra)`` on a
 A big trajectory never crosses the pipe: the front's intake prepares it as a file in its own
 directory, which this process maps (``numpy.load(mmap_mode="r")``).
 
+The stop line's ``stop`` requests (:mod:`cdcr_ctl.daemon.stopline`) arrive on a pipe of their
+own, read by a thread of their own, and are answered on it.
+
 Two command threads: ``status``, ``stop`` and ``shutdown`` on one (never behind a long command),
 every other command on the other, in arrival order (the daemon's command lock serialises them
 as before). ``stop`` has already been acted on when it arrives here: the front wrote the
@@ -81,7 +84,9 @@ def encode_outcome(fn: Any, *args: Any) -> tuple[Any, ...]:
 class RigCommandServer:
     """Serves the front's requests to ``daemon`` over ``conn`` (see the module docstring)."""
 
-    def __init__(self, daemon: Any, conn: Any, shared: Any) -> None:
+    def __init__(self, daemon: Any, conn: Any, shared: Any, stop_conn: Any = None) -> None:
+        """``stop_conn``: the stop line's pipe (:mod:`.stopline`): its ``stop`` requests, served
+        on the quick thread and answered on it."""
         self.d, self.conn, self.shared = daemon, conn, shared
         self.gc_watch = GcWatch(1.0 / daemon.cfg.control.rate_hz).install()
         #: Per command name: (count, longest wall ms, longest CPU ms) of its handling here.
@@ -94,45 +99,54 @@ class RigCommandServer:
         self._slow: queue.Queue[Any] = queue.Queue()
         self._closed = threading.Event()
         self._threads = [
-            threading.Thread(target=self._read, name="rig-pipe", daemon=True),
+            threading.Thread(target=self._read, args=(conn,), name="rig-pipe", daemon=True),
             threading.Thread(target=self._work, args=(self._quick,), name="rig-quick", daemon=True),
             threading.Thread(target=self._work, args=(self._slow,), name="rig-cmd", daemon=True),
             threading.Thread(target=self._beat, name="rig-heartbeat", daemon=True),
         ]
+        if stop_conn is not None:
+            self._threads.append(
+                threading.Thread(
+                    target=self._read, args=(stop_conn,), name="rig-stop-pipe", daemon=True
+                )
+            )
 
     def start(self) -> RigCommandServer:
         for th in self._threads:
             th.start()
         return self
 
-    def send(self, message: Any) -> None:
+    def send(self, message: Any, conn: Any = None) -> None:
         # OSError/ValueError: the front is gone (its end of the pipe closed).
         with self._send_lock, contextlib.suppress(OSError, ValueError):
-            self.conn.send(message)
+            (conn or self.conn).send(message)
 
-    def _read(self) -> None:
+    def _read(self, conn: Any) -> None:
         while not self._closed.is_set():
             try:
-                tag, req, extra = self.conn.recv()
+                tag, req, extra = conn.recv()
             except (EOFError, OSError):
-                if not self._closed.is_set():
+                if conn is self.conn and not self._closed.is_set():
                     log.error("rig process: the front process is gone; shutting down")
                     self.d.request_stop("front process exited")
                 return
-            (self._quick if req.cmd in QUICK_COMMANDS else self._slow).put((tag, req, extra))
+            if conn is not self.conn and req.cmd != "stop":
+                continue  # the stop line sends only stop
+            q = self._quick if req.cmd in QUICK_COMMANDS else self._slow
+            q.put((conn, tag, req, extra))
 
     def _work(self, q: queue.Queue[Any]) -> None:
         while True:
             item = q.get()
             if item is None:
                 return
-            tag, req, extra = item
+            conn, tag, req, extra = item
             c0, t0 = time.thread_time(), time.monotonic()
             out = encode_outcome(self._handle, req, extra)
             t1, cpu_s = time.monotonic(), time.thread_time() - c0
             self._timed(req.cmd, t1 - t0, cpu_s)
             self.command_log.append((req.cmd, t0, t1, round(cpu_s * 1e3, 3)))
-            self.send((tag, out))
+            self.send((tag, out), conn)
 
     def _timed(self, cmd: str, wall_s: float, cpu_s: float) -> None:
         # Per command: count, longest wall and CPU time (ms) of its handling in this process
@@ -227,6 +241,7 @@ def rig_main(
     socket_path: str | None,
     intake_dir: str,
     verbose: bool,
+    stop_conn: Any = None,
 ) -> None:
     """(the rig process's main) Build the daemon, start its loop, tell the front ``ready`` and
     serve until SIGTERM/SIGINT, ``shutdown`` or the front's end; exits 0 after an ordered
@@ -248,7 +263,7 @@ def rig_main(
         d.shutdown("start-up failed")
         conn.send((0, ("failed", f"{type(exc).__name__}: {exc}")))
         raise SystemExit(2) from exc
-    server = RigCommandServer(d, conn, shared).start()
+    server = RigCommandServer(d, conn, shared, stop_conn).start()
     conn.send((0, ("ready", {"rig": d.cfg.name, "at": time.time()})))
     reason = d.serve()
     server.close(reason)

@@ -71,6 +71,26 @@ def _supplementary_groups(pid: int) -> set[int]:
     return set()
 
 
+def bind_unix_socket(path: Path, mode: int, backlog: int) -> socket.socket:
+    """A listening Unix stream socket at ``path`` with file mode ``mode``. A socket file left by
+    a killed daemon is removed first, but only if nobody answers on it; CommError if one does."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(FileNotFoundError):
+        if path.is_socket() and not _answers(path):
+            path.unlink()
+    if path.exists():
+        raise CommError(f"{path}: exists and is in use (another daemon running?)")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
+    old = os.umask(0o777 & ~mode)
+    try:
+        sock.bind(str(path))
+    finally:
+        os.umask(old)
+    os.chmod(path, mode)
+    sock.listen(backlog)
+    return sock
+
+
 class ControlServer:
     """Serve ``handler`` on a Unix socket at ``path``; ``close()`` removes the socket file."""
 
@@ -92,21 +112,7 @@ class ControlServer:
         self._clients = 0
         self._clients_lock = threading.Lock()
         self._stop = threading.Event()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with contextlib.suppress(FileNotFoundError):
-            # A socket left by a killed daemon: remove it only if nobody answers on it.
-            if self.path.is_socket() and not _answers(self.path):
-                self.path.unlink()
-        if self.path.exists():
-            raise CommError(f"{self.path}: exists and is in use (another daemon running?)")
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        old = os.umask(0o777 & ~mode)
-        try:
-            self._sock.bind(str(self.path))
-        finally:
-            os.umask(old)
-        os.chmod(self.path, mode)
-        self._sock.listen(LISTEN_BACKLOG)
+        self._sock = bind_unix_socket(self.path, mode, LISTEN_BACKLOG)
         self._sock_gid = self.path.stat().st_gid
         self._own_uid = os.getuid()
         self._thread = threading.Thread(

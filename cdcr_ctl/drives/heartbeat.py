@@ -7,6 +7,13 @@ when no heartbeat came for ``factor`` times its producer time (0x1017). Once arm
 drives were started), a boot-up (state 0) or a drive leaving OPERATIONAL is an anomaly too: the
 drive restarted or was reset behind the master's back.
 
+Frames in flight around an NMT command: a node's CAN controller may hold a heartbeat queued
+before the node processed the master's NMT command, so it leaves after it (a PRE-OPERATIONAL
+report a fraction of a millisecond after ``NMT start``). After :meth:`HeartbeatConsumer.commanded`
+a node's reports other than the commanded state are not anomalies until the node has reported
+that state or one producer period has passed, whichever is first; after that, leaving the state
+is the anomaly it always was.
+
 Cost per check: :meth:`HeartbeatConsumer.overdue` is O(1) while no deadline has passed. It keeps
 the earliest deadline it knows (a lower bound: heartbeats only move deadlines later) and scans the
 nodes only when that bound has passed, which happens about once per producer period per node,
@@ -40,6 +47,9 @@ class HeartbeatConsumer:
         self, producer_times_s: Mapping[int, float], factor: float = HEARTBEAT_TIMEOUT_FACTOR
     ) -> None:
         self.timeouts_s = {n: factor * t for n, t in producer_times_s.items() if t > 0}
+        self.periods_s = {n: t for n, t in producer_times_s.items() if t > 0}
+        #: node -> (commanded NMT state, end of the window for reports sent before it) (s).
+        self._settling: dict[int, tuple[int, float]] = {}
         self._last_s: dict[int, float] = {}
         self._state: dict[int, int] = {}
         self._armed = False
@@ -55,6 +65,22 @@ class HeartbeatConsumer:
             self._armed = True
             self._earliest_s = self._earliest_deadline()
 
+    def commanded(self, node: int, nmt_state: int, now_s: float) -> None:
+        """The master just sent ``node`` an NMT command to enter ``nmt_state`` at ``now_s``:
+        reports of another state sent before the node acted on it may still arrive, for up to
+        one producer period (see the module docstring)."""
+        period = self.periods_s.get(node)
+        if period is None:
+            return
+        with self._lock:
+            self._settling[node] = (nmt_state, now_s + period)
+
+    def settling(self, node: int, now_s: float) -> bool:
+        """Whether ``node`` is inside the window after an NMT command and has not reported the
+        commanded state yet (a report of another state now is one sent before the command)."""
+        window = self._settling.get(node)
+        return window is not None and now_s <= window[1]
+
     def disarm(self) -> None:
         with self._lock:
             self._armed = False
@@ -69,6 +95,13 @@ class HeartbeatConsumer:
         state = nmt_state & 0x7F
         with self._lock:
             self._last_s[node] = now_s
+            window = self._settling.get(node)
+            if window is not None and (state == window[0] or now_s > window[1]):
+                del self._settling[node]  # the command took effect, or its window passed
+                window = None
+            if window is not None:
+                # A report sent before the node acted on the command: not its state now.
+                return None
             old = self._state.get(node)
             self._state[node] = state
             armed = self._armed and node in self.timeouts_s

@@ -402,3 +402,58 @@ def test_home_ramps_in_a_compensation_that_is_not_zero_at_straight():
     steps = np.abs(np.diff(sent, axis=0)) / np.abs(CPM)  # mm per cycle
     assert steps.max() <= 0.5 * 0.2 + 1e-3  # the offset ramp: half the limit per cycle
     np.testing.assert_allclose(sent[-1], np.array(home) + 0.5 * CPM)
+
+
+class SlackCable1(FakeTension):
+    """Cable 1 reads slack (0 N) while its drive is paid out below ``taut_counts``, as a cable
+    whose motor was back-driven by its tension while the power stage was off; 3 N otherwise."""
+
+    def __init__(self):
+        super().__init__()
+        self.drives = FakeDrives()
+        self.taut_counts = -(10**9)
+
+    def latest(self):
+        f = self.f.copy()
+        if self.drives.pos[0] < self.taut_counts:
+            f[0] = 0.0
+        return f, np.zeros(K)
+
+
+def test_a_cable_paid_out_during_a_fault_is_pulled_back_in_by_the_next_run():
+    """A drive fault (power stage off) lets cable 1's tension back-drive its motor by 0.5 mm; after
+    the reset and re-enable the loop starts from where the drives are, and the next run ramps that
+    step out, pulling the cable back in: the slack it reads meanwhile is not a ``tension_low``
+    trip, the run completes and the cable is taut again. A cable that stays slack while nothing
+    pulls it in still trips."""
+    loop, drives, ten, sup = make_loop(tension=SlackCable1())
+    ten.drives = drives  # the tension reads the loop's drives
+    loop.start()
+    try:
+        assert wait_until(lambda: loop.counters.cycles > 5)
+        ten.taut_counts = drives.pos[0] - 100  # up to 0.1 mm paid out still taut
+        drives.fault = ("emcy:node1:0x2310", "node 1: 0x2310 over current")
+        assert wait_until(lambda: drives.quick_stops == 1)
+        with drives.lock:
+            drives.pos[0] -= 500  # 0.5 mm back-driven while unpowered
+        assert wait_until(lambda: ten.latest()[0][0] == 0.0)
+        drives.fault = None
+        sup.reset()
+        loop.drives_reenabled()
+        assert wait_until(lambda: not loop._stopped_drives)
+        sink = ListSink()
+        run = loop.follow(Ramp(0.0, 0.5), "after-recovery", "off", sink)
+        assert wait_until(lambda: run.state != "running")
+        assert run.state == "completed", (run.state, sink.closed, sup.trip)
+        assert sup.trip is None
+        assert drives.pos[0] >= ten.taut_counts and ten.latest()[0][0] == 3.0
+        # Slack rows were logged while the run pulled the cable in, then none.
+        slack = [i for i, r in enumerate(sink.rows) if r["cable1_tension_N"] == 0.0]
+        assert slack and slack[-1] < len(sink.rows) - 1
+        # Nothing pulling it in: a slack cable trips as before.
+        ten.taut_counts = 10**9
+        run = loop.follow(Ramp(0.0, 0.5), "slack", "off", ListSink())
+        assert wait_until(lambda: run.state != "running")
+        assert run.state == "tripped" and sup.trip.cause == "tension_low:cable1"
+    finally:
+        loop.stop()

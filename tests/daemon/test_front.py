@@ -11,7 +11,7 @@ import pytest
 
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import Reaction
-from cdcr_ctl.daemon.front import Coalescer
+from cdcr_ctl.daemon.coalesce import Coalescer
 from cdcr_ctl.daemon.protocol import ProtocolError
 from cdcr_ctl.daemon.rigproc import SHARED_SLOTS, encode_outcome, outcome
 from cdcr_ctl.errors import ConfigError, RigError

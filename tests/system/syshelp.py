@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+import yaml
 
 from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.daemon.client import ControlClient
@@ -41,6 +42,16 @@ def start_sim(sim: Path, log: Path):
 
 def start_daemon(rig: Path, log: Path):
     return running(_cli("--config", str(rig), "daemon"), log)
+
+
+def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
+    """The session's rig config at loop and SYNC rate ``rate_hz`` and real-time priority ``rt``
+    (``control.realtime_priority``; 0: SCHED_OTHER)."""
+    doc = yaml.safe_load(rig.read_text())
+    doc.setdefault("control", {})["rate_hz"] = rate_hz
+    doc["control"]["realtime_priority"] = rt
+    doc.setdefault("can", {})["sync_period_s"] = 1.0 / rate_hz
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
 def client(work: Path) -> ControlClient:
@@ -83,6 +94,7 @@ __all__ = [
     "os",
     "relaunch",
     "session",
+    "set_rate",
     "start_daemon",
     "start_sim",
     "wait_for_socket",

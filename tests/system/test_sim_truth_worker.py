@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cdcr_ctl.cli.demo import make_session
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.rig import SimRig
 from cdcr_ctl.sim.simconfig import load_sim_config
@@ -17,8 +18,11 @@ from cdcr_ctl.sim.simconfig import load_sim_config
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_the_worker_solves_the_world_at_the_drives_positions():
-    loaded = load_sim_config(ROOT / "config/sim/qi2023-truth.yaml")
+def test_the_worker_solves_the_world_at_the_drives_positions(tmp_path):
+    # The shipped world on a session's free loopback ports and private paths: a user's
+    # `cdcr-ctl sim` of the same world may hold the shipped ones.
+    _, sim = make_session(ROOT / "config/sim/qi2023-truth.yaml", tmp_path, tmp_path)
+    loaded = load_sim_config(sim)
     channel = f"truth-worker-{os.getpid()}"
     with SimRig(
         loaded, can_interface="virtual", can_channel=channel, link_paths=False, truth_worker=True

@@ -50,6 +50,13 @@ from cdcr_ctl.errors import ModelError
 # The logger keeps the name it had when the loop was one module.
 log = logging.getLogger("cdcr_ctl.control.loop")
 
+#: An offset this far (mm) below its target is still being ramped up: the cable is being pulled
+#: back in (a thousandth of a micrometre: far below a count, above rounding of the ramp's sums).
+RETENSION_GAP_MM = 1e-6
+#: How long after its ramp ended a re-tensioned cable may still read slack (s): the drive's
+#: following lag and the load cells' sample age (their stale limit is of the same order).
+RETENSION_SETTLE_S = 0.25
+
 
 class ControlLoop(LoopCommands):
     """The fixed-rate loop. Start with :meth:`start`, stop with :meth:`stop` (joins the thread).
@@ -118,6 +125,8 @@ class ControlLoop(LoopCommands):
         self._q_prev = np.zeros(K)
         self._q_offset = np.zeros(K)
         self._q_offset_target = np.zeros(K)
+        #: Per cable, until when (loop clock s) a slack reading is the re-tension ramp's.
+        self._retension_until = np.full(K, -math.inf)
         self._model_state = model.new_state()
         #: Mode ``measured``'s compensation term, rate-bounded (see :mod:`.slew`).
         self._measured_slew = MeasuredSlew(
@@ -277,6 +286,11 @@ class ControlLoop(LoopCommands):
                     now, tip_l, tip_age, DIVERGENCE_LAG_S, self.cfg.period_s
                 )
         moving = run is not None and run.state == "running"
+        # A cable whose offset still ramps up (pulled back in after a recovery that left it
+        # paid out) may read slack until the ramp has taken the slack up.
+        ramping = self._q_offset_target - self._q_offset > RETENSION_GAP_MM
+        self._retension_until[ramping] = now + RETENSION_SETTLE_S
+        retensioning = (self._retension_until > now).tolist()
         trip = self.supervisor.check_cycle(
             t_s,
             # Real time since the last command: after a late cycle the step is larger but so
@@ -289,6 +303,7 @@ class ControlLoop(LoopCommands):
             tip_err,
             tip_age,
             moving,
+            retensioning,
         )
         fault = self.drives.first_fault()
         if fault is not None and not self._stopped_drives:

@@ -66,6 +66,7 @@ class _Startup:
             d.last_tpdo_s = now
             d.tpdo_sync = self.sync_count
             d.reset_stream()
+            self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.clock())
             self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
         self._oldest_tpdo_sync = self.sync_count
         self._heartbeats.arm(now)
@@ -101,6 +102,7 @@ class _Startup:
         now = self.clock()
         d.last_tpdo_s, d.tpdo_sync = now, self.sync_count
         d.reset_stream()
+        self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.clock())
         self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
         self._confirm_operational([d])
         return (

@@ -53,7 +53,8 @@ class _Supervision:
             return
         if data[0] == 0:
             d.booted.set()
-            if self._started:
+            # A boot-up still in flight from before an NMT command is not a reboot.
+            if self._started and not self._heartbeats.settling(d.id, self.clock()):
                 d.rebooted = True
         anomaly = self._heartbeats.beat(d.id, data[0], self.clock())
         if anomaly is not None and self._started:

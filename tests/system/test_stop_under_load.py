@@ -1,0 +1,51 @@
+"""System: ``stop`` under client load reaches the drives within 2 loop cycles + 50 ms of the
+client's send (the shipped simulated rig, 250 Hz): behind 200 clients flooding ``status``, 50
+clients sending 16 MB requests, and slow-loris clients on the control and the stop socket.
+
+Timed end to end by the simulated drives (``stopload.py``): from the client's ``time.monotonic()``
+before it connects and sends, to the first drive entering QUICK STOP ACTIVE. Light: 2 trials per
+load; ``benchmarks/bench_stop_load.py`` runs 20 per load at 250 Hz and 1 kHz.
+"""
+
+from __future__ import annotations
+
+import pytest
+from faulthelp import start_sim_with_faults
+from stopload import loaded, trials
+from syshelp import session, start_daemon, wait_for_socket
+
+from cdcr_ctl.daemon.protocol import stop_socket_path
+from cdcr_ctl.sim.faults import FaultClient
+
+pytestmark = [pytest.mark.slow, pytest.mark.realtime, pytest.mark.timeout(400)]
+
+#: The session's rig runs 250 Hz (the shipped simulated rig).
+PERIOD_S = 1 / 250
+TRIALS = 2
+LOADS = [("status", 200), ("big", 50), ("slowloris", 100)]
+
+
+def test_stop_reaches_the_drives_within_two_cycles_and_50_ms_under_client_load(tmp_path):
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim_with_faults(sim, work / "faults.sock", tmp_path / "sim.log"),
+        start_daemon(rig, tmp_path / "d.log") as d,
+    ):
+        control = work / "control.sock"
+        wait_for_socket(control, d, tmp_path / "d.log")
+        assert stop_socket_path(control).is_socket()
+        fc = FaultClient(work / "faults.sock")
+        results = {}
+        for seed, (kind, n) in enumerate(LOADS):
+            with loaded(kind, n, control) as count:
+                got = trials(control, fc, PERIOD_S, TRIALS, 100 * seed)
+                results[kind] = (count.value, got)
+            print(kind, n, count.value, got)
+        fc.close()
+    for kind, (count, got) in results.items():
+        assert count > 0, f"{kind}: the load never got going"
+        for trial in got:
+            assert trial["latency_ms"] is not None, (kind, trial)
+            assert trial["holds"], (kind, trial)
+            # The loop acted within two of its cycles of the request's arrival.
+            assert trial["reply"]["cycles_waited"] <= 2, (kind, trial)
