@@ -34,7 +34,8 @@ import numpy as np
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, loadcell_locations
-from cdcr_ctl.identify.keypoints import KeypointOptions, _load, heldout_rmse, identify_keypoint_runs
+from cdcr_ctl.identify.heldout import heldout_rmse
+from cdcr_ctl.identify.keypoints import KeypointOptions, _load, identify_keypoint_runs
 from cdcr_ctl.identify.logkind import split_by_time
 from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.model.routing import cable_displacement
