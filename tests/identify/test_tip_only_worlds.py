@@ -185,9 +185,7 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
     rep2 = json.loads((out2 / "identification.json").read_text())
     assert rep2["refused"] and rep2["overlay"] is None
     # the override writes it, marked
-    code3 = main(
-        ["-c", str(CONFIG), "identify", "--from-run", str(prun), "--out", str(out2)]
-        + ["--accept-misfit"]
-    )
+    args = ["-c", str(CONFIG), "identify", "--from-run", str(prun), "--out", str(out2)]
+    code3 = main([*args, "--accept-misfit"])
     capsys.readouterr()
     assert code3 == 0 and (out2 / "identified.yaml").read_text().startswith("# MISFIT ACCEPTED")
