@@ -29,6 +29,9 @@ import numpy as np
 
 #: Weight of the friction state in the feature space (module docstring).
 DIRECTION_WEIGHT = 0.5
+#: Fewest rows a budget-chosen fit takes: 180 tip residuals for ~10 parameters; on a machine
+#: too slow (or too loaded) for them within the budget the fit overruns it instead.
+MIN_FIT_ROWS = 60
 #: Moves smaller than this (mm) keep a cable's last direction.
 DIRECTION_EPS_MM = 0.005
 
@@ -147,6 +150,7 @@ def rows_for_budget(
 ) -> int:
     """How many chosen rows a fit of ``n_iter`` Jacobians (``n_params`` + 1 replays each, in
     ``jobs`` processes) can replay in ``budget_s`` when a row costs ``s_per_row`` (each chosen
-    row costs itself and, measured on lab paths, ~0.6 of a row before it)."""
+    row costs itself and, measured on lab paths, ~0.6 of a row before it); at least
+    :data:`MIN_FIT_ROWS`."""
     per_iter = math.ceil((n_params + 1) / max(jobs, 1)) * 1.6 * s_per_row
-    return max(10, int(budget_s / max(per_iter * n_iter, 1e-9)))
+    return max(MIN_FIT_ROWS, int(budget_s / max(per_iter * n_iter, 1e-9)))

@@ -412,7 +412,7 @@ def hidden_effect_worlds(seed: int = 1, noise_mm: float = 1.0) -> dict[str, Worl
     the key is the effect's name in :mod:`cdcr_ctl.discrepancy.keypoint_effects`."""
     n = noise_mm
     return {
-        "curvature": WorldSpec(ei_gradient=1.2, tip_noise_mm=n, seed=seed, name="curvature"),
+        "curvature": WorldSpec(ei_gradient=1.6, tip_noise_mm=n, seed=seed, name="curvature"),
         "routing": WorldSpec(
             angle_offset_rad=tuple(float(v) for v in np.radians([6] * 3 + [-5] * 3 + [4] * 3)),
             radius_offset_mm=(-0.6,) * 9,

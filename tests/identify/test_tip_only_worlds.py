@@ -148,9 +148,10 @@ def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
 # ~12 s CPU idle
 @pytest.mark.timeout(600)
 def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tmp_path, capsys):
-    """Keypoint and pull logs of worlds whose physics the model lacks (a 6-9 mm registration
-    error; holes of one segment off by different angles): the gate sees the residual far above
-    the noise read from the log, and no overlay is written without saying so."""
+    """Keypoint and pull logs of worlds the model cannot represent (a 9 mm registration error;
+    two drives of one segment swapped): the gate sees the residual far above the noise read
+    from the log, and no overlay is written without saying so. (Load-cell logs:
+    tests/identify/test_misfit_gate.py.)"""
     reg = WorldSpec(
         registration_rotvec_rad=(0.0, 0.0, 0.0),
         registration_mm=(6.0, -5.0, 4.0),
@@ -169,9 +170,11 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
         assert overlay.read_text().startswith("# MISFIT")
     else:
         assert not overlay.exists() and "--accept-misfit" in err
-    # pulls: the three holes of segment 2 off by +8, -8 and 0 deg: no one offset explains them
+    # pulls: the drives of c11 and c12 swapped (their tendons' holes trade places, +-120 deg):
+    # no one offset of segment 1 explains both
+    swap = 2 * math.pi / 3
     twist = WorldSpec(
-        angle_offset_rad=(0.0, 0.0, 0.0, math.radians(8), math.radians(-8), 0.0, 0.0, 0.0, 0.0),
+        angle_offset_rad=(swap, -swap, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
         tip_noise_mm=0.3,
         link_mass_g=0.0,
         seed=5,
@@ -181,7 +184,7 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
     code2 = main(["-c", str(CONFIG), "identify", "--from-run", str(prun), "--out", str(out2)])
     err2 = capsys.readouterr().err
     assert code2 != 0 and not (out2 / "identified.yaml").exists()
-    assert "seg2" in err2 and "--accept-misfit" in err2
+    assert "seg1" in err2 and "--accept-misfit" in err2
     rep2 = json.loads((out2 / "identification.json").read_text())
     assert rep2["refused"] and rep2["overlay"] is None
     # the override writes it, marked
