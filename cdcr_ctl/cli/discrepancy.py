@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from cdcr_ctl.cli.app import Ctx
+from cdcr_ctl.cli.discrepancy_keypoints import apply_overlay
 from cdcr_ctl.errors import RigError
 
 
@@ -186,28 +187,3 @@ def discrepancy(
             " daemon and re-run the experiment)"
         )
     obj.emit(result, "\n".join(lines))
-
-
-def apply_overlay(fragment: str, run_dir: Path, dest: Path) -> None:
-    """Write ``fragment`` to ``dest`` after checking it loads over the run's effective config
-    (``config_effective.yaml`` in the run directory; a ConfigError names the key)."""
-    import tempfile
-
-    import yaml
-
-    from cdcr_ctl.config import load_rig_config
-
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(fragment, encoding="utf-8")
-    effective = run_dir / "config_effective.yaml"
-    if not effective.is_file():
-        return
-    with tempfile.TemporaryDirectory() as tmp:
-        probe = Path(tmp) / "probe.yaml"
-        doc = {"extends": str(effective.resolve()), "overlays": [str(dest.resolve())]}
-        probe.write_text(yaml.safe_dump(doc))
-        try:
-            load_rig_config(probe)
-        except RigError:
-            dest.unlink(missing_ok=True)
-            raise

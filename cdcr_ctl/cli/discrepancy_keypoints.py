@@ -112,8 +112,6 @@ def keypoint_discrepancy(
             (dest / "report.json").write_text(json.dumps(result, indent=2, default=float))
             obj.emit(result, "\n".join(lines))
             raise RigError(f"--apply: {why}: nothing written to {apply_to}")
-        from cdcr_ctl.cli.discrepancy import apply_overlay
-
         apply_overlay(text, Path(run_dirs[0]), apply_to)
         result["overlay"] = str(apply_to)
         lines.append(f"applied: {apply_to} (add it to the rig config's `overlays:` list)")
@@ -164,3 +162,28 @@ def _plot(res, path: Path) -> Path:
     FigureCanvasAgg(fig)
     fig.savefig(path, dpi=100)
     return path
+
+
+def apply_overlay(fragment: str, run_dir: Path, dest: Path) -> None:
+    """Write ``fragment`` to ``dest`` after checking it loads over the run's effective config
+    (``config_effective.yaml`` in the run directory; a ConfigError names the key)."""
+    import tempfile
+
+    import yaml
+
+    from cdcr_ctl.config import load_rig_config
+
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(fragment, encoding="utf-8")
+    effective = run_dir / "config_effective.yaml"
+    if not effective.is_file():
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        probe = Path(tmp) / "probe.yaml"
+        doc = {"extends": str(effective.resolve()), "overlays": [str(dest.resolve())]}
+        probe.write_text(yaml.safe_dump(doc))
+        try:
+            load_rig_config(probe)
+        except RigError:
+            dest.unlink(missing_ok=True)
+            raise

@@ -70,7 +70,7 @@ class WorldSpec:
     ea_factor: float = 1.0
     pretension_factor: float = 1.0
     mu: tuple[float, ...] = ()  # friction per segment (default 0)
-    wrap_rad: float = 0.12  # beta: wrap per hole
+    wrap_rad: float = 0.04  # beta: wrap per hole (2.3 deg: a tendon path with a small kink at each hole)
     play_mm: tuple[float, ...] = ()  # lost motion per segment (default 0)
     radius_offset_mm: tuple[float, ...] = ()  # per tendon
     angle_offset_rad: tuple[float, ...] = ()  # per tendon
