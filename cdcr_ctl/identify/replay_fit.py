@@ -44,6 +44,8 @@ from cdcr_ctl.model.params import Effects, Location, RobotParams
 #: Step of the forward differences in the fit variables (ln value, or rad): small next to a
 #: tolerance (25 %, 1 deg = 0.017 rad), large next to the forward solve's convergence.
 DIFF_STEP = 1e-4
+#: Evaluations a fit runs whatever its deadline (three trust-region steps and their checks).
+MIN_EVALUATIONS = 4
 #: Weighted residual (noise standard deviations) of a row the replay could not solve.
 FAILED_ROW_RESIDUAL = 20.0
 
@@ -201,8 +203,10 @@ def fit(
     their tolerances in the fit variables (``x_scale``); ``first``: (residuals, Jacobian) at
     the nominal values, already computed (the observability step), reused once.
 
-    ``deadline`` (time.monotonic()): no new evaluation starts after it; the best point seen is
-    kept and the intervals come from one more Jacobian there. ``progress``: called with a line
+    ``deadline`` (time.monotonic()): no new evaluation starts after it once
+    :data:`MIN_EVALUATIONS` have run (a machine too slow for the budget still takes a few
+    steps from the nominal values); the best point seen is kept and the intervals come from
+    one more Jacobian there. ``progress``: called with a line
     after every evaluation. Intervals are computed in the fit variables and clipped to the
     parameter's bounds (:attr:`Estimate.ci_at_bound` says when: the log does not bound it)."""
     prob = ev.prob
@@ -222,11 +226,14 @@ def fit(
     best: dict[str, object] = {"cost": math.inf, "x": x0, "f": None}
     t_start = time.monotonic()
 
+    n_eval = [0]
+
     def fun(x: np.ndarray) -> np.ndarray:
         key = np.asarray(x, float).tobytes()
         if key not in cache:
-            if time.monotonic() > deadline:
+            if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
                 raise _OutOfTime
+            n_eval[0] += 1
             cache.clear() if len(cache) > 8 else None
             cache[key] = ev.map_params([prob.params_of(fps, x)])[0]
         f = cache[key]
@@ -243,7 +250,7 @@ def fit(
     def jac(x: np.ndarray) -> np.ndarray:
         if jac0 is not None and np.array_equal(x, x0):
             return jac0
-        if time.monotonic() > deadline:
+        if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
             raise _OutOfTime
         return ev.jacobian(fps, np.asarray(x, float), fun(x), hi)
 

@@ -110,7 +110,7 @@ def test_identify_from_keypoint_log_through_the_cli(keypoint_log, tmp_path, caps
     text = capsys.readouterr().err
     assert "log kind: keypoint" in text
     assert "observability" in text and "fitted: " in text
-    assert "reduced chi^2" in text and "held-out tip RMSE" in text
+    assert "reduced chi^2" in text and "held-out rows" in text and "tip RMSE" in text
     rep = json.loads((out / "identification.json").read_text())["keypoint_fit"]
     names = [f["name"] for f in rep["fitted"]] + [f["name"] for f in rep["fixed"]]
     assert "seg1.EI_Nmm2" in names and "seg3.hole_offset_rad" in names

@@ -110,8 +110,7 @@ def hard_log(nominal, tmp_path_factory):
     return make_world_log(nominal, hard_world(3), out, 360, name="hard3")
 
 
-# ~25 s CPU idle (two worker processes); the limit guards a hang, not speed
-@pytest.mark.multicore
+# ~15 s CPU idle, one process (--jobs 1); the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
     """``identify`` with its defaults on a tip-only keypoint log of the hard world: rows chosen
@@ -120,7 +119,7 @@ def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
     their noise, marked when the residual is far above the noise."""
     out = tmp_path / "ident"
     args = ["-c", str(CONFIG), "identify", "--from-run", str(hard_log), "--out", str(out)]
-    code = main([*args, "--budget-s", "8"])
+    code = main([*args, "--budget-s", "8", "--jobs", "1"])
     err = capsys.readouterr().err
     rep = json.loads((out / "identification.json").read_text())
     kp = rep["keypoint_fit"]
