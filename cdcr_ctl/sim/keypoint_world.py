@@ -37,8 +37,9 @@ EI, EA, pretension, masses):
   error; ``tip_noise_mm`` per axis, at least 1 mm in the hard worlds).
 
 :func:`lab_path` is a lab's calibration set: single-tendon pulls, then combined pulls out and
-back between random poses (the nominal cable displacement r theta cos(phi - gamma) written here),
-full of reversals. Production code never imports this module.
+back between random poses (:func:`cdcr_ctl.sim.keypoint_log.sweep_poses`) sent through the
+config's nominal inverse kinematics, as a lab sends them: the model sets the *commands* only,
+never the world's response. Production code never imports this module.
 """
 
 from __future__ import annotations
@@ -54,6 +55,8 @@ import yaml
 from scipy.optimize import minimize
 
 from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.sim.keypoint_log import sweep_poses
 
 Q_RESOLUTION_MM = 1.0 / 1238.6
 G_MM_S2 = np.array([0.0, 0.0, -9810.0])
@@ -288,17 +291,6 @@ class ChainWorld:
         return self.R_reg @ tip + self.t_reg + rng.normal(0.0, self.spec.tip_noise_mm, 3)
 
 
-def nominal_q(params: RobotParams, theta_phi: np.ndarray) -> np.ndarray:
-    """Nominal cable displacement (K,) mm of poses (S, 2) (theta, phi): r theta cos(phi - g)
-    summed over the segments a cable crosses (what a lab's nominal inverse kinematics sends)."""
-    q = np.zeros(params.n_cables)
-    for k, c in enumerate(params.cables):
-        for i in range(c.segment + 1):
-            th, ph = theta_phi[i]
-            q[k] += c.routing_radius_mm * th * math.cos(ph - c.hole_angle_rad)
-    return q
-
-
 def lab_path(
     params: RobotParams,
     n_rows: int,
@@ -318,23 +310,10 @@ def lab_path(
             q = np.zeros(K)
             q[k] = v
             rows.append(q)
-    if n_rows <= 0:
-        return np.asarray(rows)
-    x = np.zeros((S, 2))
-    while len(rows) < n_rows:
-        th = rng.uniform(0.0, bend_max_rad, S)
-        ph = rng.uniform(-math.pi, math.pi, S)
-        target = np.column_stack((th * np.cos(ph), th * np.sin(ph)))
-        n_out = int(rng.integers(4, 11))
-        back = float(rng.uniform(0.3, 1.0))
-        n_back = max(1, round(n_out * back))
-        start = x
-        pts = [start + (target - start) * (j / n_out) for j in range(1, n_out + 1)]
-        pts += [target + (start - target) * (back * j / n_back) for j in range(1, n_back + 1)]
-        for p in pts:
-            tp = np.column_stack((np.hypot(p[:, 0], p[:, 1]), np.arctan2(p[:, 1], p[:, 0])))
-            rows.append(nominal_q(params, tp))
-        x = pts[-1]
+    if n_rows > len(rows):
+        # the lab's nominal inverse kinematics (Qi et al. 2023 eq. 4) of out-and-back sweeps
+        psi = sweep_poses(S, n_rows - len(rows), rng, bend_max_rad)
+        rows += [cable_displacement(p, params) for p in psi]
     return np.asarray(rows[:n_rows])
 
 
