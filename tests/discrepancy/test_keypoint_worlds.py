@@ -64,7 +64,7 @@ def test_every_option_is_honoured_or_refused(worlds, tmp_path, capsys):
     assert code != 0 and not ov.exists() and "base_from_tracker" in err
 
 
-# ~8 s CPU idle: the config's replay of 240 rows, the kinematic fits
+# the config's replay of 240 rows and the kinematic fits; the limit guards a hang
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("effect", ["registration"])
 def test_hidden_kinematic_effect_is_named(worlds, effect, tmp_path, capsys):

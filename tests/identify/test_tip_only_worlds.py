@@ -110,7 +110,7 @@ def hard_log(nominal, tmp_path_factory):
     return make_world_log(nominal, hard_world(3), out, 360, name="hard3")
 
 
-# ~15 s CPU idle, one process (--jobs 1); the limit guards a hang, not speed
+# one process (--jobs 1); the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
     """``identify`` with its defaults on a tip-only keypoint log of the hard world: rows chosen
@@ -144,7 +144,7 @@ def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
         assert code != 0 and not overlay.exists() and "--accept-misfit" in err
 
 
-# ~12 s CPU idle
+# the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tmp_path, capsys):
     """Keypoint and pull logs of worlds the model cannot represent (a 9 mm registration error;
