@@ -15,7 +15,8 @@ neither: every row is settled, so
   alone on top of the config's forward replay from the rows before the hold-out cut (the
   replayed candidates from rows chosen to span the log, :mod:`cdcr_ctl.identify.rowselect`)
   and scored on the held-out end of the run (the last 30 % by time). The best one is *named*
-  when it shrinks the held-out tip RMSE by at least ``NAME_SHRINK``.
+  when it shrinks the held-out tip RMSE by at least ``NAME_SHRINK`` and by ``TIE_SHRINK``
+  more than the runner-up (otherwise both are reported and none is named).
 """
 
 from __future__ import annotations
@@ -72,6 +73,8 @@ def reversals_from_path(q_mm: np.ndarray, eps_mm: float = KEYPOINT_DIRECTION_EPS
 
 #: Held-out shrink from which the best candidate is named (and beyond its noise).
 NAME_SHRINK = 0.25
+#: Shrinks closer than this (fraction of the config's RMSE) are a tie: nothing is named.
+TIE_SHRINK = 0.05
 #: Fit budget (s) of each replay-fitted candidate.
 EFFECT_BUDGET_S = 20.0
 
@@ -223,9 +226,22 @@ def analyse_keypoints(
                 say(f"candidate {name}: fitting {n_fit} rows")
                 dl = math.inf if max_points else time.monotonic() + EFFECT_BUDGET_S
                 fits.append(replay_fit_effect(ev, params, eff, name, full, dl, base, say))
-    best = min(fits, key=lambda f: f.rmse_heldout) if fits else None
+    ranked = sorted(fits, key=lambda f: f.rmse_heldout)
+    best = ranked[0] if ranked else None
     named = best if best is not None and best.shrink >= NAME_SHRINK else None
-    if named is not None:
+    tie = (
+        ranked[1]
+        if named is not None and len(ranked) > 1 and best.shrink - ranked[1].shrink < TIE_SHRINK
+        else None
+    )
+    if named is not None and tie is not None:
+        verdict = (
+            f"TWO EFFECTS EXPLAIN IT ALIKE, NONE NAMED: {best.title} ({best.name}, "
+            f"{100 * best.shrink:.1f} % shrink) and {tie.title} ({tie.name}, "
+            f"{100 * tie.shrink:.1f} %); a log that tells them apart is needed"
+        )
+        named = None
+    elif named is not None:
         vals = ", ".join(f"{n} {v:.4g}" for n, v in zip(named.names, named.values, strict=True))
         verdict = (
             f"EFFECT: {named.title} ({named.name}): {vals}; held-out tip RMSE "
