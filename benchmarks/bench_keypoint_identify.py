@@ -11,6 +11,19 @@
     .venv/bin/python benchmarks/bench_keypoint_identify.py coverage --seeds 20 --rows 200 --jobs 2
         acceptance 2: the tension-log fit of each of 20 seeds (one per worker process), and per
         fitted parameter how many of the seeds' 95 % CIs contain the truth.
+    .venv/bin/python benchmarks/bench_keypoint_identify.py worlds --rows 1600 --seed-list 1 2 3
+        acceptance 1 of the tip-only issue: a tip-only keypoint log of the hardest independent
+        world (cdcr_ctl.sim.keypoint_world.hard_world: chain of rigid links, curvature not
+        constant, routing offsets, per-segment friction and play, gravity sag, registration
+        error, 1 mm tracker noise) per seed, then ``cdcr-ctl identify --from-run`` with its
+        defaults as a lab types it: wall time, rows chosen and their spread, held-out tip RMSE
+        config -> fitted, gate, intervals; prints the machine's load average.
+    .venv/bin/python benchmarks/bench_keypoint_identify.py make-log --world hard --rows 1600 \
+        --seed 1 --out runs/hard1
+        writes one such log (``--world hard`` or a hidden-effect name) for the commands above.
+    .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy-worlds --rows 1600
+        acceptance 3: one keypoint log per hidden-effect world (hidden_effect_worlds), then
+        ``cdcr-ctl discrepancy`` with its defaults: the effect named and its held-out shrink.
     .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy --rows 2000
         acceptance 5: ``cdcr-ctl discrepancy`` on a 2000-row keypoint log of a world with the
         parameters off nominal and a hidden lost motion on every cable: verdict and wall time.
@@ -34,7 +47,8 @@ import numpy as np
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, loadcell_locations
-from cdcr_ctl.identify.keypoints import KeypointOptions, _load, heldout_rmse, identify_keypoint_runs
+from cdcr_ctl.identify.heldout import heldout_rmse
+from cdcr_ctl.identify.keypoints import KeypointOptions, _load, identify_keypoint_runs
 from cdcr_ctl.identify.logkind import split_by_time
 from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.model.routing import cable_displacement
@@ -231,9 +245,109 @@ def discrepancy(rows: int, seed: int, backlash_mm: float) -> None:
     )
 
 
+def _cli(args: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
+    """Run ``cdcr-ctl ARGS`` as installed; (result, wall s, CPU s of it and its workers)."""
+    t0 = time.perf_counter()
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    out = subprocess.run([sys.executable, "-m", "cdcr_ctl", *args], capture_output=True, text=True)
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
+    return out, time.perf_counter() - t0, cpu
+
+
+def make_log(world: str, rows: int, seed: int, out: Path) -> None:
+    """Write one keypoint log of an independent world (``hard`` or a hidden-effect name)."""
+    from cdcr_ctl.sim.keypoint_world import hard_world, hidden_effect_worlds, make_world_log
+
+    if world == "hard":
+        spec, rig = hard_world(seed), CONFIG
+    else:
+        spec, rig = hidden_effect_worlds(seed)[world], ROOT / "tests/discrepancy/tip_only_rig.yaml"
+    m = build_model(load_rig_config(rig))
+    t0 = time.perf_counter()
+    run = make_world_log(m.params, spec, out.parent, rows, name=out.name)
+    print(
+        f"{run}: {rows} keypoint rows of the {world} world (seed {seed}), tip only, "
+        f"{time.perf_counter() - t0:.0f} s; controller config: {rig.relative_to(ROOT)}"
+    )
+
+
+def worlds(rows: int, seeds: list[int]) -> None:
+    import os
+
+    from cdcr_ctl.sim.keypoint_world import hard_world, make_world_log
+
+    m = build_model(load_rig_config(CONFIG))
+    for seed in seeds:
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            run = make_world_log(m.params, hard_world(seed), Path(tmp), rows, name=f"hard{seed}")
+            gen = time.perf_counter() - t0
+            load0 = os.getloadavg()[0]
+            out, dt, cpu = _cli(
+                ["-c", str(CONFIG), "identify", "--from-run", str(run), "--out", f"{tmp}/id"]
+            )
+            load1 = os.getloadavg()[0]
+            rep = json.loads(Path(f"{tmp}/id/identification.json").read_text())["keypoint_fit"]
+        h = rep["heldout"]
+        gain = 100 * (1 - h["rmse_fitted"] / h["rmse_nominal"])
+        print(f"seed {seed}: world {rows} rows generated in {gen:.0f} s")
+        for ln in out.stderr.splitlines():
+            if not ln.startswith("[") or "fitting" in ln or "config replay" in ln:
+                print("  | " + ln)
+        print(
+            f"seed {seed}: identify (defaults) {dt:.1f} s wall, {cpu:.1f} s CPU of its "
+            f"processes, exit {out.returncode}; {rep['n_fit']} rows fitted; held-out tip RMSE "
+            f"{h['rmse_nominal']:.3f} -> {h['rmse_fitted']:.3f} mm ({gain:.1f} % less); "
+            f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} CPUs"
+        )
+
+
+def discrepancy_worlds(rows: int, seed: int, effects: list[str] | None) -> None:
+    import os
+
+    from cdcr_ctl.sim.keypoint_world import hidden_effect_worlds, make_world_log
+
+    rig = ROOT / "tests" / "discrepancy" / "tip_only_rig.yaml"
+    m = build_model(load_rig_config(rig))
+    specs = hidden_effect_worlds(seed)
+    for name in effects or list(specs):
+        with tempfile.TemporaryDirectory() as tmp:
+            run = make_world_log(m.params, specs[name], Path(tmp), rows, name=name)
+            out, dt, cpu = _cli(["--json", "-c", str(rig), "discrepancy", "--no-plots", str(run)])
+        try:
+            res = json.loads(out.stdout)
+        except json.JSONDecodeError:
+            print(f"{name}: exit {out.returncode}\n{out.stderr[-2000:]}")
+            continue
+        named = res["effect"]["name"] if res["effect"] else None
+        shrink = {c["name"]: c["shrink_percent"] for c in res["candidates"]}
+        print(
+            f"hidden {name}: named {named} ({'right' if named == name else 'WRONG'}); held-out "
+            f"shrink of the hidden effect {shrink.get(name, float('nan')):.1f} %; all: "
+            + ", ".join(f"{k} {v:.0f} %" for k, v in sorted(shrink.items(), key=lambda x: -x[1]))
+            + f"; {dt:.0f} s wall, {cpu:.0f} s CPU, load {os.getloadavg()[0]:.1f}"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("what", choices=("forward", "fit", "coverage", "discrepancy"))
+    ap.add_argument(
+        "what",
+        choices=(
+            "forward",
+            "fit",
+            "coverage",
+            "discrepancy",
+            "worlds",
+            "discrepancy-worlds",
+            "make-log",
+        ),
+    )
+    ap.add_argument("--world", default="hard", help="make-log: hard or a hidden-effect name")
+    ap.add_argument("--out", type=Path, default=Path("runs/keypoints"), help="make-log: run dir")
+    ap.add_argument("--seed-list", type=int, nargs="*", default=[1], help="worlds: seeds")
+    ap.add_argument("--effects", nargs="*", default=None, help="discrepancy-worlds: subset")
     ap.add_argument("--rows", type=int, default=2000)
     ap.add_argument("--seeds", type=int, default=1)
     ap.add_argument("--seed", type=int, default=1)
@@ -247,6 +361,12 @@ def main() -> None:
         forward(a.rows, a.seed)
     elif a.what == "fit":
         fit(a.seeds, a.rows, a.tensions, a.max_points, a.seed)
+    elif a.what == "make-log":
+        make_log(a.world, a.rows, a.seed, a.out)
+    elif a.what == "worlds":
+        worlds(a.rows, a.seed_list)
+    elif a.what == "discrepancy-worlds":
+        discrepancy_worlds(a.rows, a.seed, a.effects)
     elif a.what == "coverage":
         coverage(a.seeds, a.rows, a.seed, a.jobs, a.tip_only, a.max_points)
     else:

@@ -13,6 +13,7 @@ from pathlib import Path
 import click
 
 from cdcr_ctl.cli.app import Ctx
+from cdcr_ctl.cli.discrepancy_keypoints import apply_overlay
 from cdcr_ctl.errors import RigError
 
 
@@ -51,14 +52,25 @@ def _switches(items: tuple[str, ...]) -> dict[str, bool] | None:
     multiple=True,
     help="Switch of the controller's model the run does not record, e.g. coupling=off.",
 )
-@click.option("--folds", type=click.IntRange(2, 20), default=5, show_default=True)
-@click.option("--pairs/--no-pairs", default=True, show_default=True, help="Also fit pairs.")
+@click.option(
+    "--folds",
+    type=click.IntRange(2, 20),
+    default=None,
+    help="Cross-validation folds of loop logs [default: 5]; keypoint logs refuse it (they "
+    "are judged on their held-out end).",
+)
+@click.option(
+    "--pairs/--no-pairs",
+    default=None,
+    help="Also fit pairs of effects (loop logs) [default: on]; keypoint logs refuse --pairs.",
+)
 @click.option(
     "--max-points",
-    type=click.IntRange(50, 100000),
-    default=700,
-    show_default=True,
-    help="Largest number of simulated samples per run (the rest are interpolated).",
+    type=click.IntRange(10, 100000),
+    default=None,
+    help="Loop logs: largest number of simulated samples per run, the rest interpolated "
+    "[default: 700]. Keypoint logs: rows fitted by each replayed candidate, chosen to span "
+    "the log [default: as many as 20 s per candidate allows].",
 )
 @click.option("--jobs", type=click.IntRange(1, 64), default=2, show_default=True)
 @click.option(
@@ -79,9 +91,9 @@ def discrepancy(
     out: str | None,
     effects: str | None,
     model_effects: tuple[str, ...],
-    folds: int,
-    pairs: bool,
-    max_points: int,
+    folds: int | None,
+    pairs: bool | None,
+    max_points: int | None,
     jobs: int,
     apply_to: Path | None,
     plots: bool,
@@ -95,13 +107,32 @@ def discrepancy(
     The controller's rig config is -c/--config (default: the copy in each run directory).
     """
     from cdcr_ctl.discrepancy import analyse
-    from cdcr_ctl.discrepancy.keypoint_path import analyse_keypoints, is_keypoint_log
+    from cdcr_ctl.discrepancy.keypoint_path import is_keypoint_log
     from cdcr_ctl.discrepancy.report import config_fragment, summary_lines, write_report
 
     rig_config = rig_config or obj.config
     if all(is_keypoint_log(r) for r in run_dirs):
-        _keypoint_discrepancy(obj, run_dirs, rig_config, max_points, analyse_keypoints)
+        from cdcr_ctl.cli.discrepancy_keypoints import keypoint_discrepancy
+
+        keypoint_discrepancy(
+            obj,
+            run_dirs,
+            rig_config=rig_config,
+            out=out,
+            effects=effects,
+            switches=_switches(model_effects),
+            folds=folds,
+            pairs=pairs,
+            max_points=max_points,
+            jobs=jobs,
+            apply_to=apply_to,
+            plots=plots,
+            progress=progress,
+        )
         return
+    folds = 5 if folds is None else folds
+    pairs = True if pairs is None else pairs
+    max_points = 700 if max_points is None else max_points
     from cdcr_ctl.model.effects import CANDIDATES, candidate
 
     terms = CANDIDATES
@@ -159,62 +190,3 @@ def discrepancy(
             " daemon and re-run the experiment)"
         )
     obj.emit(result, "\n".join(lines))
-
-
-def apply_overlay(fragment: str, run_dir: Path, dest: Path) -> None:
-    """Write ``fragment`` to ``dest`` after checking it loads over the run's effective config
-    (``config_effective.yaml`` in the run directory; a ConfigError names the key)."""
-    import tempfile
-
-    import yaml
-
-    from cdcr_ctl.config import load_rig_config
-
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    dest.write_text(fragment, encoding="utf-8")
-    effective = run_dir / "config_effective.yaml"
-    if not effective.is_file():
-        return
-    with tempfile.TemporaryDirectory() as tmp:
-        probe = Path(tmp) / "probe.yaml"
-        doc = {"extends": str(effective.resolve()), "overlays": [str(dest.resolve())]}
-        probe.write_text(yaml.safe_dump(doc))
-        try:
-            load_rig_config(probe)
-        except RigError:
-            dest.unlink(missing_ok=True)
-            raise
-
-
-def _keypoint_discrepancy(obj: Ctx, run_dirs, rig_config, max_points, analyse_keypoints) -> None:
-    """Keypoint logs (rows seconds apart, no commanded pose): :mod:`..discrepancy.keypoint_path`."""
-    from cdcr_ctl.config import load_rig_config
-
-    cfg_path = rig_config
-    if cfg_path is None:
-        cfg_file = Path(run_dirs[0]) / "config.yaml"
-        if not cfg_file.is_file():
-            raise click.UsageError("keypoint logs carry no config: give -c/--config RIG")
-        cfg_path = str(cfg_file)
-    res = analyse_keypoints(
-        load_rig_config(cfg_path), list(run_dirs), max_points=min(max_points, 40)
-    )
-    h = res.refit.heldout
-    result = {
-        "verdict": res.verdict,
-        "effect": None
-        if res.effect is None
-        else {"name": res.effect.name, "value": res.effect.value, "ci95": list(res.effect.ci95)},
-        "reversals": res.reversals,
-        "tracker_lag_s": None,
-        "refit": [
-            {"name": e.name, "value": e.value, "ci95": list(e.ci95)}
-            for e in res.refit.ident.estimates
-        ],
-        "fixed": [f.name for f in res.refit.ident.fixed],
-        "heldout_tip_rmse_mm": [h.rmse_nominal, h.rmse_fitted],
-        "explained_percent": 100 * res.explained,
-        "rows_without_solution": len(h.failed),
-        "elapsed_s": res.elapsed_s,
-    }
-    obj.emit(result, "\n".join(res.lines()))

@@ -75,9 +75,9 @@ __all__ = [
 @click.option(
     "--tip-noise-mm",
     type=float,
-    default=0.05,
-    show_default=True,
-    help="Tracker noise per axis of one keypoint row (weights the tip residuals).",
+    default=None,
+    help="Tracker noise per axis of one keypoint row (weights the tip residuals) "
+    "[default: estimated from the log].",
 )
 @click.option(
     "--holdout",
@@ -89,17 +89,32 @@ __all__ = [
 @click.option(
     "--max-points",
     type=click.IntRange(10, 100_000),
-    default=150,
+    default=None,
+    help="Keypoint rows to fit, chosen to span the log, no time limit "
+    "[default: as many as --budget-s allows].",
+)
+@click.option(
+    "--budget-s",
+    type=click.FloatRange(1.0, 36_000.0),
+    default=30.0,
     show_default=True,
-    help="Most keypoint rows fitted per run (its first; replayed from the run's start).",
+    help="Wall time of the keypoint fit (rows chosen to fit it; the two whole-log replays "
+    "of the held-out check come on top).",
 )
 @click.option(
     "--max-nfev",
     type=click.IntRange(1, 1000),
     default=30,
     show_default=True,
-    help="Least-squares iterations of the keypoint fit (each one forward replay per parameter).",
+    help="Least-squares evaluations of the keypoint fit (each Jacobian: one replay per parameter).",
 )
+@click.option(
+    "--jobs",
+    type=click.IntRange(1, 64),
+    default=None,
+    help="Worker processes of the keypoint fit's replays [default: CPU count, at most 8].",
+)
+@click.option("--progress/--no-progress", default=True, show_default=True)
 @click.pass_obj
 def identify_cmd(
     obj: Ctx,
@@ -109,8 +124,11 @@ def identify_cmd(
     log_kind: str,
     tip_noise_mm: float,
     holdout: float,
-    max_points: int,
+    max_points: int | None,
+    budget_s: float,
     max_nfev: int,
+    jobs: int | None,
+    progress: bool,
     accept_misfit: bool,
 ) -> None:
     """Run the calibration sweep of Qi et al. 2023 and fit mu, EA, EI, pretension, lost motion,
@@ -118,8 +136,9 @@ def identify_cmd(
 
     Needs -c/--config (the controller's rig config: nominal values, geometry, load-cell places).
     Writes OUT/identified.yaml: add it to the rig config's `overlays:` list. A fit that does
-    not explain its data (cdcr_ctl.identify.gate) writes no overlay and exits 1, unless
-    --accept-misfit.
+    not explain its data (cdcr_ctl.identify.gate; for tip-only and keypoint logs: held-out
+    rows not improved beyond their noise, cdcr_ctl.identify.keypoint_gate) writes the report,
+    no overlay, and exits 1, unless --accept-misfit.
     """
     if not obj.config:
         raise click.UsageError("identify needs -c/--config RIG (the controller's rig config)")
@@ -139,10 +158,39 @@ def identify_cmd(
                     "mixed log kinds: "
                     + ", ".join(f"{r}: {k}" for r, k in zip(runs, kinds, strict=True))
                 )
+            import time
+
+            t0 = time.monotonic()
+
+            def say(line: str) -> None:  # progress past the first 5 s
+                if progress and time.monotonic() - t0 > 5.0:
+                    click.echo(f"[{time.monotonic() - t0:5.1f} s] {line}", err=True)
+
             opt = KeypointOptions(
-                holdout=holdout, tip_noise_mm=tip_noise_mm, max_points=max_points, max_nfev=max_nfev
+                holdout=holdout,
+                tip_noise_mm=tip_noise_mm,
+                max_points=max_points,
+                max_nfev=max_nfev,
+                budget_s=budget_s,
+                jobs=jobs,
+                progress=say,
             )
-            ov, lines = fit_lab_logs(cfg, runs, out, kinds, opt, [str(r) for r in runs])
+            from cdcr_ctl.identify.gate import MisfitError
+
+            try:
+                ov, lines = fit_lab_logs(
+                    cfg,
+                    runs,
+                    out,
+                    kinds,
+                    opt,
+                    [str(r) for r in runs],
+                    accept_misfit=accept_misfit,
+                    forced=log_kind != "auto",
+                )
+            except MisfitError as exc:
+                click.echo("\n".join(getattr(exc, "lines", [])), err=True)
+                raise
             click.echo("\n".join(lines), err=True)
             obj.emit(
                 {"overlay": None if ov is None else str(ov), "runs": [str(r) for r in runs]},

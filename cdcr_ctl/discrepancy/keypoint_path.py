@@ -9,36 +9,44 @@ neither: every row is settled, so
   :data:`~cdcr_ctl.identify.logkind.KEYPOINT_DIRECTION_EPS_MM` decide nothing);
 * no lag is fitted: a settled keypoint carries no timing information (a tracker lag shifts
   nothing when the tip does not move), so the report says "not fitted" instead of a number;
-* the refit (:func:`cdcr_ctl.identify.keypoints.identify_keypoint_runs`, the forward replay
-  of the actuator path fitted to the tips) carries one effect candidate next to the model's
-  parameters: a lost motion (play) between drive and cable, shared by every cable. It is
-  *named* when the log identifies it and its 95 % interval lies above zero; otherwise the
-  report gives the best parametric refit, what the log identifies, and the share of the
-  held-out tip error it removes. The fit uses the first ``max_points`` rows of each run (the
-  replay must start at the run's start to carry the friction memory); the held-out rows are
-  the last 30 % of the run.
+* the effects searched are those real multi-segment robots show
+  (:mod:`.keypoint_effects`: curvature not constant along a segment, tendon routing offsets,
+  hysteresis per segment, base/registration error, gravity sag of the whole arm), each fitted
+  alone on top of the config's forward replay from the rows before the hold-out cut (the
+  replayed candidates from rows chosen to span the log, :mod:`cdcr_ctl.identify.rowselect`)
+  and scored on the held-out end of the run (the last 30 % by time). The best one is *named*
+  when it shrinks the held-out tip RMSE by at least ``NAME_SHRINK`` and by ``TIE_SHRINK``
+  more than the runner-up (otherwise both are reported and none is named).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.errors import RigError
-from cdcr_ctl.identify.fit_types import Estimate
-from cdcr_ctl.identify.keypoints import (
-    KeypointIdentification,
-    KeypointOptions,
-    identify_keypoint_runs,
-    report_lines,
+from cdcr_ctl.discrepancy.keypoint_effects import (
+    EFFECTS,
+    EffectFit,
+    kinematic_fits,
+    problem_of,
+    replay_fit_effect,
 )
-from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind
+from cdcr_ctl.errors import RigError
+from cdcr_ctl.identify import replay_fit
+from cdcr_ctl.identify.keypoints import HOLDOUT_FRACTION, _choose_rows, _load, _noise
+from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind, split_by_time
+from cdcr_ctl.identify.replay_fit import Evaluator
+from cdcr_ctl.identify.rowselect import rows_for_budget
+from cdcr_ctl.model.forward import ForwardStepper, replay
 from cdcr_ctl.runlog.reader import load_run
 
 
@@ -63,13 +71,12 @@ def reversals_from_path(q_mm: np.ndarray, eps_mm: float = KEYPOINT_DIRECTION_EPS
     return out
 
 
-def named_play(refit: KeypointIdentification) -> Estimate | None:
-    """The fitted lost motion when the log shows one: ``cables.backlash_mm`` identifiable,
-    fitted, and its 95 % interval above zero (more play than the config's)."""
-    for e in refit.ident.estimates:
-        if e.parameter.kind == "backlash" and e.ci95[0] > 0.0 and not e.at_bound:
-            return e
-    return None
+#: Held-out shrink from which the best candidate is named (and beyond its noise).
+NAME_SHRINK = 0.25
+#: Shrinks closer than this (fraction of the config's RMSE) are a tie: nothing is named.
+TIE_SHRINK = 0.05
+#: Fit budget (s) of each replay-fitted candidate.
+EFFECT_BUDGET_S = 20.0
 
 
 @dataclass
@@ -79,10 +86,15 @@ class KeypointDiscrepancy:
     verdict: str
     reversals: dict[str, list[int]]
     row_spacing_s: dict[str, float]
-    refit: KeypointIdentification
-    explained: float  # share of the held-out tip mean square error the refit removes
+    fits: list[EffectFit]
+    rmse_config: float
+    n_fit: int
+    n_candidates: int
+    n_held: int
     elapsed_s: float
-    effect: Estimate | None = None  # the named lost motion (:func:`named_play`), if any
+    effect: EffectFit | None = None
+    spreads: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     def lines(self) -> list[str]:
         out = [self.verdict]
@@ -92,16 +104,71 @@ class KeypointDiscrepancy:
                 f"per cable from the actuator path: {rv} (total {sum(rv)})"
             )
         out.append("tracker lag: not fitted (settled keypoints carry no timing)")
-        out += report_lines(self.refit)
+        out.append(
+            f"rows: {self.n_candidates} before the hold-out cut, {self.n_fit} of them fitted by "
+            f"the replay candidates (chosen to span the log), {self.n_held} held out"
+        )
+        out += [f"  {s}" for s in self.spreads]
+        out.append(f"config: held-out tip RMSE {self.rmse_config:.4g} mm")
+        out.append("candidate effects, each fitted alone (held-out tip RMSE, shrink):")
+        for f in sorted(self.fits, key=lambda f: f.rmse_heldout):
+            vals = ", ".join(f"{n} {v:.4g}" for n, v in zip(f.names, f.values, strict=True))
+            out.append(
+                f"  {f.name:<12} {f.rmse_heldout:8.4g} mm  {100 * f.shrink:+6.1f} %  "
+                f"({f.title}; {vals}; {f.seconds:.1f} s)"
+            )
+        out += [f"warning: {w}" for w in self.warnings]
         out.append(f"elapsed {self.elapsed_s:.1f} s")
         return out
 
+    def as_dict(self) -> dict:
+        e = self.effect
+        return {
+            "verdict": self.verdict,
+            "effect": None
+            if e is None
+            else {
+                "name": e.name,
+                "title": e.title,
+                "parameters": dict(zip(e.names, e.values, strict=True)),
+            },
+            "reversals": self.reversals,
+            "tracker_lag_s": None,
+            "heldout_tip_rmse_config_mm": self.rmse_config,
+            "candidates": [
+                {
+                    "name": f.name,
+                    "title": f.title,
+                    "parameters": dict(zip(f.names, f.values, strict=True)),
+                    "heldout_tip_rmse_mm": f.rmse_heldout,
+                    "shrink_percent": 100 * f.shrink,
+                    "seconds": f.seconds,
+                }
+                for f in self.fits
+            ],
+            "rows": {"fitted": self.n_fit, "before_cut": self.n_candidates, "held": self.n_held},
+            "warnings": self.warnings,
+            "elapsed_s": self.elapsed_s,
+        }
+
 
 def analyse_keypoints(
-    cfg: RigConfig, run_dirs: Sequence[str | Path], max_points: int = 40
+    cfg: RigConfig,
+    run_dirs: Sequence[str | Path],
+    max_points: int | None = None,
+    effects: Sequence[str] = EFFECTS,
+    jobs: int | None = None,
+    progress: Callable[[str], None] | None = None,
+    model_switches: dict[str, bool] | None = None,
+    holdout: float = HOLDOUT_FRACTION,
 ) -> KeypointDiscrepancy:
-    """Reversals, no lag, and the best parametric refit of keypoint logs (module docstring)."""
+    """Reversals, no lag, and the candidate effects of keypoint logs (module docstring)."""
     t0 = time.monotonic()
+    say = progress or (lambda _l: None)
+    model = build_model(cfg)
+    params, eff = model.params, model.effects
+    if model_switches:
+        eff = dataclasses.replace(eff, **model_switches)
     reversals: dict[str, list[int]] = {}
     spacing: dict[str, float] = {}
     for rd in run_dirs:
@@ -109,39 +176,102 @@ def analyse_keypoints(
         q = run.q_act() if run.has("q_act") else run.q_cmd()
         reversals[run.run_dir.name] = reversals_from_path(q).tolist()
         spacing[run.run_dir.name] = float(np.median(np.diff(run.t_s))) if len(run) > 1 else math.nan
-    refit = identify_keypoint_runs(
-        cfg, run_dirs, KeypointOptions(max_points=max_points, kind="keypoint", backlash=True)
+    runs, _, warnings = _load(run_dirs, "keypoint", params.n_segments)
+    points = [p for r in runs for p in r.points]
+    fit_pts, held_pts = split_by_time(points, holdout)
+    fit_keys = {(p.run, p.index) for p in fit_pts}
+    held_keys = {(p.run, p.index) for p in held_pts}
+    # the config's replay of every row: baseline, poses for the kinematic candidates
+    full, xs, tm, tips, fmask, hmask = [], [], [], [], [], []
+    t_rep = time.monotonic()
+    for r in runs:
+        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, eff)), r.q_path)
+        rows = np.asarray(r.rows, dtype=int)
+        tip = np.array([p.tip_mm for p in r.points])
+        xs.append(rep.x[rows])
+        tm.append(rep.tip_mm[rows])
+        tips.append(tip)
+        fmask.append(np.array([(p.run, p.index) in fit_keys for p in r.points]))
+        hmask.append(np.array([(p.run, p.index) in held_keys for p in r.points]))
+        tip_full = np.full((len(r.q_path), 3), np.nan)
+        tip_full[rows] = tip
+        held_full = np.zeros(len(r.q_path), bool)
+        held_full[rows[hmask[-1]]] = True
+        full.append((r.q_path, tip_full, held_full))
+    n_rows_all = sum(len(r.q_path) for r in runs)
+    s_row = (time.monotonic() - t_rep) / max(n_rows_all, 1)
+    X, TM, TIP = np.vstack(xs), np.vstack(tm), np.vstack(tips)
+    F, H = np.concatenate(fmask), np.concatenate(hmask)
+    base = _rmse_rows(TM[H] - TIP[H])
+    say(f"config replay: {n_rows_all} rows, {s_row * 1e3:.2g} ms/row; held-out RMSE {base:.4g} mm")
+    fits: list[EffectFit] = []
+    kin = [e for e in effects if e in ("curvature", "registration")]
+    if kin:
+        fits += [
+            f for f in kinematic_fits(X, TM, TIP, F, H, params.lengths_mm, base) if f.name in kin
+        ]
+    rep_effects = [e for e in effects if e not in ("curvature", "registration")]
+    n_cand = int(F.sum())
+    n_fit = 0
+    spreads: list[str] = []
+    if rep_effects:
+        nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
+        n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6, nj)
+        rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
+        spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
+        n_fit = sum(len(r.rows) for r in rr)
+        noise = max(_noise(runs)[0], 0.01)
+        with Evaluator(problem_of(params, eff, rr, noise), nj) as ev:
+            for name in rep_effects:
+                say(f"candidate {name}: fitting {n_fit} rows")
+                dl = math.inf if max_points else time.monotonic() + EFFECT_BUDGET_S
+                fits.append(replay_fit_effect(ev, params, eff, name, full, dl, base, say))
+    ranked = sorted(fits, key=lambda f: f.rmse_heldout)
+    best = ranked[0] if ranked else None
+    named = best if best is not None and best.shrink >= NAME_SHRINK else None
+    tie = (
+        ranked[1]
+        if named is not None and len(ranked) > 1 and best.shrink - ranked[1].shrink < TIE_SHRINK
+        else None
     )
-    h = refit.heldout
-    explained = 1.0 - (h.rmse_fitted / h.rmse_nominal) ** 2 if h.rmse_nominal > 0 else 0.0
-    play = named_play(refit)
-    params = ", ".join(e.name for e in refit.ident.estimates)
-    if play is not None and explained > 0:
-        lo, hi = play.ci95
+    if named is not None and tie is not None:
         verdict = (
-            f"EFFECT: transmission lost motion (backlash, Yang 2022 eq. 13-17) of "
-            f"{play.value:.3g} mm per cable beyond the config's (95 % CI [{lo:.3g}, "
-            f"{hi:.3g}] mm); with the refit "
-            f"({params}) it explains {100 * explained:.1f} % of the held-out tip error "
-            f"({h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm)"
+            f"TWO EFFECTS EXPLAIN IT ALIKE, NONE NAMED: {best.title} ({best.name}, "
+            f"{100 * best.shrink:.1f} % shrink) and {tie.title} ({tie.name}, "
+            f"{100 * tie.shrink:.1f} %); a log that tells them apart is needed"
         )
-    elif explained > 0:
+        named = None
+    elif named is not None:
+        vals = ", ".join(f"{n} {v:.4g}" for n, v in zip(named.names, named.values, strict=True))
         verdict = (
-            f"NO NAMED EFFECT; best parametric refit ({params}) explains "
-            f"{100 * explained:.1f} % of the held-out tip error "
-            f"({h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm)"
+            f"EFFECT: {named.title} ({named.name}): {vals}; held-out tip RMSE "
+            f"{base:.4g} -> {named.rmse_heldout:.4g} mm ({100 * named.shrink:.1f} % shrink)"
+        )
+    elif best is not None:
+        verdict = (
+            f"NO EFFECT NAMED: the best candidate, {best.title} ({best.name}), shrinks the "
+            f"held-out tip RMSE by {100 * best.shrink:.1f} % ({base:.4g} -> "
+            f"{best.rmse_heldout:.4g} mm), less than {100 * NAME_SHRINK:.0f} %"
         )
     else:
-        verdict = (
-            "NO EFFECT AND NO PARAMETRIC REFIT EXPLAINS THIS: the refit does not improve the "
-            f"held-out rows ({h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm)"
-        )
+        verdict = "NO EFFECT NAMED: no candidate searched"
     return KeypointDiscrepancy(
         verdict,
         reversals,
         spacing,
-        refit,
-        explained,
+        fits,
+        base,
+        n_fit,
+        n_cand,
+        len(held_pts),
         time.monotonic() - t0,
-        play if explained > 0 else None,
+        named,
+        spreads,
+        warnings,
     )
+
+
+def _rmse_rows(d: np.ndarray) -> float:
+    e = np.sum(d * d, axis=1)
+    e = e[np.isfinite(e)]
+    return math.sqrt(float(e.mean())) if e.size else math.nan

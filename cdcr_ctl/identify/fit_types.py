@@ -50,6 +50,7 @@ class Estimate:
     std: float
     ci95: tuple[float, float]
     at_bound: bool = False
+    ci_at_bound: bool = False  # the interval reached a bound and was clipped there
 
     @property
     def name(self) -> str:
@@ -58,6 +59,14 @@ class Estimate:
     @property
     def nominal(self) -> float:
         return self.parameter.nominal
+
+    @property
+    def change_text(self) -> str:
+        """The change from nominal: in % of it, or absolute when the nominal is 0."""
+        nom = self.parameter.nominal
+        if nom:
+            return f"{100.0 * (self.value - nom) / nom:.1f}%"
+        return f"{self.value - nom:+.4g}"
 
     @property
     def change_pct(self) -> float:

@@ -17,6 +17,13 @@ weighted by the tip displacement (the tracker noise over the displacement is the
 The offset of segment i is the weighted circular mean over the rows of its cables; its 95 %
 interval comes from the weighted scatter of the residuals (Student t, one degree of freedom per
 pulled cable fewer: rows within one pull are not independent).
+
+Misfit: the tracker noise sigma per axis is bounded from the scatter of the rest rows (all
+cables at 0; hysteresis only adds), so a row's azimuth noise is sigma / rho. The scatter of the
+residuals about the segment's offset in those units (``misfit_ratio``, RMS of dev rho / sigma)
+is about 1 when one offset per segment explains the pulls; far above (``identify`` refuses above
+5, :mod:`.keypoint_gate`) the cables of a segment do not bend in one common plane turned by one
+offset: holes off by different angles, twist, or a model that does not hold.
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ class HoleOffset:
     ci95_rad: tuple[float, float]
     n_rows: int
     cables: tuple[str, ...]
+    misfit_ratio: float = float("nan")  # azimuth scatter / what the tracker noise explains
 
 
 def pull_rows(q: np.ndarray) -> np.ndarray:
@@ -77,6 +85,7 @@ def hole_offsets_from_pulls(
     """Hole offset per segment from the pull runs (module docstring), and warnings."""
     warnings: list[str] = []
     per_seg: dict[int, list[tuple[float, float, int]]] = {}
+    noise_sq: list[float] = []
     for rd in run_dirs:
         run = load_run(rd)
         warnings += run.warnings
@@ -92,6 +101,8 @@ def hole_offsets_from_pulls(
         if not rest.any():
             raise RigError(f"{run.samples_path}: no row at rest (all cables at 0) for the origin")
         tip0 = np.mean(tip[rest], axis=0)
+        if rest.sum() >= 3:  # rest rows scatter: noise plus hysteresis, an upper bound
+            noise_sq.append(float(np.mean(np.var(tip[rest][:, :2], axis=0, ddof=1))))
         who = pull_rows(np.nan_to_num(q))
         for i in np.flatnonzero(ok & (who >= 0)):
             k = int(who[i])
@@ -107,6 +118,7 @@ def hole_offsets_from_pulls(
             res = math.atan2(math.sin(res), math.cos(res))
             per_seg.setdefault(c.segment, []).append((res, rho, k))
     out: list[HoleOffset] = []
+    sigma = math.sqrt(float(np.mean(noise_sq))) if noise_sq else math.nan
     for i, seg in enumerate(params.segments):
         rows = per_seg.get(i, [])
         if not rows:
@@ -120,6 +132,9 @@ def hole_offsets_from_pulls(
         n_eff = max(len(cables), 2)
         sd = math.sqrt(float(np.sum(w * dev**2) / np.sum(w)))
         half = float(student_t.ppf(0.975, n_eff - 1)) * sd / math.sqrt(n_eff)
+        rho = np.array([r[1] for r in rows])
+        # the azimuth noise of a row is sigma / rho (rad): the scatter in those units
+        ratio = math.sqrt(float(np.mean((dev * rho / sigma) ** 2))) if sigma > 0 else math.nan
         out.append(
             HoleOffset(
                 seg.name,
@@ -127,6 +142,7 @@ def hole_offsets_from_pulls(
                 (mean - half, mean + half),
                 len(rows),
                 tuple(params.cables[k].name for k in cables),
+                ratio,
             )
         )
     return out, warnings
@@ -139,6 +155,7 @@ def offsets_lines(offsets: Sequence[HoleOffset]) -> list[str]:
         lo, hi = (math.degrees(v) for v in h.ci95_rad)
         out.append(
             f"  {h.segment:<8} {math.degrees(h.offset_rad):+8.3f} deg  95 % CI [{lo:+.3f}, "
-            f"{hi:+.3f}]  from {h.n_rows} rows of {', '.join(h.cables)}"
+            f"{hi:+.3f}]  from {h.n_rows} rows of {', '.join(h.cables)}; azimuth scatter "
+            f"{h.misfit_ratio:.3g} x the tracker noise"
         )
     return out

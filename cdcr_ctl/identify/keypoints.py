@@ -1,4 +1,4 @@
-"""Identification from tip-only and keypoint logs (issue 18): observability, fit, held-out check.
+"""Identification from tip-only and keypoint logs: rows that span the log, fit, held-out gate.
 
 The lab logs this serves hold actuator positions and a tracked tip (sometimes load cells), with
 rows seconds apart and no commanded pose (:mod:`.logkind`). The model is the forward replay of
@@ -14,26 +14,30 @@ parameters of :func:`candidates`:
 Steps (:func:`identify_keypoint_runs`):
 
 1. points per run; split by time: the last ``holdout`` fraction of each run is never fitted;
-   of the rest the first ``max_points`` rows of each run are fitted (a prefix, so every replay
-   starts where the run started);
-2. observability at the config's values (:mod:`.observability`): the replay's weighted
+2. the config's replay of every row (the held-out baseline; it also measures what one replayed
+   row costs on this machine); the tracker noise from the log (:mod:`.keypoint_gate`);
+3. rows to fit: as many as the time budget ``budget_s`` allows (all of them when it allows),
+   chosen to span the actuator space and the friction states (:mod:`.rowselect`,
+   farthest-point), each replayed after the row before it;
+4. observability at the config's values (:mod:`.observability`): the replay's weighted
    sensitivity to every candidate, its singular values, a 95 % half-width per candidate; the
    ones not identifiable stay at the config, with the reason;
-3. the fit of the identifiable ones (:func:`.replay_fit.fit`), reduced chi^2 and 95 % intervals
-   from its Jacobian (widened by sqrt(chi^2) when the residual exceeds the noise);
-4. held-out check: the forward replay of every row of the run with the config's and the fitted
-   parameters; tip RMSE over the held-out rows (and, for reference, the other rows). Rows with
-   no static solution are named and left out of the RMSE.
+5. the fit of the identifiable ones (:func:`.replay_fit.fit`, stopped at the time budget with
+   the best point kept), reduced chi^2 and 95 % intervals from its Jacobian (widened by
+   sqrt(chi^2) when the residual exceeds the noise, clipped to the bounds and then said so);
+6. held-out check and gate (:mod:`.keypoint_gate`): the replay of every row with the fitted
+   parameters; tip RMSE over the held-out rows, whether they improved beyond their noise, and
+   the misfit ratio. Rows with no static solution are named and left out of the RMSE.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -43,20 +47,31 @@ from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.dwell import DwellPoint, extract_dwells
 from cdcr_ctl.identify.fit_types import Identification
+from cdcr_ctl.identify.heldout import _errors_both, _rms, _split_errors
+from cdcr_ctl.identify.keypoint_gate import KeypointVerdict, heldout_gain, tracker_noise
 from cdcr_ctl.identify.logkind import detect_kind, keypoint_points, split_by_time
 from cdcr_ctl.identify.observability import Observability, select, tolerance
 from cdcr_ctl.identify.parameters import FitParameter, NotIdentified
 from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, RunRows
-from cdcr_ctl.model.forward import ForwardStepper, replay
+from cdcr_ctl.identify.rowselect import (
+    Spread,
+    farthest_points,
+    features,
+    replay_path,
+    rows_for_budget,
+    spread,
+)
 from cdcr_ctl.model.identification import ParamRef
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.params import RobotParams
 from cdcr_ctl.runlog.reader import load_run
 
 #: Fraction of each run's time span held out (the end of the run).
 HOLDOUT_FRACTION = 0.3
-#: Most rows fitted per run: the first ones by time (every replay starts at the run's start).
-MAX_FIT_POINTS = 150
-#: Tracker noise assumed for a single keypoint row (mm, per axis).
+#: Wall time (s) the fit of the chosen rows may take (the two whole-log replays come on top).
+BUDGET_S = 30.0
+#: Jacobians a fit is planned for (the observability one and the least-squares iterations).
+FIT_ITERATIONS = 6
+#: Tracker noise assumed when the log gives no estimate (mm, per axis).
 TIP_NOISE_MM = 0.05
 #: Load-cell noise assumed for a single keypoint row (N).
 TENSION_NOISE_N = 0.02
@@ -67,23 +82,31 @@ MAX_OFFSET_RAD = math.radians(1.0)
 
 @dataclass(frozen=True)
 class KeypointOptions:
-    """Settings of :func:`identify_keypoint_runs` (module docstring)."""
+    """Settings of :func:`identify_keypoint_runs` (module docstring).
+
+    ``max_points``: rows fitted in all (None: as many as ``budget_s`` allows, chosen to span
+    the log); ``tip_noise_mm``: tracker noise per axis (None: estimated from the log);
+    ``progress``: called with a line at every step and evaluation (None: quiet)."""
 
     holdout: float = HOLDOUT_FRACTION
-    max_points: int = MAX_FIT_POINTS
-    tip_noise_mm: float = TIP_NOISE_MM
+    max_points: int | None = None
+    tip_noise_mm: float | None = None
     max_rel: float = MAX_REL
     max_offset_rad: float = MAX_OFFSET_RAD
     kind: str | None = None  # None: detect per run
-    max_nfev: int = 30  # least-squares iterations (each costs one replay per fitted parameter)
+    max_nfev: int = 30  # least-squares evaluations (each Jacobian one replay per parameter)
     tension_noise_N: float = TENSION_NOISE_N
     jobs: int | None = None  # worker processes for the Jacobian's replays (None: CPU count)
     backlash: bool = False  # also the candidate cables.backlash_mm (:func:`candidates`)
+    budget_s: float = BUDGET_S
+    progress: Callable[[str], None] | None = None
+    obs_at_residual: bool = False  # True: observability with the noise widened to the residual
 
 
 @dataclass
 class HeldOut:
-    """Forward-model tip RMSE (mm) over held-out and fitted rows, and rows with no solution."""
+    """Forward-model tip RMSE (mm) over held-out rows and over the rows before the hold-out
+    cut (fitted or not), and rows with no solution."""
 
     rmse_nominal: float
     rmse_fitted: float
@@ -104,6 +127,12 @@ class KeypointIdentification:
     fit_time_s: float
     warnings: list[str]
     holdout: float = HOLDOUT_FRACTION
+    verdict: KeypointVerdict | None = None
+    spreads: list[Spread] = field(default_factory=list)
+    n_candidates: int = 0
+    rows_why: str = ""
+    tip_noise_mm: float = TIP_NOISE_MM
+    candidates: list[FitParameter] = field(default_factory=list)
 
 
 def candidates(params: RobotParams, backlash: bool = False) -> list[FitParameter]:
@@ -202,28 +231,6 @@ def _load(
     return runs, kinds, warnings
 
 
-def heldout_rmse(
-    params: RobotParams,
-    effects: Effects,
-    runs: Sequence[Any],
-    held: set[tuple[str, int]],
-) -> tuple[float, float, list[str]]:
-    """Tip RMSE (mm) of the forward replay over held-out and over other point rows."""
-    e_held: list[float] = []
-    e_fit: list[float] = []
-    failed: list[str] = []
-    for rdat in runs:
-        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, effects)), rdat.q_path)
-        failed += [f"{rdat.name} row {i}: {why}" for i, why in rep.failed]
-        for p, row in zip(rdat.points, rdat.rows, strict=True):
-            d = rep.tip_mm[row] - p.tip_mm
-            if not np.all(np.isfinite(d)):
-                continue
-            (e_held if (p.run, p.index) in held else e_fit).append(float(d @ d))
-    rms = [math.sqrt(sum(e) / len(e)) if e else math.nan for e in (e_held, e_fit)]
-    return rms[0], rms[1], failed
-
-
 def identify_keypoint_runs(
     cfg: RigConfig,
     run_dirs: Sequence[str | Path],
@@ -236,6 +243,7 @@ def identify_keypoint_runs(
             "rig config", "design", "identification fits the cc_disk model (Qi 2023)", cfg.design
         )
     t0 = time.monotonic()
+    say = opt.progress or (lambda _line: None)
     model = build_model(cfg)
     params, effects = model.params, model.effects
     locs = tuple(loadcell_locations(cfg))
@@ -245,22 +253,47 @@ def identify_keypoint_runs(
         raise RigError("identification: the runs hold no row with a tip")
     fit_all, held_pts = split_by_time(points, opt.holdout)
     fit_keys = {(p.run, p.index) for p in fit_all}
-    rr = [_run_rows(r, fit_keys, opt.max_points) for r in runs]
-    rr = [r for r in rr if r is not None]
-    n_fit = sum(len(r.rows) for r in rr)
-    if n_fit < 10:
-        raise RigError(f"identification: only {n_fit} rows to fit from")
-    prob = ReplayProblem(params, effects, tuple(rr), locs, opt.tip_noise_mm, opt.tension_noise_N)
+    held_keys = {(p.run, p.index) for p in held_pts}
+    noise, n_tri = _noise(runs)
+    tip_noise = opt.tip_noise_mm if opt.tip_noise_mm is not None else max(noise, 0.01)
+    if not math.isfinite(tip_noise):
+        tip_noise = TIP_NOISE_MM
+        warnings.append(f"no row triples to estimate the tracker noise; assumed {TIP_NOISE_MM} mm")
     fps = candidates(params, opt.backlash)
     scales = [tolerance(fp, opt.max_rel, opt.max_offset_rad) for fp in fps]
-    held_keys = {(p.run, p.index) for p in held_pts}
-    with Evaluator(prob, opt.jobs) as ev:
+    jobs = max(1, min(opt.jobs or (os.cpu_count() or 1), 8))
+    with Evaluator(
+        ReplayProblem(params, effects, (), locs, tip_noise, opt.tension_noise_N), jobs
+    ) as ev:
+        # the config's replay of every row: held-out baseline and the cost of one row
+        t_rep = time.monotonic()
+        (err_nom, _failed) = _errors_both(ev, [params], effects, runs)[0]
+        s_row = (time.monotonic() - t_rep) / max(sum(len(r.q_path) for r in runs), 1)
+        say(f"config replay of {sum(len(r.q_path) for r in runs)} rows: {s_row * 1e3:.2g} ms/row")
+        n_cand = sum(1 for r in runs for p in r.points if (p.run, p.index) in fit_keys)
+        if opt.max_points is not None:
+            n_want = opt.max_points
+            why = f"--max-points {opt.max_points}"
+        else:
+            n_want = rows_for_budget(opt.budget_s, s_row, len(fps), FIT_ITERATIONS, jobs)
+            why = (
+                f"time budget {opt.budget_s:g} s at {s_row * 1e3:.2g} ms per replayed row, "
+                f"{len(fps)} candidates, {jobs} processes"
+            )
+        rr, spreads = _choose_rows(runs, fit_keys, n_want, n_cand)
+        n_fit = sum(len(r.rows) for r in rr)
+        if n_fit < 10:
+            raise RigError(f"identification: only {n_fit} rows to fit from")
+        say(f"fitting {n_fit} of {n_cand} rows ({why})")
+        prob = ReplayProblem(params, effects, tuple(rr), locs, tip_noise, opt.tension_noise_N)
+        ev.set_problem(prob)
         # observability: the replay's sensitivity to every candidate at the config's values
         x0 = np.array([fp.to_var(fp.nominal) for fp in fps])
         hi = np.array([fp.var_bounds()[1] for fp in fps])
         r0 = ev.map_params([params])[0]
         J = ev.jacobian(fps, x0, r0, hi)
-        keep, dropped, obs = select(J, fps, scales)
+        s2_obs = max(1.0, float(r0 @ r0) / max(r0.size, 1)) if opt.obs_at_residual else 1.0
+        keep, dropped, obs = select(J, fps, scales, s2_obs)
         fixed = [NotIdentified(fps[i].name, fps[i].nominal, why) for i, why in dropped]
         if not keep:
             raise RigError(
@@ -268,21 +301,41 @@ def identify_keypoint_runs(
                 + "; ".join(f"{f.name}: {f.reason}" for f in fixed)
             )
         kfps = [fps[i] for i in keep]
-        sol = replay_fit.fit(ev, kfps, [scales[i] for i in keep], opt.max_nfev, (r0, J[:, keep]))
-        fitted = prob.params_of(kfps, sol.x)
-        (h_nom, f_nom, _), (h_fit, f_fit, failed) = _heldout_both(
-            ev, (params, fitted), effects, runs, held_keys
+        deadline = t0 + opt.budget_s + s_row * sum(len(r.q_path) for r in runs) * 2.0
+        if opt.max_points is not None:
+            deadline = math.inf
+        sol = replay_fit.fit(
+            ev, kfps, [scales[i] for i in keep], opt.max_nfev, (r0, J[:, keep]), deadline, say
         )
-    ident = _identification(
-        prob, params, fitted, sol, fixed, [p for p in points if (p.run, p.index) in fit_keys]
+        fitted = prob.params_of(kfps, sol.x)
+        say("held-out check: replay of every row with the fitted parameters")
+        (err_fit, failed) = _errors_both(ev, [fitted], effects, runs)[0]
+    h_nom, o_nom = _split_errors(runs, err_nom, held_keys)
+    h_fit, o_fit = _split_errors(runs, err_fit, held_keys)
+    fit_pts = [p for r in runs for p in r.points if (p.run, p.index) in fit_keys]
+    ident = _identification(prob, params, fitted, sol, fixed, fit_pts)
+    heldout = HeldOut(_rms(h_nom), _rms(h_fit), _rms(o_nom), _rms(o_fit), len(held_pts), failed)
+    gain, gain_se = heldout_gain(h_nom, h_fit)
+    res_mm = ident.rms_after.get("tip", math.nan) / math.sqrt(3.0)
+    verdict = KeypointVerdict(
+        noise,
+        n_tri,
+        res_mm,
+        res_mm / noise if noise > 0 else math.nan,
+        gain,
+        gain_se,
+        heldout.rmse_nominal,
+        heldout.rmse_fitted,
     )
-    heldout = HeldOut(h_nom, h_fit, f_nom, f_fit, len(held_pts), failed)
     if failed:
         warnings.append(f"{len(failed)} rows with no static solution (left out of the RMSE)")
-    if not h_fit <= h_nom:
+    if verdict.misfit:
+        warnings.append(verdict.lines()[2])
+    if not verdict.improved:
         warnings.append(
-            f"the fitted model predicts the held-out rows worse than the config "
-            f"({h_fit:.4g} vs {h_nom:.4g} mm): the fit does not explain this log"
+            f"the fitted model does not predict the held-out rows better beyond their noise "
+            f"({heldout.rmse_nominal:.4g} -> {heldout.rmse_fitted:.4g} mm): the fit does not "
+            "explain this log"
         )
     ident.warnings[:0] = warnings
     return KeypointIdentification(
@@ -293,9 +346,59 @@ def identify_keypoint_runs(
         len(points),
         n_fit,
         time.monotonic() - t0,
-        warnings,
+        ident.warnings,
         opt.holdout,
+        verdict=verdict,
+        spreads=spreads,
+        n_candidates=n_cand,
+        rows_why=why,
+        tip_noise_mm=tip_noise,
+        candidates=fps,
     )
+
+
+def _noise(runs: Sequence[_RunData]) -> tuple[float, int]:
+    """Tracker noise per axis from the log (:func:`.keypoint_gate.tracker_noise`), pooled."""
+    vals: list[tuple[float, int]] = []
+    for r in runs:
+        tips = np.full((len(r.q_path), 3), np.nan)
+        tips[np.asarray(r.rows, dtype=int)] = [p.tip_mm for p in r.points]
+        vals.append(tracker_noise(r.q_path, tips))
+    n = sum(k for _, k in vals)
+    ok = [(s, k) for s, k in vals if k > 0 and math.isfinite(s)]
+    if not ok:
+        return math.nan, n
+    return math.sqrt(sum(s * s * k for s, k in ok) / sum(k for _, k in ok)), n
+
+
+def _choose_rows(
+    runs: Sequence[_RunData], fit_keys: set, n_want: int, n_cand: int
+) -> tuple[list[RunRows], list[Spread]]:
+    """Per run its share of ``n_want`` rows, chosen to span it (:mod:`.rowselect`)."""
+    out: list[RunRows] = []
+    spreads: list[Spread] = []
+    for r in runs:
+        idx = np.array([j for j, p in enumerate(r.points) if (p.run, p.index) in fit_keys])
+        if idx.size == 0:
+            continue
+        share = max(1, round(n_want * idx.size / max(n_cand, 1)))
+        cand_rows = np.asarray(r.rows, dtype=int)[idx]
+        f, _ = features(r.q_path, cand_rows)
+        pick = farthest_points(f, share)
+        spreads.append(spread(r.q_path, cand_rows, pick))
+        chosen = idx[pick]
+        rows = np.asarray(r.rows, dtype=int)[chosen]
+        path, pos = replay_path(r.q_path, rows)
+        out.append(
+            RunRows(
+                r.name,
+                path,
+                pos,
+                np.array([r.points[j].tip_mm for j in chosen]),
+                np.array([r.points[j].tension_N for j in chosen]),
+            )
+        )
+    return out, spreads
 
 
 def _run_rows(r: _RunData, fit_keys: set, max_rows: int) -> RunRows | None:
@@ -313,19 +416,6 @@ def _run_rows(r: _RunData, fit_keys: set, max_rows: int) -> RunRows | None:
     )
 
 
-def _heldout_task(args: tuple) -> tuple[float, float, list[str]]:
-    return heldout_rmse(*args)
-
-
-def _heldout_both(ev: Evaluator, plist, effects, runs, held_keys) -> list:
-    """:func:`heldout_rmse` for each parameter set, in the evaluator's workers."""
-    tasks = [(p, effects, runs, held_keys) for p in plist]
-    ev.n_replays += len(tasks)
-    if ev.pool is None:
-        return [_heldout_task(t) for t in tasks]
-    return list(ev.pool.map(_heldout_task, tasks))
-
-
 def _identification(
     prob: ReplayProblem,
     nominal: RobotParams,
@@ -335,7 +425,16 @@ def _identification(
     points: list[DwellPoint],
 ) -> Identification:
     warnings = [
-        f"{e.name}: fitted value {e.value:.4g} is on its bound" for e in sol.estimates if e.at_bound
+        f"{e.name}: fitted value {e.value:.4g} is ON ITS BOUND ({e.parameter.lower:.4g} .. "
+        f"{e.parameter.upper:.4g}): the data push it out of its admissible range"
+        for e in sol.estimates
+        if e.at_bound
+    ]
+    warnings += [
+        f"{e.name}: 95 % interval reaches its bound and is reported clipped there "
+        f"[{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]: the log does not bound it on that side"
+        for e in sol.estimates
+        if e.ci_at_bound and not e.at_bound
     ]
     if sol.s2 > 1.0:
         warnings.append(
@@ -370,35 +469,3 @@ def _identification(
         stages=[f"output-error fit over the forward replay: {sol.nfev} evaluations, {sol.message}"],
         warnings=warnings,
     )
-
-
-def report_lines(res: KeypointIdentification) -> list[str]:
-    """Plain-text report: kinds, what was fitted and fixed (why), chi2, held-out residual."""
-    from cdcr_ctl.identify.pipeline import summary_table
-
-    out = [f"log kind: {k}" for k in res.kinds.values()]
-    out.append(
-        f"{res.n_points} rows with a tip; {res.n_fit} fitted (first "
-        f"{100 * (1 - res.holdout):.0f} % of each run by time, thinned), "
-        f"{res.heldout.n_rows} held out"
-    )
-    out += res.observability.lines()
-    out.append("identifiable and fitted: " + ", ".join(e.name for e in res.ident.estimates))
-    out.append("fixed at the config: " + (", ".join(f.name for f in res.ident.fixed) or "none"))
-    out.append(summary_table(res.ident))
-    h = res.heldout
-    out.append(
-        f"reduced chi^2 {res.ident.chi2_reduced:.4g} over {res.ident.n_residuals} residuals "
-        f"(residuals weighted by the assumed noise)"
-    )
-    out.append(
-        f"held-out tip RMSE (forward model, {h.n_rows} rows never fitted): "
-        f"config {h.rmse_nominal:.4g} mm -> fitted {h.rmse_fitted:.4g} mm"
-    )
-    out.append(
-        f"fitted rows' tip RMSE (forward model): config {h.rmse_fit_rows_nominal:.4g} mm -> "
-        f"fitted {h.rmse_fit_rows_fitted:.4g} mm"
-    )
-    out.append(f"rows with no static solution: {len(h.failed)}")
-    out += [f"  {f}" for f in h.failed[:20]]
-    return out

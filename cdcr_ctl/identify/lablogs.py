@@ -6,8 +6,12 @@
 * ``pulls`` runs (one cable pulled at a time): hole offsets per segment
   (:mod:`cdcr_ctl.identify.geometry`).
 
-The overlay (``identified.yaml``) is written only when the fit explains the log better than the
-config does on the held-out rows; otherwise the report says so and nothing is written.
+The overlay (``identified.yaml``) is written only when the gate passes: for keypoint and tip runs
+the held-out rows improve beyond their noise (:mod:`cdcr_ctl.identify.keypoint_gate`; a misfit
+that still improves them is written with the misfit in its header), for pull runs the azimuths
+scatter within 5 x the tracker noise about one offset per segment. Otherwise the report
+(``identification.json``) is written, no overlay, and :class:`~cdcr_ctl.identify.gate.MisfitError`
+names ``--accept-misfit``.
 """
 
 from __future__ import annotations
@@ -23,13 +27,11 @@ import yaml
 from cdcr_ctl.config.build_model import robot_params
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import RigError
+from cdcr_ctl.identify.gate import MisfitError
 from cdcr_ctl.identify.geometry import hole_offsets_from_pulls, is_pull_log, offsets_lines
-from cdcr_ctl.identify.keypoints import (
-    KeypointIdentification,
-    KeypointOptions,
-    identify_keypoint_runs,
-    report_lines,
-)
+from cdcr_ctl.identify.keypoint_gate import MISFIT_FACTOR, OVERRIDE
+from cdcr_ctl.identify.keypoint_report import keypoint_report, report_lines
+from cdcr_ctl.identify.keypoints import KeypointOptions, identify_keypoint_runs
 from cdcr_ctl.identify.logkind import KINDS, detect_kind
 from cdcr_ctl.model.params import RobotParams
 from cdcr_ctl.runlog.reader import load_run
@@ -54,6 +56,9 @@ def overlay_from_params(
     """YAML overlay with the fitted fields of ``kinds`` in the config's own keys and units."""
     robot = cfg.robot
     segs: list[dict[str, Any]] = []
+    if "gravity" in kinds:
+        for seg, sp in zip(robot.segments, fitted.segments, strict=True):
+            segs.append({"name": seg.name, "disks": {"mass_g": round(sp.disk_mass_g, 4)}})
     if "EI" in kinds:
         for seg, sp in zip(robot.segments, fitted.segments, strict=True):
             bb = seg.backbone
@@ -78,6 +83,8 @@ def overlay_from_params(
             d["routing_radius_mm"] = round(cp.routing_radius_mm, 4)
         if "hole_offset" in kinds:
             d["hole_angle_rad"] = round(cp.hole_angle_rad, 6)
+        if "backlash" in kinds:
+            d["backlash_mm"] = round(cp.backlash_mm, 4)
         if len(d) > 1:
             cabs.append(d)
     rob: dict[str, Any] = {}
@@ -89,34 +96,6 @@ def overlay_from_params(
     return head + yaml.safe_dump({"robot": rob}, sort_keys=False, default_flow_style=None)
 
 
-def keypoint_report(res: KeypointIdentification) -> dict[str, Any]:
-    """JSON-ready report of a keypoint/tip fit."""
-    ob = res.observability
-    return {
-        "log_kinds": res.kinds,
-        "observability": {
-            "singular_values": list(ob.singular_values),
-            "directions": [list(d) for d in ob.directions],
-            "halfwidth_over_tolerance": dict(zip(ob.names, ob.halfwidth, strict=True)),
-            "tolerance": dict(zip(ob.names, ob.tolerance, strict=True)),
-        },
-        "fitted": [
-            {"name": e.name, "value": e.value, "ci95": list(e.ci95), "nominal": e.nominal}
-            for e in res.ident.estimates
-        ],
-        "fixed": [
-            {"name": f.name, "nominal": f.nominal, "reason": f.reason} for f in res.ident.fixed
-        ],
-        "chi2_reduced": res.ident.chi2_reduced,
-        "n_residuals": res.ident.n_residuals,
-        "heldout": vars(res.heldout),
-        "n_points": res.n_points,
-        "n_fit": res.n_fit,
-        "fit_time_s": res.fit_time_s,
-        "warnings": res.warnings,
-    }
-
-
 def fit_lab_logs(
     cfg: RigConfig,
     run_dirs: Sequence[Path],
@@ -124,24 +103,44 @@ def fit_lab_logs(
     kinds: Sequence[str],
     options: KeypointOptions,
     sources: Sequence[str],
+    accept_misfit: bool = False,
+    forced: bool = False,
 ) -> tuple[Path | None, list[str]]:
-    """Fit tip/keypoint runs or pull runs of ``cfg``; write report (and overlay when it helps).
+    """Fit tip/keypoint runs or pull runs of ``cfg``; write the report (always) and the overlay
+    when the gate passes (:mod:`.keypoint_gate`) or ``accept_misfit``.
 
-    Returns the overlay path (None when nothing was written) and the report lines."""
+    Returns the overlay path and the report lines; raises
+    :class:`~cdcr_ctl.identify.gate.MisfitError` (after writing the report) when the gate
+    refuses and ``accept_misfit`` is off. ``forced``: the kinds came from ``--log-kind``."""
     out.mkdir(parents=True, exist_ok=True)
+    overlay_path = out / "identified.yaml"
+    overlay_path.unlink(missing_ok=True)  # never leave a stale overlay beside a new report
     lines: list[str] = []
+    refusals: list[str] = []
     pulls = [r for r, k in zip(run_dirs, kinds, strict=True) if k == "pulls"]
     others = [r for r, k in zip(run_dirs, kinds, strict=True) if k != "pulls"]
     report: dict[str, Any] = {"runs": [str(r) for r in run_dirs]}
-    overlay: Path | None = None
+    text: str | None = None
     params = robot_params(cfg.robot)
     if pulls:
         offs, w = hole_offsets_from_pulls(params, pulls)
         lines += offsets_lines(offs) + [f"warning: {x}" for x in w]
+        bad = [h for h in offs if not h.misfit_ratio <= MISFIT_FACTOR]
+        for h in bad:
+            refusals.append(
+                f"{h.segment}: the pull azimuths scatter {h.misfit_ratio:.3g} x the tracker "
+                f"noise about one offset (more than {MISFIT_FACTOR:g} x): model error, not noise"
+            )
         report["hole_offsets"] = [
-            {"segment": h.segment, "offset_rad": h.offset_rad, "ci95_rad": list(h.ci95_rad)}
+            {
+                "segment": h.segment,
+                "offset_rad": h.offset_rad,
+                "ci95_rad": list(h.ci95_rad),
+                "misfit_ratio": h.misfit_ratio,
+            }
             for h in offs
         ]
+        report["warnings"] = list(w) + refusals
         if offs and not others:
             import dataclasses
 
@@ -155,43 +154,66 @@ def fit_lab_logs(
                 for c in params.cables
             )
             fitted = dataclasses.replace(params, cables=cab)
-            overlay = out / "identified.yaml"
             head = ["Hole offsets fitted by `cdcr-ctl identify` from tendon pulls: "]
             head += [ln.strip() for ln in offsets_lines(offs)[1:]]
             head.append("sources: " + ", ".join(sources))
-            overlay.write_text(overlay_from_params(cfg, fitted, {"hole_offset"}, head))
+            text = overlay_from_params(cfg, fitted, {"hole_offset"}, head)
     if others:
         opt = options
-        forced = {k for r, k in zip(run_dirs, kinds, strict=True) if k != "pulls"}
-        if len(forced) == 1:
+        fk = {k for r, k in zip(run_dirs, kinds, strict=True) if k != "pulls"}
+        if forced and len(fk) == 1:
             from dataclasses import replace
 
-            opt = replace(options, kind=forced.pop())
+            opt = replace(options, kind=fk.pop())
         if opt.kind == "loadcell":
             raise RigError("internal: load-cell runs go through the dwell pipeline")
         res = identify_keypoint_runs(cfg, others, opt)
         lines += report_lines(res)
         report["keypoint_fit"] = keypoint_report(res)
         h = res.heldout
-        if h.rmse_fitted <= h.rmse_nominal:
-            overlay = out / "identified.yaml"
-            head = [
-                f"Fitted by `cdcr-ctl identify` ({', '.join(sorted(set(kinds)))} logs) from: "
-                + ", ".join(sources),
-                f"reduced chi^2 {res.ident.chi2_reduced:.4g}; held-out tip RMSE "
-                f"{h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm over {h.n_rows} rows",
-            ]
-            for e in res.ident.estimates:
-                lo, hi = e.ci95
-                head.append(f"{e.name} {e.value:.6g}: 95 % CI [{lo:.6g}, {hi:.6g}]")
-            for f in res.ident.fixed:
-                head.append(f"not fitted {f.name} = {f.nominal:.5g}: {f.reason}")
-            kinds_fit = {e.parameter.kind for e in res.ident.estimates}
-            overlay.write_text(overlay_from_params(cfg, res.ident.fitted, kinds_fit, head))
-        else:
-            lines.append(
-                "NOT WRITTEN: the fitted parameters predict the held-out rows worse than the "
-                "config; no overlay"
+        v = res.verdict
+        assert v is not None
+        if not v.write:
+            refusals.append(
+                f"the held-out rows did not improve beyond their noise ({h.rmse_nominal:.4g} -> "
+                f"{h.rmse_fitted:.4g} mm)"
             )
+        head = [
+            f"Fitted by `cdcr-ctl identify` ({', '.join(sorted(set(kinds)))} logs) from: "
+            + ", ".join(sources),
+            f"reduced chi^2 {res.ident.chi2_reduced:.4g}; held-out tip RMSE "
+            f"{h.rmse_nominal:.4g} -> {h.rmse_fitted:.4g} mm over {h.n_rows} rows",
+        ]
+        if v.misfit:
+            head.insert(
+                0,
+                f"MISFIT: residual {v.misfit_ratio:.3g} x the tracker noise (model error); "
+                "the held-out rows improved, so the parameters are written",
+            )
+        for e in res.ident.estimates:
+            lo, hi = e.ci95
+            tag = " (ON ITS BOUND)" if e.at_bound else (" (clipped)" if e.ci_at_bound else "")
+            head.append(f"{e.name} {e.value:.6g}: 95 % CI [{lo:.6g}, {hi:.6g}]{tag}")
+        for f in res.ident.fixed:
+            head.append(f"not fitted {f.name} = {f.nominal:.5g}: {f.reason}")
+        kinds_fit = {e.parameter.kind for e in res.ident.estimates}
+        text = overlay_from_params(cfg, res.ident.fitted, kinds_fit, head)
+    report["refused"] = refusals
+    report["accept_misfit"] = accept_misfit
+    overlay: Path | None = None
+    if text is not None and (not refusals or accept_misfit):
+        if refusals:
+            text = f"# MISFIT ACCEPTED BY THE OPERATOR ({OVERRIDE}): {'; '.join(refusals)}\n" + text
+            lines.append(f"warning: MISFIT ACCEPTED ({OVERRIDE}), overlay written")
+        overlay_path.write_text(text)
+        overlay = overlay_path
+    report["overlay"] = None if overlay is None else str(overlay)
     (out / "identification.json").write_text(json.dumps(report, indent=2, default=float))
+    if refusals and not accept_misfit:
+        err = MisfitError(
+            "NOT WRITTEN: " + "; ".join(refusals) + f". No overlay (report: "
+            f"{out / 'identification.json'}); {OVERRIDE} writes it all the same, marked"
+        )
+        err.lines = lines  # type: ignore[attr-defined]  # the report, for the command to print
+        raise err
     return overlay, lines

@@ -209,7 +209,7 @@ def summary_table(ident: Identification) -> str:
     for e in ident.estimates:
         lo, hi = e.ci95
         lines.append(
-            f"{e.name:<22}{e.nominal:>12.5g}{e.value:>12.5g}{e.change_pct:>8.1f}%"
+            f"{e.name:<22}{e.nominal:>12.5g}{e.value:>12.5g}{e.change_text:>9}"
             f"   [{lo:.5g}, {hi:.5g}]"
         )
     for f in ident.fixed:

@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -43,6 +44,8 @@ from cdcr_ctl.model.params import Effects, Location, RobotParams
 #: Step of the forward differences in the fit variables (ln value, or rad): small next to a
 #: tolerance (25 %, 1 deg = 0.017 rad), large next to the forward solve's convergence.
 DIFF_STEP = 1e-4
+#: Evaluations a fit runs whatever its deadline (three trust-region steps and their checks).
+MIN_EVALUATIONS = 4
 #: Weighted residual (noise standard deviations) of a row the replay could not solve.
 FAILED_ROW_RESIDUAL = 20.0
 
@@ -117,23 +120,9 @@ def effects_of(params: RobotParams, effects: Effects) -> Effects:
 
 # --- the Jacobian, one replay per column, in worker processes ------------------------------
 
-_WORKER: ReplayProblem | None = None
 
-
-def _init_worker(prob: ReplayProblem) -> None:
-    global _WORKER
-    _WORKER = prob
-
-
-def _column(args: tuple[Sequence[FitParameter], np.ndarray]) -> np.ndarray:
-    fps, x = args
-    assert _WORKER is not None
-    return _WORKER.residuals(fps, x)
-
-
-def _replay_params(params: RobotParams) -> np.ndarray:
-    assert _WORKER is not None
-    return _WORKER.residuals_of(params)[0]
+def _replay_with(args: tuple[ReplayProblem, RobotParams]) -> np.ndarray:
+    return args[0].residuals_of(args[1])[0]
 
 
 class Evaluator:
@@ -148,10 +137,12 @@ class Evaluator:
 
     def __enter__(self) -> Evaluator:
         if self.jobs > 1:
-            self.pool = ProcessPoolExecutor(
-                self.jobs, initializer=_init_worker, initargs=(self.prob,)
-            )
+            self.pool = ProcessPoolExecutor(self.jobs)
         return self
+
+    def set_problem(self, prob: ReplayProblem) -> None:
+        """Evaluate ``prob`` from now on (sent to the workers with the next map)."""
+        self.prob = prob
 
     def __exit__(self, *exc: object) -> None:
         if self.pool is not None:
@@ -162,7 +153,8 @@ class Evaluator:
         self.n_replays += len(plist)
         if self.pool is None:
             return [self.prob.residuals_of(p)[0] for p in plist]
-        return list(self.pool.map(_replay_params, plist))
+        # the problem travels with every task (a few hundred kB against a replay of seconds)
+        return list(self.pool.map(_replay_with, [(self.prob, p) for p in plist]))
 
     def jacobian(
         self, fps: Sequence[FitParameter], x: np.ndarray, f0: np.ndarray, hi: np.ndarray
@@ -194,16 +186,29 @@ class ReplayFit:
     message: str
 
 
+class _OutOfTime(Exception):
+    """Raised inside the least-squares loop when the fit's deadline has passed."""
+
+
 def fit(
     ev: Evaluator,
     fps: Sequence[FitParameter],
     scales: Sequence[float],
     max_nfev: int,
     first: tuple[np.ndarray, np.ndarray] | None = None,
+    deadline: float = math.inf,
+    progress: Callable[[str], None] | None = None,
 ) -> ReplayFit:
     """Least squares over ``fps`` from their nominal values (module docstring); ``scales``
     their tolerances in the fit variables (``x_scale``); ``first``: (residuals, Jacobian) at
-    the nominal values, already computed (the observability step), reused once."""
+    the nominal values, already computed (the observability step), reused once.
+
+    ``deadline`` (time.monotonic()): no new evaluation starts after it once
+    :data:`MIN_EVALUATIONS` have run (a machine too slow for the budget still takes a few
+    steps from the nominal values); the best point seen is kept and the intervals come from
+    one more Jacobian there. ``progress``: called with a line
+    after every evaluation. Intervals are computed in the fit variables and clipped to the
+    parameter's bounds (:attr:`Estimate.ci_at_bound` says when: the log does not bound it)."""
     prob = ev.prob
     x0 = np.array([fp.to_var(fp.nominal) for fp in fps])
     lo = np.array([fp.var_bounds()[0] for fp in fps])
@@ -218,40 +223,70 @@ def fit(
     if first is not None and np.array_equal(x0, x_nom):
         cache[x0.tobytes()] = first[0]
         jac0 = first[1]
+    best: dict[str, object] = {"cost": math.inf, "x": x0, "f": None}
+    t_start = time.monotonic()
+
+    n_eval = [0]
 
     def fun(x: np.ndarray) -> np.ndarray:
         key = np.asarray(x, float).tobytes()
         if key not in cache:
+            if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
+                raise _OutOfTime
+            n_eval[0] += 1
             cache.clear() if len(cache) > 8 else None
             cache[key] = ev.map_params([prob.params_of(fps, x)])[0]
-        return cache[key]
+        f = cache[key]
+        c = float(f @ f)
+        if c < best["cost"]:  # type: ignore[operator]
+            best.update(cost=c, x=np.array(x, float), f=f)
+        if progress is not None:
+            progress(
+                f"  fit: {ev.n_replays} replays, chi^2 sum {c:.4g} (best {best['cost']:.4g}), "
+                f"{time.monotonic() - t_start:.0f} s"
+            )
+        return f
 
     def jac(x: np.ndarray) -> np.ndarray:
         if jac0 is not None and np.array_equal(x, x0):
             return jac0
+        if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
+            raise _OutOfTime
         return ev.jacobian(fps, np.asarray(x, float), fun(x), hi)
 
     if first is not None:
         r_before, is_tip = first[0], prob.is_tip()
     else:
         r_before, is_tip, _ = prob.residuals_of(prob.params_of(fps, x_nom))
-    sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=sc, max_nfev=max_nfev)
-    m, n = sol.fun.size, len(fps)
-    chi2 = float(sol.fun @ sol.fun) / max(m - n, 1)
+    try:
+        sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=sc, max_nfev=max_nfev)
+        x_best, f_best, J = sol.x, sol.fun, sol.jac
+        nfev, message = int(sol.nfev), str(sol.message)
+    except _OutOfTime:
+        x_best = np.asarray(best["x"], float)
+        f_best = best["f"] if best["f"] is not None else fun(x_best)
+        J = ev.jacobian(fps, x_best, np.asarray(f_best), hi)
+        nfev, message = len(cache), "stopped at the time budget (best point kept)"
+    return _result(fps, x_best, np.asarray(f_best), J, lo, hi, r_before, is_tip, nfev, message)
+
+
+def _result(fps, x, f, J, lo, hi, r_before, is_tip, nfev, message) -> ReplayFit:
+    m, n = f.size, len(fps)
+    chi2 = float(f @ f) / max(m - n, 1)
     s2 = max(1.0, chi2)
-    J = sol.jac
     cov = np.linalg.pinv(J.T @ J) * s2
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     est: list[Estimate] = []
-    for fp, v, s, a, b in zip(fps, sol.x, sd, lo, hi, strict=True):
+    for fp, v, s, a, b in zip(fps, x, sd, lo, hi, strict=True):
         z = 1.959964 * s
         val = fp.from_var(v)
         std = val * s if fp.log else s
         at_bound = bool(min(v - a, b - v) < 1e-6)
-        est.append(Estimate(fp, val, std, (fp.from_var(v - z), fp.from_var(v + z)), at_bound))
-    return ReplayFit(
-        sol.x, est, chi2, s2, m, r_before, sol.fun, is_tip, int(sol.nfev), str(sol.message)
-    )
+        lo_v, hi_v = v - z, v + z
+        clipped = not (a < lo_v and hi_v < b)
+        ci = (fp.from_var(max(lo_v, a)), fp.from_var(min(hi_v, b)))
+        est.append(Estimate(fp, val, std, ci, at_bound, ci_at_bound=clipped))
+    return ReplayFit(x, est, chi2, s2, m, r_before, f, is_tip, nfev, message)
 
 
 def rms_by_kind(res: np.ndarray, is_tip: np.ndarray, prob: ReplayProblem) -> dict[str, float]:

@@ -108,14 +108,15 @@ def test_identify_from_keypoint_log_through_the_cli(keypoint_log, tmp_path, caps
         ]
     )
     text = capsys.readouterr().err
-    assert code == 0, text
     assert "log kind: keypoint" in text
-    assert "observability" in text and "identifiable and fitted:" in text
-    assert "reduced chi^2" in text and "held-out tip RMSE" in text
+    assert "observability" in text and "fitted: " in text
+    assert "reduced chi^2" in text and "held-out rows" in text and "tip RMSE" in text
     rep = json.loads((out / "identification.json").read_text())["keypoint_fit"]
     names = [f["name"] for f in rep["fitted"]] + [f["name"] for f in rep["fixed"]]
     assert "seg1.EI_Nmm2" in names and "seg3.hole_offset_rad" in names
     assert len(rep["observability"]["singular_values"]) == len(names)
     h = rep["heldout"]
     assert h["n_rows"] >= 10 and math.isfinite(h["rmse_nominal"]) and h["failed"] == []
-    assert (out / "identified.yaml").exists() == (h["rmse_fitted"] <= h["rmse_nominal"])
+    # an overlay only when the held-out rows improved beyond their noise; else exit 1
+    improved = rep["gate"]["heldout_improved"]
+    assert (out / "identified.yaml").exists() == improved and (code == 0) == improved, text
