@@ -31,6 +31,7 @@ import fcntl
 import hashlib
 import os
 import re
+import weakref
 from pathlib import Path
 
 from cdcr_ctl.errors import RigError
@@ -118,6 +119,7 @@ class Ownership:
 
     def __init__(self) -> None:
         self._held: dict[str, tuple[int, Path]] = {}
+        _LIVE.add(self)
 
     @property
     def keys(self) -> list[str]:
@@ -180,11 +182,31 @@ class Ownership:
         for key in list(self._held):
             self._drop(key)
 
+    def _forget_in_child(self) -> None:
+        # A forked child shares the parent's open lock files; closing its copies leaves the
+        # parent's lock in place (flock(2): released when the last descriptor closes) and lets
+        # the lock end with the process that took it, not with its last forked child.
+        for fd, _ in self._held.values():
+            os.close(fd)
+        self._held.clear()
+
     def __enter__(self) -> Ownership:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+#: Every live :class:`Ownership`, so a forked child can drop its copies of their descriptors.
+_LIVE: weakref.WeakSet[Ownership] = weakref.WeakSet()
+
+
+def _after_fork_in_child() -> None:
+    for owner in list(_LIVE):
+        owner._forget_in_child()
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def _writable_dir(d: Path) -> bool:

@@ -426,4 +426,5 @@ def hidden_effect_worlds(seed: int = 1, noise_mm: float = 1.0) -> dict[str, Worl
 def pull_only_path(params: RobotParams, pull_mm: float = 2.5, steps: int = 6) -> np.ndarray:
     """Tendon pulls only: every tendon alone 0 -> ``pull_mm`` -> 0 (the start of
     :func:`lab_path`), with a row at rest before the first pull."""
-    return np.vstack([np.zeros(params.n_cables), lab_path(params, 0, 0, pull_mm, steps)])
+    n_pulls = params.n_cables * 2 * steps  # per tendon: steps up, steps - 1 down, back at 0
+    return np.vstack([np.zeros(params.n_cables), lab_path(params, n_pulls, 0, pull_mm, steps)])

@@ -163,6 +163,7 @@ def test_shutdown_trusts_the_rig_process_sentinel_not_a_lost_reap(caplog):
     front = FrontDaemon.__new__(FrontDaemon)
     front.notifier = SystemdNotifier("")
     front.proc = LostReap()
+    front.stop_proc = SimpleNamespace(pid=None)  # the stop line's process, never started here
     front.flag = SimpleNamespace(request=lambda reaction: 0)
     front._call = lambda *a, **k: (_ for _ in ()).throw(RuntimeError("rig gone"))
     front.server = None
