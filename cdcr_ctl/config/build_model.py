@@ -28,7 +28,7 @@ from cdcr_ctl.model.params import (
 )
 
 if TYPE_CHECKING:
-    from cdcr_ctl.control.ports import RobotModelPort
+    from cdcr_ctl.model.port import RobotModelPort
 
 #: Share of the cable velocity limit the dead-zone inverse may add to the command while it
 #: pre-travels the play after a reversal (cdcr_ctl.model.deadzone). The loop's offset ramp takes

@@ -21,7 +21,7 @@ import numpy as np
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.clock import LoopClock
 from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig
-from cdcr_ctl.control.ports import RigIO, RobotModelPort
+from cdcr_ctl.control.ports import RigIO
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.daemon import recovery
 from cdcr_ctl.daemon.bustap import StopBusTap
@@ -36,6 +36,7 @@ from cdcr_ctl.daemon.protocol import Request
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
 from cdcr_ctl.daemon.status import StatusCommands, _trip_dict
+from cdcr_ctl.model.port import RobotModelPort
 from cdcr_ctl.runlog.annotate import annotate_when_ended
 from cdcr_ctl.runlog.live import LiveView, live_view_for
 

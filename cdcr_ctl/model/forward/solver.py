@@ -13,9 +13,8 @@ import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.forward.result import ForwardResult, _amax
+from cdcr_ctl.model.forward.result import ForwardResult, _amax, pack_result
 from cdcr_ctl.model.friction import FrictionState, direction_update
-from cdcr_ctl.model.kinematics import tip_frame_fast
 from cdcr_ctl.model.params import Effects, RobotParams
 from cdcr_ctl.model.routing import cable_matrix_x
 from cdcr_ctl.model.tension_chain import Transfer
@@ -197,7 +196,7 @@ class ForwardModel:
         resid = float(np.max(np.abs(np.asarray(res.q_geom) - np.asarray(q_act))))
         state = FrictionState(s=tuple(s_new), w_mm=tuple(res.w))
         modes = tuple(SLIDE if abs(v) == 1.0 else STICK for v in s_new)
-        return self._pack(xs, res, state, modes, 0, resid)
+        return pack_result(xs, res, state, modes, 0, resid, self._lengths)
 
     def _arm_matrix(self, P: Pose) -> np.ndarray:
         J = np.zeros((self.K, 2 * self.S))
@@ -477,28 +476,4 @@ class ForwardModel:
             if modes[k] == FREE:
                 s[k] = direction_update(s[k], tr.w[k] - w_prev[k], 1e-12)
         state = FrictionState(s=tuple(s), w_mm=tuple(tr.w))
-        return self._pack(xs, tr, state, tuple(modes), it, res)
-
-    def _pack(self, xs, tr, state, modes, it, res) -> ForwardResult:
-        xs = [float(v) for v in xs]
-        psi = []
-        for i in range(self.S):  # x_to_psi on floats: theta >= 0, phi = 0 where straight
-            X, Y = xs[2 * i], xs[2 * i + 1]
-            t = math.hypot(X, Y)
-            psi.append((t, math.atan2(Y, X) if t > 0.0 else 0.0))
-        R, tip = tip_frame_fast(xs, self._lengths)
-        return ForwardResult(
-            psi=np.array(psi, dtype=float).reshape(-1, 2),
-            x=np.array(xs, dtype=float),
-            tip_mm=np.array(tip),
-            tension_distal_N=np.asarray(tr.T_distal),
-            tension_base_N=np.asarray(tr.T_base),
-            tension_actuator_N=np.asarray(tr.T_actuator),
-            q_geom_mm=np.asarray(tr.q_geom),
-            delta_mm=np.asarray(tr.q) - np.asarray(tr.q_geom),
-            state=state,
-            modes=modes,
-            iterations=it,
-            residual=res,
-            R_tip=np.array(R),
-        )
+        return pack_result(xs, tr, state, tuple(modes), it, res, self._lengths)
