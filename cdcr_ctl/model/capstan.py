@@ -217,33 +217,27 @@ class PulleyTransfer:
                 self._pieces.append((m, lnk[j] - m * (self._x0 + j * self._dx)))
 
     # ------------------------------------------------------------------ table look-up
-    def _interp(self, tab: list[float], lnT: float) -> tuple[float, float]:
-        """Value and slope d/d lnT of a table at ln T (held constant outside the range)."""
+    def _lookup(self, lnT: float) -> tuple[float, float]:
+        """(ln kappa, mean ratio) of the table at ln T (held at the edge values outside the
+        range): the one table look-up, linear in ln T between grid points."""
         u = (lnT - self._x0) / self._dx
         if u <= 0.0:
-            return tab[0], 0.0
+            return self._lnk_tab[0], self._mean_tab[0]
         if u >= self._n_pts - 1:
-            return tab[-1], 0.0
+            return self._lnk_tab[-1], self._mean_tab[-1]
         j = int(u)
         f = u - j
-        a, b = tab[j], tab[j + 1]
-        return a + f * (b - a), (b - a) / self._dx
+        a, b = self._lnk_tab[j], self._lnk_tab[j + 1]
+        c, d = self._mean_tab[j], self._mean_tab[j + 1]
+        return a + f * (b - a), c + f * (d - c)
 
     def ln_kappa(self, T_low_N: float) -> float:
         """ln kappa for a low-side tension (N)."""
-        if self.constant:
-            return self._lnk
-        if T_low_N <= 0.0:
-            return self._lnk_tab[0]
-        return self._interp(self._lnk_tab, math.log(T_low_N))[0]
+        return self._lnk_mean(T_low_N)[0]
 
     def mean_ratio(self, T_low_N: float) -> float:
         """(1/phi) integral of T over the wrap divided by T_low, fully sliding (|s| = 1)."""
-        if self.constant:
-            return self._mean
-        if T_low_N <= 0.0:
-            return self._mean_tab[0]
-        return self._interp(self._mean_tab, math.log(T_low_N))[0]
+        return self._lnk_mean(T_low_N)[1]
 
     def raise_low(self, T_low_N: float, frac: float) -> float:
         """High-side tension for a low-side tension and a mobilised fraction ``frac`` in [0, 1].
@@ -269,16 +263,7 @@ class PulleyTransfer:
     def _ln_low(self, lnH: float, frac: float) -> float:
         """ln of :meth:`lower_high` on the table, from ln T_high (see there)."""
         tab, x0, dx, last = self._lnk_tab, self._x0, self._dx, self._n_pts - 1
-        u = (lnH - x0) / dx
-        if u <= 0.0:
-            v = tab[0]
-        elif u >= last:
-            v = tab[-1]
-        else:  # _interp(tab, lnH)[0]
-            j = int(u)
-            a = tab[j]
-            v = a + (u - j) * (tab[j + 1] - a)
-        y = lnH - frac * v
+        y = lnH - frac * self._lookup(lnH)[0]
         piece = -2
         pieces = self._pieces
         for _ in range(last + 2):
@@ -305,28 +290,20 @@ class PulleyTransfer:
         return self.lower_high(T_actuator_N, s) if s >= 0.0 else self.raise_low(T_actuator_N, -s)
 
     def _lnk_mean(self, T_low_N: float) -> tuple[float, float]:
-        """(:meth:`ln_kappa`, :meth:`mean_ratio`) at one low-side tension: the same floats, one
-        logarithm and one table position for both."""
+        """(:meth:`ln_kappa`, :meth:`mean_ratio`) at one low-side tension (N): one logarithm and
+        one table position for both."""
         if self.constant:
             return self._lnk, self._mean
         if T_low_N <= 0.0:
             return self._lnk_tab[0], self._mean_tab[0]
-        u = (math.log(T_low_N) - self._x0) / self._dx
-        if u <= 0.0:
-            return self._lnk_tab[0], self._mean_tab[0]
-        if u >= self._n_pts - 1:
-            return self._lnk_tab[-1], self._mean_tab[-1]
-        j = int(u)
-        f = u - j
-        a, b = self._lnk_tab[j], self._lnk_tab[j + 1]
-        c, d = self._mean_tab[j], self._mean_tab[j + 1]
-        return a + f * (b - a), c + f * (d - c)
+        return self._lookup(math.log(T_low_N))
 
     def to_actuator_stretch(self, T_robot_N: float, s: float, T0_N: float) -> tuple[float, float]:
         """(:meth:`to_actuator`, :meth:`stretch_integral` over this pulley) from the robot-side
-        tension: the same floats as the two calls (tested), with the table looked up once where
-        the low side is the robot side (pulled in, s >= 0: the common case) and the table
-        pulley's look-ups written out (this runs six times per evaluation of the chain)."""
+        tension: the same floats as the two calls, with the table looked up once where the low
+        side is the robot side (pulled in, s >= 0: the common case). It runs six times per
+        evaluation of the chain: ``benchmarks/bench_hot_paths.py`` measures it against the two
+        calls."""
         T = T_robot_N
         if self.frictionless:
             return self.to_actuator(T, s), self.stretch_integral(self.to_actuator(T, s), T, s, T0_N)
@@ -337,20 +314,7 @@ class PulleyTransfer:
         else:
             Tn = math.exp(self._ln_low(math.log(T), -s))  # lower_high(T, -s)
             low = Tn if Tn <= T else T
-        # _lnk_mean(low), low > 0
-        x0, dx, last = self._x0, self._dx, self._n_pts - 1
-        u = (math.log(low) - x0) / dx
-        if u <= 0.0:
-            lnk, mean = self._lnk_tab[0], self._mean_tab[0]
-        elif u >= last:
-            lnk, mean = self._lnk_tab[-1], self._mean_tab[-1]
-        else:
-            j = int(u)
-            f = u - j
-            a = self._lnk_tab[j]
-            c = self._mean_tab[j]
-            lnk = a + f * (self._lnk_tab[j + 1] - a)
-            mean = c + f * (self._mean_tab[j + 1] - c)
+        lnk, mean = self._lookup(math.log(low))  # low > 0
         if s >= 0.0:
             Tn = T * math.exp(s * lnk)  # raise_low(T, s)
             if Tn < T:  # (only with a negative ln kappa) the actuator side is the low one

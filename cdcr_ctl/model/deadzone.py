@@ -1,6 +1,6 @@
 """Lost motion between drive and cable: the play operator and its rate-bounded inverse.
 
-Pure numpy, no I/O, no clocks. Units: mm of cable pulled in (the drive's position converted with
+Plain floats, no I/O, no clocks. Units: mm of cable pulled in (the drive's position converted with
 ``counts_per_mm``), per cable, shape (K,).
 
 The physics (Yang et al. 2022 eq. 13-17: a dead zone l_h at each reversal of a cable, the
@@ -32,25 +32,19 @@ Limits: b = 0 gives x = y exactly; ``max_step_mm`` = inf gives the exact inverse
 from __future__ import annotations
 
 import math
-
-import numpy as np
+from collections.abc import Sequence
 
 #: Motion of the wanted cable position below this (mm) keeps the direction memory (a pose
 #: that holds, or float noise of one; well below the smallest drive count of any config).
 DIRECTION_EPS_MM = 1e-9
 
 
-def play_forward(x_mm: np.ndarray, y_prev_mm: np.ndarray, width_mm: np.ndarray) -> np.ndarray:
-    """Cable position through the play (P): clip(y_prev, x - b/2, x + b/2), mm, shape (K,)."""
-    half = 0.5 * np.asarray(width_mm, dtype=float)
-    return np.clip(np.asarray(y_prev_mm, dtype=float), x_mm - half, x_mm + half)
-
-
-def play_forward_list(
-    x_mm: list[float], y_prev_mm: list[float], half_mm: list[float]
+def play_forward(
+    x_mm: Sequence[float], y_prev_mm: Sequence[float], half_mm: Sequence[float]
 ) -> list[float]:
-    """:func:`play_forward` on plain floats for a few cables (the numpy clip costs ~10 us for
-    K = 3, this ~1 us): min(max(y_prev, x - b/2), x + b/2), mm, the same floats as np.clip."""
+    """Cable position through the play (P): min(max(y_prev, x - b/2), x + b/2), mm, per cable;
+    ``half_mm`` the half widths b/2. Plain floats: the loop's few cables (for K = 3 a numpy
+    clip costs about ten times as much)."""
     out = []
     for x, y, h in zip(x_mm, y_prev_mm, half_mm, strict=True):
         lo = x - h
@@ -61,38 +55,19 @@ def play_forward_list(
 
 
 def dead_zone_inverse(
-    y_mm: np.ndarray,
-    y_prev_mm: np.ndarray,
-    c_prev_mm: np.ndarray,
-    width_mm: np.ndarray,
-    max_step_mm: float = math.inf,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Drive position for the wanted cable position ``y_mm`` (D), and the new pre-travel.
-
-    ``y_prev_mm``: the wanted cable position of the last call; ``c_prev_mm``: the pre-travel of
-    the last call (mm, in [-b/2, b/2]; 0 at the start, centred). The target pre-travel is
-    sign(y - y_prev) * b/2 (kept when y holds, the direction memory); c moves towards it by at
-    most ``max_step_mm``. Returns (x_mm, c_mm), both (K,).
-    """
-    y = np.asarray(y_mm, dtype=float)
-    half = 0.5 * np.asarray(width_mm, dtype=float)
-    c_prev = np.asarray(c_prev_mm, dtype=float)
-    dy = y - np.asarray(y_prev_mm, dtype=float)
-    target = np.where(dy > DIRECTION_EPS_MM, half, np.where(dy < -DIRECTION_EPS_MM, -half, c_prev))
-    c = c_prev + np.clip(target - c_prev, -max_step_mm, max_step_mm)
-    return y + c, c
-
-
-def dead_zone_inverse_list(
-    y_mm: list[float],
+    y_mm: Sequence[float],
     state: list[list[float]],
-    half_mm: list[float],
+    half_mm: Sequence[float],
     max_step_mm: float = math.inf,
     hysteresis_mm: float = 0.0,
 ) -> list[float]:
-    """:func:`dead_zone_inverse` on plain floats for the control loop's few cables (the numpy
-    call costs ~7 us for K = 3, this ~2 us); ``state`` rows [y_prev, c, y_ext, dir] are updated
-    in place (rows of two, [y_prev, c], are widened on first use).
+    """Drive positions (D) for the wanted cable positions ``y_mm`` (mm, per cable); ``half_mm``
+    the half widths b/2. ``state`` rows [y_prev, c, y_ext, dir] per cable are updated in place
+    (rows of two, [y_prev, c], are widened on first use; all zero at the start: centred): the
+    wanted position of the last call, the pre-travel c (in [-b/2, b/2]), the extremum of the
+    current direction and that direction. c moves towards its target by at most
+    ``max_step_mm`` per call. Plain floats: the control loop's few cables (for K = 3 the same
+    rule on numpy arrays costs about three times as much).
 
     Reversal rule with hysteresis h = max(``hysteresis_mm``, :data:`DIRECTION_EPS_MM`): the
     direction of motion ``dir`` (+1, -1, 0 before the first move) turns only once the wanted

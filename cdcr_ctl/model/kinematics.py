@@ -217,8 +217,10 @@ def chain(psi: np.ndarray, lengths_mm: np.ndarray) -> list[tuple[np.ndarray, np.
 
 
 def tip_position(psi: np.ndarray, lengths_mm: np.ndarray) -> np.ndarray:
-    """Tip position of the last segment in the robot base frame (mm), eq. 3."""
-    return chain(psi, lengths_mm)[-1][1]
+    """Tip position of the last segment in the robot base frame (mm), eq. 3: the
+    :func:`tip_frame_fast` of the bending vectors of ``psi`` (S, 2)."""
+    xs = psi_to_x(psi).ravel().tolist()
+    return np.array(tip_frame_fast(xs, [float(v) for v in lengths_mm])[1])
 
 
 def point_jacobian(
@@ -301,10 +303,7 @@ def disk_positions(psi: np.ndarray, lengths_mm: np.ndarray, n_disks: list[int]) 
 
 
 def tip_position_fast(xs: list[float], lengths_mm: list[float]) -> tuple[float, float, float]:
-    """Tip position (mm, base frame) from flat bending vectors, eq. 1-3 on plain floats.
-
-    Same result as :func:`tip_position` (tested) for use once per control cycle.
-    """
+    """Tip position (mm, base frame) from flat bending vectors, eq. 1-3 on plain floats."""
     return tip_frame_fast(xs, lengths_mm)[1]
 
 
@@ -314,7 +313,10 @@ def tip_frame_fast(
     """Tip frame of the last segment in the robot base frame from flat bending vectors
     ``xs`` (x_1, y_1, x_2, ...; rad), eq. 1-3 on plain floats: (R rows, p in mm).
 
-    The same frame as ``chain(psi, lengths_mm)[-1]`` within rounding (tested). Each segment in
+    The same frame as ``chain(psi, lengths_mm)[-1]`` within rounding: :func:`chain` gives every
+    segment's frame (the Jacobians and backbone points use them), this the tip's alone, once per
+    control cycle and per simulated step (``benchmarks/bench_hot_paths.py`` measures the two;
+    ``tests/model/test_cc_kinematics.py`` holds them equal). Each segment in
     bending-vector form (X, Y) = theta (cos phi, sin phi), t = theta, a = s1(t), b = c2(t):
     R = [[1 - b X^2, -b X Y, a X], [-b X Y, 1 - b Y^2, a Y], [-a X, -a Y, 1 - b t^2]] (eq. 1)
     and p = l (b X, b Y, a) (eq. 2), chained R_i = R_{i-1} R, P_i = R_{i-1} p + P_{i-1} (eq. 3).

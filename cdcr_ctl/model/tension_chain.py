@@ -174,17 +174,6 @@ class TensionChain:
             T = tr.to_robot(T, s)
         return T
 
-    def inside(self, k: int, T_distal: float, Fb_k: list[float]) -> float:
-        """delta_in (mm): sum_i l_i (T_d Fbar_ki - T0) / EA over the segments cable k crosses."""
-        iEA = self._iEA[k]
-        if iEA == 0.0:
-            return 0.0
-        T0 = self._T0[k]
-        acc = 0.0
-        for i, f in enumerate(Fb_k):
-            acc += self._l[i] * (T_distal * f - T0)
-        return acc * iEA
-
     # ------------------------------------------------------------------ full chain
     def evaluate(
         self,
@@ -226,9 +215,10 @@ class TensionChain:
     def cable(
         self, P: Pose, k: int, T_k: float, s_k: float, Fb_k: list[float], Eb_k: float
     ) -> tuple[float, float, float, float]:
-        """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state.
-
-        :meth:`inside` written out (the same floats, tested): this runs per cable in every
+        """(T_base, T_actuator, w, q) of cable k for its anchor tension and friction state:
+        T_base = T_k exp(Ebar_k); T_actuator and delta_out from :meth:`outside`; the stretch
+        inside the robot delta_in = sum_i l_i (T_k Fbar_ki - T0) / EA over the segments cable k
+        crosses, w = q_geom + delta_in, q = w + delta_out (mm). It runs per cable in every
         evaluation of the chain and in the forward solver's differences.
         """
         tb = T_k * math.exp(Eb_k)

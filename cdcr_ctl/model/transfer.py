@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 from cdcr_ctl.model.capstan import PulleyTransfer
-from cdcr_ctl.model.kinematics import SERIES_BELOW
+from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
 from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
 from cdcr_ctl.model.routing import tangent_angle
 from cdcr_ctl.model.statics import G_MM_S2_TO_N, tip_load_force, xs_to_psi
@@ -231,14 +231,8 @@ class ForceTransfer(TensionChain):
             n, L, tk, two_n_tk, two_n, four_n2, four_n = self._chord_k[i]
             a = 0.5 * theta[i] / n
             sn = math.sin(a)
-            # s1(a) and d1(a) written out (the same floats)
-            if abs(a) < SERIES_BELOW:
-                t2 = a * a
-                sa = 1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0)))
-                da = -1.0 / 3.0 + t2 / 30.0 - t2 * t2 / 840.0 + t2**3 / 45360.0
-            else:
-                sa = sn / a
-                da = (a * math.cos(a) - sn) / a**3
+            sa = s1(a)
+            da = d1(a)
             h = math.sin(0.5 * a)
             seg.append(
                 (L * (1.0 - sa) - two_n_tk * h * h, two_n * sn, da / four_n2, tk * sa / four_n, sa)

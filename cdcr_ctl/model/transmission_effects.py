@@ -17,7 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from cdcr_ctl.model.deadzone import dead_zone_inverse_list, play_forward_list
+from cdcr_ctl.model.deadzone import dead_zone_inverse, play_forward
 from cdcr_ctl.model.params import Effects, RobotParams
 
 
@@ -31,7 +31,7 @@ class BacklashPlay:
     the pre-travel c moving towards +-b/2 in the direction of the last motion of the wanted cable
     position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse);
     the direction turns once the wanted position has come back from its extremum by more than
-    ``hysteresis_mm`` (see :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse_list`).
+    ``hysteresis_mm`` (see :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`).
     State: (K, 4) array of [last cable position (forward) or last wanted cable position
     (inverse), pre-travel c, extremum of the wanted position, direction (inverse only)], mm;
     made by :meth:`new_state` and owned by the caller (the control loop keeps it from cycle to
@@ -63,7 +63,7 @@ class BacklashPlay:
 
     def to_cable(self, q_act_mm: np.ndarray, state: np.ndarray) -> np.ndarray:
         x = np.asarray(q_act_mm, dtype=float).tolist()
-        y = play_forward_list(x, state[:, 0].tolist(), self._half(len(x)))
+        y = play_forward(x, state[:, 0].tolist(), self._half(len(x)))
         state[:, 0] = y
         return np.array(y)
 
@@ -71,7 +71,7 @@ class BacklashPlay:
         y = np.asarray(q_cable_mm, dtype=float).tolist()
         half = self._half(len(y))
         rows = state.tolist()
-        x = dead_zone_inverse_list(y, rows, half, self.max_step_mm, self.hysteresis_mm)
+        x = dead_zone_inverse(y, rows, half, self.max_step_mm, self.hysteresis_mm)
         state[:, :] = rows
         return np.array(x)
 

@@ -151,17 +151,6 @@ def test_disk_point_jacobian_vs_finite_differences():
     np.testing.assert_allclose(pos[2], kin.chain(psi, lengths)[0][1], atol=1e-12)
 
 
-def test_fast_tip_equals_reference():
-    rng = np.random.default_rng(3)
-    lengths = [90.0, 80.0, 70.0]
-    for _ in range(20):
-        psi = np.column_stack((rng.uniform(0, 2, 3), rng.uniform(-3, 3, 3)))
-        xs = kin.psi_to_x(psi).ravel().tolist()
-        np.testing.assert_allclose(
-            kin.tip_position_fast(xs, lengths), kin.tip_position(psi, np.array(lengths)), atol=1e-12
-        )
-
-
 def test_fast_tip_frame_equals_the_chain():
     # rotation and position of the last tip frame, including straight and nearly straight
     # segments (the series branch of the ratios) and one theta = 0 exactly
