@@ -136,7 +136,7 @@ def term_costs(n: int, warmup: int) -> None:
     """q_command of the Qi rig's loop model with the effects added one at a time (docstring)."""
     from dataclasses import replace
 
-    from cdcr_ctl.model.deadzone import dead_zone_inverse
+    from cdcr_ctl.model.shared.deadzone import dead_zone_inverse
 
     cfg = load_rig_config(ROOT / "config" / "qi2023.yaml")
     play = cfg.model_copy(

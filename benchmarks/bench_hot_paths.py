@@ -1,14 +1,16 @@
 """The three formulas kept in two forms, each form timed against the other (per call).
 
-1. the disk weight sums of a segment (:func:`cdcr_ctl.model.transfer._disk_sums`, the ratios
-   written out per disk) against the same sums through :func:`~cdcr_ctl.model.transfer._ratios`
-   per disk, on the segment of the Qi et al. 2023 rig (config/qi2023.yaml, its disks with their
-   weights); they run for every segment in every evaluation of the gravity moments;
+1. the disk weight sums of a segment (:func:`cdcr_ctl.model.cc_disk.transfer._disk_sums`, the ratios
+   written out per disk) against the same sums through
+   :func:`~cdcr_ctl.model.cc_disk.transfer._ratios` per disk, on the segment of the Qi et al. 2023
+   rig (config/qi2023.yaml, its disks with their weights); they run for every segment in every
+   evaluation of the gravity moments;
 2. a pulley's fused ``to_actuator_stretch`` against ``to_actuator`` + ``stretch_integral`` (the
    two calls whose floats it gives), on the rig's table pulley (n = 0.67 law where the config
    has one, else its first pulley), tensions 0.5-40 N, pulled in and paid out;
-3. the tip frame on plain floats (:func:`cdcr_ctl.model.kinematics.tip_frame_fast`) against the
-   last frame of :func:`~cdcr_ctl.model.kinematics.chain` (numpy), three segments.
+3. the tip frame on plain floats (:func:`cdcr_ctl.model.cc_disk.kinematics.tip_frame_fast`) against
+the
+   last frame of :func:`~cdcr_ctl.model.cc_disk.kinematics.chain` (numpy), three segments.
 
 How: ``time.perf_counter_ns`` around blocks of 200 calls at inputs that change every call,
 after a warm-up; the median of 50 blocks per form, in us per call. The forms alternate block by
@@ -32,9 +34,9 @@ sys.path.insert(0, str(ROOT))
 
 from cdcr_ctl.config import load_rig_config  # noqa: E402
 from cdcr_ctl.config.build_model import robot_params  # noqa: E402
-from cdcr_ctl.model import kinematics as kin  # noqa: E402
-from cdcr_ctl.model.params import Effects  # noqa: E402
-from cdcr_ctl.model.transfer import ForceTransfer, _disk_sums, _ratios  # noqa: E402
+from cdcr_ctl.model.cc_disk import kinematics as kin  # noqa: E402
+from cdcr_ctl.model.cc_disk.params import Effects  # noqa: E402
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, _disk_sums, _ratios  # noqa: E402
 
 BLOCK, BLOCKS = 200, 50
 

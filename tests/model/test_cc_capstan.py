@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cdcr_ctl.model import capstan as cap
+from cdcr_ctl.model.shared import capstan as cap
 
 
 def test_ratio_is_one_at_zero_wrap():

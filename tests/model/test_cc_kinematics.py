@@ -9,7 +9,7 @@ import pytest
 from cc_robots import central_diff
 from scipy.spatial.transform import Rotation
 
-from cdcr_ctl.model import kinematics as kin
+from cdcr_ctl.model.cc_disk import kinematics as kin
 
 ANGLES = [(1.0, 0.3), (0.4, -2.0), (2.5, 3.0), (1e-7, 1.1), (0.0, 0.7), (-0.6, 0.2), (0.1, 1.3)]
 

@@ -1,5 +1,5 @@
 """Lost motion (Yang et al. 2022 eq. 13-17): the play operator, its rate-bounded inverse, and the
-controller's command with it (cdcr_ctl.model.deadzone, BacklashPlay, build_model)."""
+controller's command with it (cdcr_ctl.model.shared.deadzone, BacklashPlay, build_model)."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import yaml
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import DEAD_ZONE_STEP_FRACTION, build_model
-from cdcr_ctl.model.deadzone import dead_zone_inverse, play_forward
-from cdcr_ctl.model.effects import BacklashPlay
+from cdcr_ctl.model.cc_disk.effects import BacklashPlay
+from cdcr_ctl.model.shared.deadzone import dead_zone_inverse, play_forward
 
 ROOT = Path(__file__).resolve().parents[2]
 B = np.array([0.25, 0.35, 0.3])

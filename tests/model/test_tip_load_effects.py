@@ -13,13 +13,13 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_cc_disk_model, reversal_hysteresis_mm, robot_params
 from cdcr_ctl.errors import ConfigError, ConfigErrors
-from cdcr_ctl.model.compensation import Compensator, psi_to_flat_x
-from cdcr_ctl.model.deadzone import dead_zone_inverse
-from cdcr_ctl.model.effect_spec import ModelSpec, rotation_from_rotvec
-from cdcr_ctl.model.effect_terms import DiskFriction, GravityDirection, mount_axes
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.statics import moment_demand, moment_residual, solve_tensions
-from cdcr_ctl.model.transfer import ForceTransfer
+from cdcr_ctl.model.cc_disk.compensation import Compensator, psi_to_flat_x
+from cdcr_ctl.model.cc_disk.effect_spec import ModelSpec, rotation_from_rotvec
+from cdcr_ctl.model.cc_disk.effect_terms import DiskFriction, GravityDirection, mount_axes
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.statics import moment_demand, moment_residual, solve_tensions
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
+from cdcr_ctl.model.shared.deadzone import dead_zone_inverse
 
 ROOT = Path(__file__).resolve().parents[2]
 QI = ROOT / "config" / "qi2023.yaml"
@@ -295,8 +295,8 @@ def test_forward_model_under_a_tip_load_inverts_the_compensation(geometry):
     the compensation commands for a pose under a 5 g payload and a sideways tip force bring the
     forward model (every effect on, stepped through a monotone path) to that pose (1e-8 rad
     of bending vector: the Newton tolerance), and not the unloaded robot."""
-    from cdcr_ctl.model.forward import ForwardStepper
-    from cdcr_ctl.model.kinematics import psi_to_x
+    from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+    from cdcr_ctl.model.cc_disk.kinematics import psi_to_x
 
     p = robot_params(load_rig_config(THREE).robot)
     loaded = replace(p, tip_mass_g=5.0, tip_force_N=(0.02, -0.01, 0.0))

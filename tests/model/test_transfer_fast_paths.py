@@ -2,9 +2,9 @@
 
 ``TensionChain.cable`` against the stretch of Qi et al. 2023 eq. 33-36 (the tension chain's
 sums, to rounding), ``_along`` assembling ``cable``'s values, the chord geometry against the
-segment shortening and its gradient written from :func:`~cdcr_ctl.model.kinematics.s1` and
+segment shortening and its gradient written from :func:`~cdcr_ctl.model.cc_disk.kinematics.s1` and
 ``d1``, the pulley table's inverse against its per-piece formula. The two kept pairs, the disk
-weight sums against :func:`~cdcr_ctl.model.transfer._ratios` and the pulley's fused
+weight sums against :func:`~cdcr_ctl.model.cc_disk.transfer._ratios` and the pulley's fused
 ``to_actuator_stretch`` against its two calls, are held to the same floats: their measurement is
 printed by ``benchmarks/bench_hot_paths.py`` (docs/performance/figures.md).
 """
@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from cc_robots import make_robot, qi_params, three_params
 
-from cdcr_ctl.model import capstan as cap
-from cdcr_ctl.model.kinematics import d1, s1
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.transfer import ForceTransfer, _disk_sums, _ratios
+from cdcr_ctl.model.cc_disk.kinematics import d1, s1
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, _disk_sums, _ratios
+from cdcr_ctl.model.shared import capstan as cap
 
 ROBOTS = [qi_params, three_params, lambda: make_robot(2, thickness_mm=1.5)]
 

@@ -87,16 +87,26 @@ def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
 def imported_by_name() -> dict[str, set[str]]:
     """Imports made from a string at run time: the command modules of the CLI's lazy group
     (:data:`cdcr_ctl.cli.main.COMMANDS`, ``"module.attribute"``), counted as imports of
-    ``cdcr_ctl.cli.main``, and the modules of the packages' ``LAZY`` tables, as imports of the
-    package."""
-    from cdcr_ctl import identify, runlog
+    ``cdcr_ctl.cli.main``; the modules of the packages' ``LAZY`` tables, as imports of the
+    package; the design registry's truths and demos (``"module:attribute"``), as imports of the
+    modules that resolve them."""
+    from cdcr_ctl import identify, model, runlog
     from cdcr_ctl.cli.main import COMMANDS
+    from cdcr_ctl.config.registry import DESIGNS
+
+    def named(attr: str) -> set[str]:
+        refs = (getattr(d, attr) for d in DESIGNS.values())
+        return {r.partition(":")[0] for r in refs if isinstance(r, str)}
 
     return {
         "cdcr_ctl.cli.main": {path.rpartition(".")[0] for path in COMMANDS.values()},
         # the packages' attributes imported on first use (cdcr_ctl.firstuse)
         "cdcr_ctl.identify": set(identify.LAZY.values()),
+        "cdcr_ctl.model": set(model.LAZY.values()),
         "cdcr_ctl.runlog": set(runlog.LAZY.values()),
+        # the design registry's plug-ins, resolved by the layer that uses them
+        "cdcr_ctl.sim.design_truth": named("truth"),
+        "cdcr_ctl.cli.demo": named("demo"),
     }
 
 

@@ -2,8 +2,8 @@
 
 Pure physics, numpy only: no I/O, no clocks. Units: mm, N, rad, g; frames: the robot base frame.
 
-Transmission effects (:class:`~cdcr_ctl.model.params.ActuatorEffect`, between the drive and the
-cable leaving the spool, applied by :class:`~cdcr_ctl.model.forward.ForwardStepper`):
+Transmission effects (:class:`~cdcr_ctl.model.cc_disk.params.ActuatorEffect`, between the drive and
+the cable leaving the spool, applied by :class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper`):
 
 * :class:`BacklashPlay` - a play (dead band) of width b in the transmission: the cable follows the
   actuator only while the actuator pushes against one side of the play,
@@ -23,7 +23,7 @@ and one it has with the wrong magnitude. A new effect is one subclass with :meth
 
 from __future__ import annotations
 
-from cdcr_ctl.model.effect_spec import (
+from cdcr_ctl.model.cc_disk.effect_spec import (
     REFERENCE_DISK_MASS_G,
     REFERENCE_EA_N,
     REFERENCE_MU_DISK,
@@ -36,7 +36,7 @@ from cdcr_ctl.model.effect_spec import (
     rotation_from_rotvec,
     rotvec_from_rotation,
 )
-from cdcr_ctl.model.effect_terms import (
+from cdcr_ctl.model.cc_disk.effect_terms import (
     ActuatorScale,
     CableElongation,
     DiskFriction,
@@ -47,7 +47,11 @@ from cdcr_ctl.model.effect_terms import (
     SegmentCoupling,
     TrackerFrameOffset,
 )
-from cdcr_ctl.model.transmission_effects import BacklashPlay, TransmissionScale, with_cable_play
+from cdcr_ctl.model.cc_disk.transmission_effects import (
+    BacklashPlay,
+    TransmissionScale,
+    with_cable_play,
+)
 
 __all__ = [
     "CANDIDATES",

@@ -1,6 +1,6 @@
 """The tension half of the force-transfer chain: friction factors, statics, along the cable.
 
-:class:`TensionChain` is the mixin of :class:`~cdcr_ctl.model.transfer.ForceTransfer` that
+:class:`TensionChain` is the mixin of :class:`~cdcr_ctl.model.cc_disk.transfer.ForceTransfer` that
 turns a :class:`Pose` into tensions and cable displacements (Qi et al. 2023): mean span-tension
 factors (eq. 23) -> anchor tensions (eq. 9-15, pretension rule) -> base tensions (eq. 23) ->
 pulley tensions (eq. 29-32 tables) -> delta_in, delta_out (eq. 33-36) -> q = q_geom + delta.
@@ -13,8 +13,8 @@ import math
 from dataclasses import dataclass
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.capstan import PulleyTransfer
-from cdcr_ctl.model.params import Location
+from cdcr_ctl.model.cc_disk.params import Location
+from cdcr_ctl.model.shared.capstan import PulleyTransfer
 
 
 @dataclass(slots=True)
@@ -73,7 +73,7 @@ class TensionChain:
         Spans of segment i (n_i of them) sit beyond Zb[a] - Zb[i] of wrap from the anchor plus
         p theta_i/n_i, p = 0..n_i-1, so their mean factor is
         exp(beta (Zb[a] - Zb[i])) * expm1(n beta theta/n) / (n expm1(beta theta/n)),
-        beta = s mu (:func:`cdcr_ctl.model.friction.mean_geometric`).
+        beta = s mu (:func:`cdcr_ctl.model.shared.friction.mean_geometric`).
         """
         a = self._a[k]
         beta = s_k * self._mu[k]

@@ -1,10 +1,10 @@
 """The stateful forward model of the simulator: :class:`ForwardStepper` and :func:`replay`.
 
 Carries the friction state (stick memory of the disk-hole capstan friction, Qi et al. 2023
-eq. 16-24, see :mod:`~cdcr_ctl.model.friction`), the cable modes and the last solution from
+eq. 16-24, see :mod:`~cdcr_ctl.model.shared.friction`), the cable modes and the last solution from
 call to call (warm start), applies the transmission effects (actuator -> cable) before the
 robot, and falls back to sub-steps along the straight path when a step cannot be solved at
-once. The solve itself is :class:`~cdcr_ctl.model.forward.solver.ForwardModel` (eq. 9-15,
+once. The solve itself is :class:`~cdcr_ctl.model.cc_disk.forward.solver.ForwardModel` (eq. 9-15,
 33-37).
 """
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.forward.solver import SUBSTEP_LEVELS, ForwardModel, ForwardResult
-from cdcr_ctl.model.friction import FrictionState
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.forward.solver import SUBSTEP_LEVELS, ForwardModel, ForwardResult
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
+from cdcr_ctl.model.shared.friction import FrictionState
 
 
 class ForwardStepper:

@@ -2,7 +2,7 @@
 
 Pure numpy: :class:`ModelSpec` (robot parameters, switchable effects, tip measurement map),
 :class:`EffectParam`, :class:`FittedValue` and the :class:`EffectTerm` ABC every candidate in
-:mod:`cdcr_ctl.model.effect_terms` implements, plus the reference constants (Qi et al. 2023
+:mod:`cdcr_ctl.model.cc_disk.effect_terms` implements, plus the reference constants (Qi et al. 2023
 section 3) and the rotation-vector helpers (Rodrigues) of the tracker-alignment term.
 """
 
@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
 #: E = 4960 MPa (Qi et al. 2023 section 3) -> EA = 4960 * pi * 0.4^2 = 2493 N.

@@ -1,9 +1,10 @@
 """Fast force-transfer chain for one pose (plain floats): the hot path of compensation and forward.
 
 Composes, for S segments and K cables, the equations implemented for reference (numpy) in
-:mod:`~cdcr_ctl.model.kinematics`, :mod:`~cdcr_ctl.model.routing`, :mod:`~cdcr_ctl.model.statics`,
-:mod:`~cdcr_ctl.model.friction`, :mod:`~cdcr_ctl.model.capstan` and
-:mod:`~cdcr_ctl.model.elongation` (the tests check every quantity against those):
+:mod:`~cdcr_ctl.model.cc_disk.kinematics`, :mod:`~cdcr_ctl.model.cc_disk.routing`,
+:mod:`~cdcr_ctl.model.cc_disk.statics`, :mod:`~cdcr_ctl.model.shared.friction`,
+:mod:`~cdcr_ctl.model.shared.capstan` and :mod:`~cdcr_ctl.model.cc_disk.elongation` (the tests check
+every quantity against those):
 
     bending vectors x -> q_geom (eq. 4 / chords) -> wrap angles (eq. 21-22, closed forms)
     -> mean span-tension factors (eq. 23) -> moment demand (eq. 8 + disk weights)
@@ -13,7 +14,7 @@ Composes, for S segments and K cables, the equations implemented for reference (
 Everything numpy could vectorise is 3x3-sized, where numpy's per-call overhead dominates, so the
 chain runs on Python floats with all constants precomputed at construction. This module holds
 the pose half (geometry, wrap angles, moment demand); the tension half is the mixin
-:class:`~cdcr_ctl.model.tension_chain.TensionChain`.
+:class:`~cdcr_ctl.model.cc_disk.tension_chain.TensionChain`.
 
 Units: mm, N, rad. ``xs`` is the flat list of bending vectors (x_1, y_1, x_2, y_2, ...) with
 x_i = theta_i (cos phi_i, sin phi_i); ``s`` the mobilised friction fractions per cable.
@@ -23,18 +24,19 @@ from __future__ import annotations
 
 import math
 
-from cdcr_ctl.model.capstan import PulleyTransfer
-from cdcr_ctl.model.kinematics import SERIES_BELOW, d1, s1
-from cdcr_ctl.model.params import Effects, RobotParams, cable_radius_mm, is_rigid
-from cdcr_ctl.model.routing import tangent_angle
-from cdcr_ctl.model.statics import G_MM_S2_TO_N, tip_load_force, xs_to_psi
-from cdcr_ctl.model.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
+from cdcr_ctl.model.cc_disk.kinematics import SERIES_BELOW, d1, s1
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams, cable_radius_mm, is_rigid
+from cdcr_ctl.model.cc_disk.routing import tangent_angle
+from cdcr_ctl.model.cc_disk.statics import G_MM_S2_TO_N, tip_load_force, xs_to_psi
+from cdcr_ctl.model.cc_disk.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
+from cdcr_ctl.model.shared.capstan import PulleyTransfer
 
 __all__ = ["ForceTransfer", "Pose", "TensionChain", "Transfer", "_min_sum_pair", "_ratios"]
 
 
 def _ratios(t: float) -> tuple[float, float, float, float, float]:
-    """(s1, c2, d1, d2, e2) of :mod:`cdcr_ctl.model.kinematics` from one sin/cos evaluation."""
+    """(s1, c2, d1, d2, e2) of :mod:`cdcr_ctl.model.cc_disk.kinematics` from one sin/cos
+    evaluation."""
     if abs(t) < SERIES_BELOW:
         t2 = t * t
         t4 = t2 * t2

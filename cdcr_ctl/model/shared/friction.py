@@ -17,7 +17,8 @@ Friction state per cable (:class:`FrictionState`):
   |s| < 1: stuck. Pulleys follow the same s (ln(T_high/T_low) = |s| ln kappa, eq. 32).
 * ``w_mm`` - the cable material drawn out of the robot through the base hole (mm) relative to the
   straight, pretensioned reference: w = q_geom + delta_in, the geometric shortening of the path
-  inside the robot plus the stretch of the cable inside it (see :mod:`cdcr_ctl.model.elongation`).
+  inside the robot plus the stretch of the cable inside it (see
+  :mod:`cdcr_ctl.model.cc_disk.elongation`).
 
 Stick/slide rule (rate independent; derived, the paper's "keep the last value" is its rigid limit):
 while a cable is stuck no material crosses the holes, so w is constant. The moment balance sees
@@ -34,10 +35,10 @@ the sign of s). So at a reversal each actuator travels a dead zone while the rob
                 (the stretch of the cable between actuator and base hole changes with T_base)
 
 which follows from the cable elasticity and shrinks to zero for a rigid cable. The forward model
-(:mod:`cdcr_ctl.model.forward`) solves this as an active set (stick: w = w_prev, |s| <= 1; slide:
-s = +-1 with sign(w - w_prev) = s). The inverse (compensation) model at a desired pose uses the
-direction of material flow: s = sign(w - w_prev) when w changes, else s is kept (hysteresis); with
-rigid cables w = q_geom and this is exactly the paper's sgn(q_dot) with memory at q_dot = 0.
+(:mod:`cdcr_ctl.model.cc_disk.forward`) solves this as an active set (stick: w = w_prev, |s| <= 1;
+slide: s = +-1 with sign(w - w_prev) = s). The inverse (compensation) model at a desired pose uses
+the direction of material flow: s = sign(w - w_prev) when w changes, else s is kept (hysteresis);
+with rigid cables w = q_geom and this is exactly the paper's sgn(q_dot) with memory at q_dot = 0.
 """
 
 from __future__ import annotations
@@ -84,9 +85,10 @@ def propagate(
 ) -> tuple[np.ndarray, float]:
     """Tensions along a cable inside the robot, hole by hole from the anchor (eq. 23).
 
-    ``wraps_rad`` are the contact angles base first (:func:`cdcr_ctl.model.routing.wrap_angles`);
-    piece j is the cable just distal of contact j, the last piece ends at the anchor with
-    ``T_distal_N``. Returns (piece tensions base first, tension entering the base hole), N.
+    ``wraps_rad`` are the contact angles base first
+    (:func:`cdcr_ctl.model.cc_disk.routing.wrap_angles`); piece j is the cable just distal of
+    contact j, the last piece ends at the anchor with ``T_distal_N``. Returns (piece tensions base
+    first, tension entering the base hole), N.
     """
     wraps = np.asarray(wraps_rad, dtype=float)
     M = wraps.size

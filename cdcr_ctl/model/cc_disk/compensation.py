@@ -1,10 +1,10 @@
 """Drive compensation q~ = q + delta (Qi et al. 2023 eq. 37) and the control loop's model port.
 
 Given the desired pose psi of every segment and the friction state, the chain of
-:class:`~cdcr_ctl.model.transfer.ForceTransfer` gives: statics -> anchor tensions -> disk friction
--> base tensions -> pulley friction -> actuator tensions (and the tension at each load cell) ->
-elongation delta -> q~ = q_geom + delta. With the tensions of the load cells in place of the
-modelled ones (mode ``"measured"``) only the friction propagation and the elongation are
+:class:`~cdcr_ctl.model.cc_disk.transfer.ForceTransfer` gives: statics -> anchor tensions -> disk
+friction -> base tensions -> pulley friction -> actuator tensions (and the tension at each load
+cell) -> elongation delta -> q~ = q_geom + delta. With the tensions of the load cells in place of
+the modelled ones (mode ``"measured"``) only the friction propagation and the elongation are
 modelled, and the pretension (no-moment) mode of each segment's measured tensions is pinned by
 the model's pretension rule (:meth:`Compensator.measured_transfer` says why: fed forward, it
 closes a loop of gain ~1). Zero friction and rigid cables give delta = 0 exactly.
@@ -19,8 +19,9 @@ Two ways in:
 
 * :meth:`Compensator.compensate` - stateless: the friction state (``s`` per cable) is given.
 * :meth:`Compensator.step` - stateful, for the loop: the friction state follows the direction in
-  which cable material crosses the base hole (:mod:`cdcr_ctl.model.friction`), with memory when
-  the pose holds, so a reversal flips the friction (the inverse of the forward model's dead zone).
+  which cable material crosses the base hole (:mod:`cdcr_ctl.model.shared.friction`), with memory
+  when the pose holds, so a reversal flips the friction (the inverse of the forward model's dead
+  zone).
 
 :class:`CCDiskModel` adapts it to :class:`cdcr_ctl.control.ports.RobotModelPort`.
 Units: psi (S, 2) rows (theta, phi) in rad; q in mm pulled in; tensions in N.
@@ -35,11 +36,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.friction import FrictionState, band_update, direction_update
-from cdcr_ctl.model.kinematics import tip_position_fast
-from cdcr_ctl.model.params import Effects, Location, RobotParams
-from cdcr_ctl.model.routing import cable_matrix_x
-from cdcr_ctl.model.transfer import ForceTransfer, Pose, Transfer
+from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
+from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose, Transfer
+from cdcr_ctl.model.shared.friction import FrictionState, band_update, direction_update
 
 MODES = ("off", "model", "measured")
 

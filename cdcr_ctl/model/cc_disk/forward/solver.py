@@ -1,8 +1,9 @@
 """Forward static solve (stateless): actuator displacements -> pose and tensions.
 
 :class:`ForwardModel` solves moment balance (Qi et al. 2023 eq. 9-15), cable compatibility
-(eq. 33-37) and the friction active set by Newton's method; see :mod:`cdcr_ctl.model.forward`
-for the equations. :class:`~cdcr_ctl.model.forward.result.ForwardResult` is one solved pose.
+(eq. 33-37) and the friction active set by Newton's method; see
+:mod:`cdcr_ctl.model.cc_disk.forward` for the equations.
+:class:`~cdcr_ctl.model.cc_disk.forward.result.ForwardResult` is one solved pose.
 """
 
 from __future__ import annotations
@@ -13,12 +14,12 @@ import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.forward.result import ForwardResult, _amax, pack_result
-from cdcr_ctl.model.friction import FrictionState, direction_update
-from cdcr_ctl.model.params import Effects, RobotParams
-from cdcr_ctl.model.routing import cable_matrix_x
-from cdcr_ctl.model.tension_chain import Transfer
-from cdcr_ctl.model.transfer import ForceTransfer, Pose
+from cdcr_ctl.model.cc_disk.forward.result import ForwardResult, _amax, pack_result
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
+from cdcr_ctl.model.cc_disk.tension_chain import Transfer
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose
+from cdcr_ctl.model.shared.friction import FrictionState, direction_update
 
 STICK, SLIDE, SLACK, FREE = "stick", "slide", "slack", "free"
 _H_X = 1e-7  # rad, finite-difference step of the bending vectors

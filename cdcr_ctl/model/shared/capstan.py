@@ -177,7 +177,7 @@ class PulleyTransfer:
     Built once at load time: for n = 1 two constants, for n < 1 a table over the outgoing (low)
     tension T_lo on a log grid, interpolated linearly in (ln T_lo, ln kappa). The hot-path methods
     take plain floats. ``s`` in [-1, 1] is the mobilised friction fraction of the cable
-    (:mod:`cdcr_ctl.model.friction`): +1 sliding while pulled in (the actuator side is high),
+    (:mod:`cdcr_ctl.model.shared.friction`): +1 sliding while pulled in (the actuator side is high),
     -1 sliding while paid out (the robot side is high); in between, ln(T_high/T_low) = |s| ln kappa.
     """
 

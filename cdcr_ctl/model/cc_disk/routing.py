@@ -11,9 +11,9 @@ positive shortens the cable inside the robot; q = 0 at the straight pose.
 * Wrap angles at each hole (eq. 21-22): the angle between consecutive span directions
   b = h/||h|| (NOTES: ``h = h/||h||`` means the unit span direction).
 
-Closed forms used by the fast path (:mod:`cdcr_ctl.model.transfer`), derived here and checked in
-the tests against the general polyline functions: in a constant-curvature segment with no twist, a
-hole at (r cos gamma, r sin gamma) in every disk frame traces a circle of radius
+Closed forms used by the fast path (:mod:`cdcr_ctl.model.cc_disk.transfer`), derived here and
+checked in the tests against the general polyline functions: in a constant-curvature segment with no
+twist, a hole at (r cos gamma, r sin gamma) in every disk frame traces a circle of radius
 R' = l/theta - r cos(phi - gamma) in a plane parallel to the bending plane, concentric with the
 backbone arc. The chord between disks m and m+1 is therefore parallel to the backbone tangent at
 the mid-angle, so the wrap angle at an inner hole is theta/n whatever the cable, and the chord is
@@ -28,8 +28,8 @@ import math
 
 import numpy as np
 
-from cdcr_ctl.model.kinematics import position, rotation, s1
-from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.cc_disk.kinematics import position, rotation, s1
+from cdcr_ctl.model.cc_disk.params import RobotParams
 
 
 def _psi(psi: np.ndarray) -> np.ndarray:

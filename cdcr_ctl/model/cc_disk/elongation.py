@@ -12,7 +12,7 @@ q_act = q_geom + delta (to first order in T/EA). Pieces of the path:
 * free straight runs (actuator -> pulley -> ... -> robot base), length L_free/(P+1) each, with the
   run's constant tension;
 * pulley wraps (eq. 34-35): (R + r_s) * integral over the wrap of (T(phi) - T0) dphi, T(phi) the
-  eq. 29 profile (:meth:`cdcr_ctl.model.capstan.PulleyTransfer.stretch_integral`);
+  eq. 29 profile (:meth:`cdcr_ctl.model.shared.capstan.PulleyTransfer.stretch_integral`);
 * disk-hole spans (eq. 36): the span tensions of eq. 23 times the spans' reference lengths
   l_i/n_i (the length change with the pose multiplies a strain: second order, dropped). For a
   continuous wrap with curvature theta/l this is eq. 36, T_d l (exp(s mu theta) - 1)/(s mu theta).
@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdcr_ctl.model.capstan import PulleyTransfer
-from cdcr_ctl.model.friction import propagate
-from cdcr_ctl.model.params import CableParams, RobotParams, cable_radius_mm
-from cdcr_ctl.model.routing import wrap_angles
+from cdcr_ctl.model.cc_disk.params import CableParams, RobotParams, cable_radius_mm
+from cdcr_ctl.model.cc_disk.routing import wrap_angles
+from cdcr_ctl.model.shared.capstan import PulleyTransfer
+from cdcr_ctl.model.shared.friction import propagate
 
 
 def piecewise(tensions_N: Sequence[float], lengths_mm: Sequence[float], T0_N: float, EA_N: float):
@@ -95,7 +95,7 @@ def cable_profile(
     """Tension profile of cable k from its distal tension and friction state (reference).
 
     Disk holes: eq. 23 hole by hole over the exact chord wrap angles
-    (:func:`cdcr_ctl.model.routing.wrap_angles`); pulleys: the improved capstan tables
+    (:func:`cdcr_ctl.model.cc_disk.routing.wrap_angles`); pulleys: the improved capstan tables
     ``transfers`` (one per pulley, actuator -> robot order).
     """
     c = params.cables[k]

@@ -1,7 +1,8 @@
 """Forward static model: actuator displacements -> pose and tensions, with friction memory.
 
 Unknowns: the bending vectors x (2S, rad), the anchor tensions T (K, N) and the mobilised friction
-fractions s (K). Equations (all effects of :class:`~cdcr_ctl.model.params.Effects` switchable):
+fractions s (K). Equations (all effects of :class:`~cdcr_ctl.model.cc_disk.params.Effects`
+switchable):
 
 * moment balance, 2S (statics.py, moment-vector form of Qi et al. 2023 eq. 9-15)
 * cable compatibility, K: q_act_k = q_geom_k(x) + delta_k(x, T_k, s_k)   (eq. 33-37, material
@@ -21,7 +22,7 @@ start): the simulator's truth. Its :class:`Effects` and :class:`RobotParams` may
 controller's.
 """
 
-from cdcr_ctl.model.forward.solver import (
+from cdcr_ctl.model.cc_disk.forward.solver import (
     FREE,
     SLACK,
     SLIDE,
@@ -30,7 +31,7 @@ from cdcr_ctl.model.forward.solver import (
     ForwardModel,
     ForwardResult,
 )
-from cdcr_ctl.model.forward.stepper import ForwardStepper, Replay, replay
+from cdcr_ctl.model.cc_disk.forward.stepper import ForwardStepper, Replay, replay
 
 __all__ = [
     "FREE",

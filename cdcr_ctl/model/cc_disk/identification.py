@@ -5,7 +5,7 @@ Eq. 38 fits the friction of the force-transfer model to load-cell tensions over 
 paper calls it linear; with mu inside exp(s mu eta) it is not, so it is solved here with
 :func:`scipy.optimize.least_squares`. The machinery is generic:
 
-* :class:`ParamRef` names one scalar of :class:`~cdcr_ctl.model.params.RobotParams`
+* :class:`ParamRef` names one scalar of :class:`~cdcr_ctl.model.cc_disk.params.RobotParams`
   (mu per cable, EA per cable, pretension, EI per segment, pulley alpha and n, ...), optionally
   fitted in log space; :func:`with_values` maps a parameter vector back to model parameters.
 * residual builders stack weighted residuals: :func:`tension_residuals` (modelled minus measured
@@ -27,9 +27,9 @@ from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.compensation import Compensator
-from cdcr_ctl.model.forward import ForwardStepper
-from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.cc_disk.compensation import Compensator
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 ResidualFn = Callable[[RobotParams], np.ndarray]
 
@@ -295,7 +295,8 @@ class TipSample:
 
 def tip_residuals(samples: Sequence[TipSample], effects: Effects | None = None) -> ResidualFn:
     """Residual builder: forward-model tip minus tracker tip (mm), replaying the commands in
-    order through a fresh :class:`~cdcr_ctl.model.forward.ForwardStepper` (hysteresis kept)."""
+    order through a fresh :class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper` (hysteresis
+    kept)."""
 
     def fn(params: RobotParams) -> np.ndarray:
         stepper = ForwardStepper(params, effects)

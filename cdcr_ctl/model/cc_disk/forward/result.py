@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdcr_ctl.model.friction import FrictionState
-from cdcr_ctl.model.kinematics import tip_frame_fast
+from cdcr_ctl.model.cc_disk.kinematics import tip_frame_fast
+from cdcr_ctl.model.shared.friction import FrictionState
 
 
 def _amax(v: np.ndarray) -> float:

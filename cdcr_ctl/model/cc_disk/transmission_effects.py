@@ -1,8 +1,8 @@
 """Transmission effects between the drive and the cable leaving the spool.
 
 Pure physics, numpy only: no I/O, no clocks. Units: mm. These are the
-:class:`~cdcr_ctl.model.params.ActuatorEffect` implementations applied by
-:class:`~cdcr_ctl.model.forward.ForwardStepper`:
+:class:`~cdcr_ctl.model.cc_disk.params.ActuatorEffect` implementations applied by
+:class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper`:
 
 * :class:`BacklashPlay` - a play (dead band) of width b in the transmission,
   y = clip(y_prev, x - b/2, x + b/2) (the "play operator"; Yang et al. 2022 eq. 13-17 model the
@@ -17,21 +17,21 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from cdcr_ctl.model.deadzone import dead_zone_inverse, play_forward
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
+from cdcr_ctl.model.shared.deadzone import dead_zone_inverse, play_forward
 
 
 @dataclass(frozen=True)
 class BacklashPlay:
     """Play of total width ``width_mm`` (per cable or one for all) between drive and cable.
 
-    Forward (:meth:`to_cable`): the play operator of :mod:`cdcr_ctl.model.deadzone`,
+    Forward (:meth:`to_cable`): the play operator of :mod:`cdcr_ctl.model.shared.deadzone`,
     y_k = clip(y_prev_k, x_k - b_k/2, x_k + b_k/2), starting centred (y = 0 at x = 0). Inverse
-    (:meth:`to_actuator`): :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`, x = y + c with
+    (:meth:`to_actuator`): :func:`~cdcr_ctl.model.shared.deadzone.dead_zone_inverse`, x = y + c with
     the pre-travel c moving towards +-b/2 in the direction of the last motion of the wanted cable
     position (kept while it holds), by at most ``max_step_mm`` per call (inf: the exact inverse);
     the direction turns once the wanted position has come back from its extremum by more than
-    ``hysteresis_mm`` (see :func:`~cdcr_ctl.model.deadzone.dead_zone_inverse`).
+    ``hysteresis_mm`` (see :func:`~cdcr_ctl.model.shared.deadzone.dead_zone_inverse`).
     State: (K, 4) array of [last cable position (forward) or last wanted cable position
     (inverse), pre-travel c, extremum of the wanted position, direction (inverse only)], mm;
     made by :meth:`new_state` and owned by the caller (the control loop keeps it from cycle to
@@ -87,7 +87,8 @@ def with_cable_play(
 
     Unchanged when every cable has zero play or ``effects.actuator`` already holds a play (a
     discrepancy candidate that brings its own). ``max_step_mm``: the inverse's pre-travel step
-    bound per call, ``hysteresis_mm`` its reversal threshold (see :mod:`cdcr_ctl.model.deadzone`).
+    bound per call, ``hysteresis_mm`` its reversal threshold (see
+    :mod:`cdcr_ctl.model.shared.deadzone`).
     """
     widths = tuple(c.backlash_mm for c in params.cables)
     if not any(w > 0 for w in widths) or any(isinstance(e, BacklashPlay) for e in effects.actuator):

@@ -5,7 +5,7 @@ Virtual work (eq. 7, 9) for all segments at once, with psi stacked (theta_1, phi
     J_qpsi^T tau = grad U - Q_ext,     U = sum EI_i theta_i^2 / (2 l_i)   (eq. 8)
 
 tau the cable tensions (N) acting at the anchors (the tension that bends the robot), J_qpsi the
-multi-segment cable Jacobian (:func:`cdcr_ctl.model.routing.cable_jacobian`), Q_ext the
+multi-segment cable Jacobian (:func:`cdcr_ctl.model.cc_disk.routing.cable_jacobian`), Q_ext the
 generalised external forces (disk weights here). Units: N, N*mm, rad.
 
 Moment-vector form (handles the theta = 0 rank loss, NOTES eq. 10): in bending-vector
@@ -50,10 +50,10 @@ import numpy as np
 from scipy.optimize import linprog
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.friction import propagate
-from cdcr_ctl.model.kinematics import point_jacobian, psi_to_x
-from cdcr_ctl.model.params import Effects, RobotParams
-from cdcr_ctl.model.routing import cable_jacobian, wrap_angles
+from cdcr_ctl.model.cc_disk.kinematics import point_jacobian, psi_to_x
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_jacobian, wrap_angles
+from cdcr_ctl.model.shared.friction import propagate
 
 #: grams * mm/s^2 -> N
 G_MM_S2_TO_N = 1e-6
@@ -73,8 +73,8 @@ def gravity_force(psi: np.ndarray, params: RobotParams, coords: str = "psi") -> 
 
     Disk m of segment i (mass from the config, each of the n_i disks after the segment's base)
     sits at arc fraction m/n_i; J_m its linear Jacobian in the base frame
-    (:func:`cdcr_ctl.model.kinematics.point_jacobian`); g the gravity vector in the base frame.
-    ``coords="x"`` gives the force conjugate to the bending vectors (phi components / theta).
+    (:func:`cdcr_ctl.model.cc_disk.kinematics.point_jacobian`); g the gravity vector in the base
+    frame. ``coords="x"`` gives the force conjugate to the bending vectors (phi components / theta).
     """
     psi = np.asarray(psi, dtype=float).reshape(-1, 2)
     g = np.asarray(params.gravity_mm_s2, dtype=float) * G_MM_S2_TO_N
@@ -103,7 +103,7 @@ def tip_load_force(
     F = m_tip g + F_tip: the payload's weight (``params.tip_mass_g``, g; left out with
     ``weight=False``) and the tip force (``params.tip_force_N``, N, base frame), both acting at
     the tip point of the last segment (arc fraction 1); J_tip its linear Jacobian
-    (:func:`cdcr_ctl.model.kinematics.point_jacobian`). Virtual work of a point force: the
+    (:func:`cdcr_ctl.model.cc_disk.kinematics.point_jacobian`). Virtual work of a point force: the
     force F at a point p does F . dp = F . J dpsi, so it enters eq. 9 as Q = J^T F, like the
     disk weights.
     """
@@ -228,8 +228,8 @@ def solve_tensions_all_cables(psi: np.ndarray, params: RobotParams, effects: Eff
     """Frictionless all-cables form (eq. 9 for every segment at once), by linear programming.
 
     minimise sum T subject to J_qpsi^T T = grad U - Q_psi and T >= T0, with the full
-    multi-segment Jacobian of :func:`cdcr_ctl.model.routing.cable_jacobian` (phi rows divided by
-    theta where theta > 0). Reference for :func:`solve_tensions` (scipy linprog, slow).
+    multi-segment Jacobian of :func:`cdcr_ctl.model.cc_disk.routing.cable_jacobian` (phi rows
+    divided by theta where theta > 0). Reference for :func:`solve_tensions` (scipy linprog, slow).
     """
     psi = np.asarray(psi, dtype=float).reshape(-1, 2)
     J = cable_jacobian(psi, params)

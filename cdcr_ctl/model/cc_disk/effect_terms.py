@@ -4,7 +4,7 @@ Pure physics, numpy only. Each term is a correction of the controller's model (z
 as it is). Qi et al. 2023: cable elongation (eq. 33-36), disk friction (eq. 16-24), segment
 coupling (eq. 11-15), gravity sag and direction (eq. 7-9), pulley losses (eq. 25-32); Yang et
 al. 2022: reversal backlash (eq. 13-17), actuator scale (eq. 3); and the tracker frame offset.
-The library :data:`~cdcr_ctl.model.effects.CANDIDATES` lists them.
+The library :data:`~cdcr_ctl.model.cc_disk.effects.CANDIDATES` lists them.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from cdcr_ctl.model.effect_spec import (
+from cdcr_ctl.model.cc_disk.effect_spec import (
     REFERENCE_DISK_MASS_G,
     REFERENCE_EA_N,
     REFERENCE_MU_DISK,
@@ -27,8 +27,8 @@ from cdcr_ctl.model.effect_spec import (
     rotation_from_rotvec,
     rotvec_from_rotation,
 )
-from cdcr_ctl.model.params import CableParams
-from cdcr_ctl.model.transmission_effects import BacklashPlay, TransmissionScale
+from cdcr_ctl.model.cc_disk.params import CableParams
+from cdcr_ctl.model.cc_disk.transmission_effects import BacklashPlay, TransmissionScale
 
 
 class CableElongation(EffectTerm):
