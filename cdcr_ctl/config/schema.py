@@ -46,8 +46,9 @@ class RigConfig(Section):
 
     #: The rig's name: in run logs, ``status`` and the live view.
     name: Name
-    #: The robot design, which picks the model, its checks, its simulated truth: a name of the
-    #: design registry (:mod:`cdcr_ctl.config.registry`).
+    #: The robot design, which picks the model: ``cc_disk`` (Qi et al. 2023), ``ujoint`` (Yang et
+    #: al. 2022), ``vertebra`` (the vertebra arm), or another name registered in the design
+    #: registry (:mod:`cdcr_ctl.config.registry`).
     design: Design = "cc_disk"
     robot: RobotConfig
     can: CanBusConfig = Field(default_factory=CanBusConfig)
