@@ -16,6 +16,7 @@ type-only import that closes a circle still ties the rooms together) and fails o
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[2] / "cdcr_ctl"
@@ -110,6 +111,7 @@ def imported_by_name() -> dict[str, set[str]]:
     }
 
 
+@cache  # one walk of the package for the module's tests (they only read it)
 def graph() -> dict[str, set[str]]:
     mods = modules()
     known = set(mods)
