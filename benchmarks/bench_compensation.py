@@ -136,7 +136,7 @@ def term_costs(n: int, warmup: int) -> None:
     """q_command of the Qi rig's loop model with the effects added one at a time (docstring)."""
     from dataclasses import replace
 
-    from cdcr_ctl.model.deadzone import dead_zone_inverse
+    from cdcr_ctl.model.shared.deadzone import dead_zone_inverse
 
     cfg = load_rig_config(ROOT / "config" / "qi2023.yaml")
     play = cfg.model_copy(
@@ -179,13 +179,12 @@ def term_costs(n: int, warmup: int) -> None:
         if inc:
             print(f"{'':48}{inc}")
         prev = med
-    y = np.zeros(3)
-    c0 = np.zeros(3)
-    b = np.full(3, 0.3)
-    ys = [(y + 0.001 * j,) for j in range(n)]
+    state = [[0.0, 0.0, 0.0, 0.0] for _ in range(3)]
+    half = [0.15] * 3
+    ys = [([0.001 * j] * 3,) for j in range(n)]
     report(
         "  dead-zone inverse alone (model.deadzone)",
-        timed(lambda v: dead_zone_inverse(v, y, c0, b, 0.01), ys, warmup),
+        timed(lambda v: dead_zone_inverse(v, state, half, 0.01), ys, warmup),
     )
 
 

@@ -50,8 +50,8 @@ from cdcr_ctl.config.build_model import build_model, loadcell_locations
 from cdcr_ctl.identify.heldout import heldout_rmse
 from cdcr_ctl.identify.keypoints import KeypointOptions, _load, identify_keypoint_runs
 from cdcr_ctl.identify.logkind import split_by_time
-from cdcr_ctl.model.forward import ForwardStepper, replay
-from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.routing import cable_displacement
 from cdcr_ctl.sim.keypoint_log import make_keypoint_log, sweep_poses
 
 ROOT = Path(__file__).resolve().parents[1]

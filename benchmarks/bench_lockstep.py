@@ -257,7 +257,7 @@ def main() -> None:
                 if s.rig.truth_proc is not None and i == 0:
                     print(
                         f"  pids: loop process {os.getpid()}, truth worker "
-                        f"{s.rig.truth_proc._proc.pid} (benchmarks/lockstep_placement.py)"
+                        f"{s.rig.truth_proc._proc.pid}"
                     )
                 if args.no_parts:
                     continue

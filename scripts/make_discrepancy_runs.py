@@ -52,9 +52,9 @@ if str(ROOT) not in sys.path:
 from cdcr_ctl.config.build_model import build_cc_disk_model  # noqa: E402
 from cdcr_ctl.control.trajectory import Trajectory, psi_from_vectors, random_smooth  # noqa: E402
 from cdcr_ctl.errors import ModelError  # noqa: E402
-from cdcr_ctl.model.compensation import MODES  # noqa: E402
-from cdcr_ctl.model.effects import rotation_from_rotvec  # noqa: E402
-from cdcr_ctl.model.params import Effects  # noqa: E402
+from cdcr_ctl.model.cc_disk.compensation import MODES  # noqa: E402
+from cdcr_ctl.model.cc_disk.effects import rotation_from_rotvec  # noqa: E402
+from cdcr_ctl.model.cc_disk.params import Effects  # noqa: E402
 from cdcr_ctl.runlog.columns import group_of, sample_columns  # noqa: E402
 from cdcr_ctl.runlog.writer import EFFECTIVE_CONFIG_YAML, RunLogWriter, RunMetadata  # noqa: E402
 from cdcr_ctl.sim.simconfig import load_sim_config  # noqa: E402

@@ -31,7 +31,7 @@ import numpy as np
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.config.designs import follow_params, vertebra_arm
 from cdcr_ctl.model.vertebra import EndFollowPlanner, x_from_psi
-from cdcr_ctl.model.vertebra_follow import EndFollowSource, paper_session, scripted_stick
+from cdcr_ctl.model.vertebra.follow import EndFollowSource, paper_session, scripted_stick
 from cdcr_ctl.sensors.attitude import rpy_from_rotation
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.simconfig import load_sim_config

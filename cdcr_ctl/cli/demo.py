@@ -10,7 +10,7 @@ errors come from the logged runs. ``--design`` picks the rig:
 - ``ujoint``: Yang et al. 2022 section 4.2, go-and-return 0 -> 6 deg -> 0 of every sub-joint
   (both segments, one plane), ideal geometric model (off) vs section 3's algorithm (model);
 - ``vertebra``: the fuel-tank paper's joystick end-following session (Fig. 12), planned offline
-  from a scripted stick (:func:`cdcr_ctl.model.vertebra_follow.plan_session`) and run as a timed
+  from a scripted stick (:func:`cdcr_ctl.model.vertebra.follow.plan_session`) and run as a timed
   trajectory, kinematic control (off) vs sag compensation (model).
 """
 
@@ -264,81 +264,28 @@ def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str)
     raise RigError(f"run {name} did not finish")
 
 
-#: The simulator config each design's demo runs on.
-SIM_CONFIGS = {
-    # the clean world: the demo shows the stack end to end; `experiments` runs the hard one
-    "cc_disk": ROOT_CONFIG / "sim" / "qi2023-truth-clean.yaml",
-    "ujoint": ROOT_CONFIG / "sim" / "yang2022-truth.yaml",
-    "vertebra": ROOT_CONFIG / "sim" / "vertebra-truth.yaml",
-}
+def sim_config_of(design: str) -> Path:
+    """The simulator config a design's demo runs on by default (the design registry's
+    ``sim_config``, in the checkout's ``config/``)."""
+    from cdcr_ctl.config.registry import design_of
+
+    return ROOT_CONFIG / design_of(design).sim_config
 
 
 def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
-    """The timed trajectories of a design's demo (name -> Trajectory)."""
-    import math
+    """The timed trajectories of a design's demo (name -> Trajectory): its registered ``demo``."""
+    from cdcr_ctl.config.registry import design_of, resolve
 
-    from cdcr_ctl.control import trajectory as tj
-
-    if design == "ujoint":
-        # Yang et al. 2022 section 4.2: [0, 6 deg, 0, 6 deg] and back at uniform speed, i.e. a
-        # sub-joint tilt of 6 deg towards x (phi = 0) in both segments. The rate puts the
-        # fastest cable (c22 of yang2022.yaml: ~8 mm per degree), section 3's compensation
-        # included, at a share of the rig's velocity limit: 40 % (~1 deg/s) for the full demo,
-        # 60 % (~1.5 deg/s) with --quick. The rest is room for the compensation's steps, which
-        # UJointModel rate-limits into it (dead zone and flipped deformation at the reversal,
-        # up to ~4.7 mm on c11), and margin for a busy PC, where a simulator or daemon that
-        # waits for the CPU leaves the arm behind the command.
-        import numpy as np
-
-        from cdcr_ctl.config.designs import ujoint_arm
-        from cdcr_ctl.model.ujoint import UJointModel
-
-        theta = math.radians(6.0)
-        ideal = UJointModel(ujoint_arm(rig_cfg))  # section 3 without the loop's rate limit
-        state, q_nom, q_cmd = ideal.new_state(), [], []
-        for t in np.linspace(0.0, theta, 61):
-            psi = np.array([[t, 0.0], [t, 0.0]])
-            q_nom.append(ideal.q_nominal(psi))
-            q_cmd.append(ideal.q_command(psi, q_nom[-1], state, "model", None))
-        step = theta / 60
-        # mm per rad of tilt; the compensated command from its third sample on (the first
-        # motion steps it by the dead zone, a step the rate limit takes care of)
-        slope = max(
-            float(np.abs(np.diff(q_nom, axis=0)).max()) / step,
-            float(np.abs(np.diff(q_cmd[2:], axis=0)).max()) / step,
-        )
-        rate = (0.6 if quick else 0.4) * rig_cfg.limits.cable_velocity_mm_s / slope
-        return {"go_and_return": tj.go_and_return(2, theta, rate, 0.0)}
-    if design == "vertebra":
-        import numpy as np
-
-        from cdcr_ctl.config.designs import plan_follow_offline
-        from cdcr_ctl.model.vertebra_follow import paper_session
-
-        t, psi, planner = plan_follow_offline(rig_cfg, paper_session(scale=0.5 if quick else 1.0))
-        # Back to straight in the planner's synchronised steps (within the planned speed), so the
-        # next run starts where this one did instead of behind the daemon's lead-in move (whose
-        # speed is set in joint space: three joints together drive a distal cable past its
-        # limit).
-        planner.set_targets(np.zeros_like(psi[-1]))
-        t_back, psi_back, _ = plan_follow_offline(rig_cfg, [], planner)
-        t = np.concatenate((t, t[-1] + t_back[1:]))
-        psi = np.concatenate((psi, psi_back[1:]))
-        return {"end_following": tj.Trajectory(t, psi, "end_following", "<joystick session>")}
-    theta_max = 1.2 if quick else 1.5708
-    return {
-        "planar_bend": tj.planar_bend(theta_max_rad=theta_max, back=False, hold_s=1.0),
-        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.6 if quick else 0.314),
-    }
+    return resolve(design_of(design).demo)(rig_cfg, quick)
 
 
 @click.command("demo")
 @click.option(
     "--design",
-    type=click.Choice(sorted(SIM_CONFIGS)),
     default="cc_disk",
     show_default=True,
-    help="Which rig to simulate (its simulator config unless --sim-config is given).",
+    help="Which rig to simulate: a registered design (cc_disk, ujoint, vertebra); its "
+    "simulator config unless --sim-config is given.",
 )
 @click.option(
     "--sim-config",
@@ -363,8 +310,14 @@ def demo(
     """Simulated rig + daemon: a paper's experiments, without and with compensation."""
     from cdcr_ctl.analysis import tip_errors
     from cdcr_ctl.config import load_rig_config
+    from cdcr_ctl.config.registry import DESIGNS
 
-    sim_config = sim_config or SIM_CONFIGS[design]
+    if design not in DESIGNS:
+        raise click.BadParameter(
+            f"{design!r} is not a registered design ({', '.join(sorted(DESIGNS))})",
+            param_hint="--design",
+        )
+    sim_config = sim_config or sim_config_of(design)
     if not sim_config.is_file():
         # The shipped configs are the checkout's config/, not part of an installed package.
         raise click.UsageError(

@@ -1,7 +1,7 @@
 """``cdcr-ctl discrepancy RUN_DIR...``: which physical effect the model is missing (issue 9).
 
 Simulates the logged drive positions with the controller's model, compares with the tracked tip
-and the load cells, fits every candidate effect of :data:`cdcr_ctl.model.effects.CANDIDATES`
+and the load cells, fits every candidate effect of :data:`cdcr_ctl.model.cc_disk.effects.CANDIDATES`
 (and pairs), selects by blocked cross-validation, refits the winner and writes a report, plots and
 a config fragment (:mod:`cdcr_ctl.discrepancy.report`). Works offline: no daemon needed.
 """
@@ -133,7 +133,7 @@ def discrepancy(
     folds = 5 if folds is None else folds
     pairs = True if pairs is None else pairs
     max_points = 700 if max_points is None else max_points
-    from cdcr_ctl.model.effects import CANDIDATES, candidate
+    from cdcr_ctl.model.cc_disk.effects import CANDIDATES, candidate
 
     terms = CANDIDATES
     if effects:

@@ -45,7 +45,7 @@ def keypoint_discrepancy(
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.discrepancy.keypoint_effects import EFFECTS
     from cdcr_ctl.discrepancy.keypoint_path import analyse_keypoints
-    from cdcr_ctl.model.params import Effects
+    from cdcr_ctl.model.cc_disk.params import Effects
 
     if folds is not None:
         raise click.UsageError(

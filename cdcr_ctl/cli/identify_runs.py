@@ -26,7 +26,7 @@ RUN_SLACK_S = 60.0
 #: Compensation modes of the experiments, in table order.
 MODES = ("off", "model", "measured")
 #: Default controller setting for the experiments: cable-material travel over which friction
-#: reverses in the compensation (control.reversal_band_mm; see cdcr_ctl.model.compensation).
+#: reverses in the compensation (control.reversal_band_mm; see cdcr_ctl.model.cc_disk.compensation).
 REVERSAL_BAND_MM = 0.01
 #: Tries per experiment run (a trip on a loaded machine is retried after recovery).
 ATTEMPTS = 5

@@ -1,202 +1,51 @@
 """Build the design's model (the loop's ``RobotModelPort``) from a validated rig config.
 
-The model never imports the config: this module turns the pydantic sections into the model's frozen
-dataclasses, once, at start-up. Cable order is the config's ``robot.cables`` order everywhere.
-``design`` picks the model: ``cc_disk`` :class:`~cdcr_ctl.model.compensation.CCDiskModel` (Qi et
-al. 2023), ``ujoint`` :class:`~cdcr_ctl.model.ujoint.UJointModel` (Yang et al. 2022),
-``vertebra`` :class:`~cdcr_ctl.model.vertebra.VertebraModel` (fuel-tank arm); the builders of the
-last two are in :mod:`cdcr_ctl.config.designs`.
+:func:`build_model` looks the rig's ``design`` up in the design registry
+(:mod:`cdcr_ctl.config.registry`) and calls its builder. The constant-curvature disk design's
+builder and the helpers that turn its config sections into model parameters are
+:mod:`cdcr_ctl.config.designs_cc_disk` (importable from here too).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from typing import Any
 
-from cdcr_ctl.config.robot import RobotConfig
-from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.errors import ConfigError
-from cdcr_ctl.model.compensation import CCDiskModel
-from cdcr_ctl.model.effects import with_cable_play
-from cdcr_ctl.model.params import (
-    CableParams,
-    Effects,
-    Location,
-    PulleyParams,
-    RobotParams,
-    SegmentParams,
+from cdcr_ctl.config.designs_cc_disk import (
+    DEAD_ZONE_STEP_FRACTION,
+    build_cc_disk_model,
+    cable_names,
+    dead_zone_step_mm,
+    loadcell_locations,
+    model_effects,
+    reversal_hysteresis_mm,
+    robot_params,
 )
+from cdcr_ctl.config.registry import design_of
+from cdcr_ctl.config.schema import RigConfig
+from cdcr_ctl.model.port import RobotModelPort
 
-if TYPE_CHECKING:
-    from cdcr_ctl.control.ports import RobotModelPort
-
-#: Share of the cable velocity limit the dead-zone inverse may add to the command while it
-#: pre-travels the play after a reversal (cdcr_ctl.model.deadzone). The loop's offset ramp takes
-#: half of the limit (control.loop.OFFSET_RAMP_FRACTION); a quarter leaves the trajectory its
-#: own quarter: 0.3 mm of play at 40 mm/s and 250 Hz is crossed in 8 cycles (32 ms).
-DEAD_ZONE_STEP_FRACTION = 0.25
-
-
-def dead_zone_step_mm(cfg: RigConfig) -> float:
-    """Largest pre-travel step of the dead-zone inverse per control cycle (mm)."""
-    return DEAD_ZONE_STEP_FRACTION * cfg.limits.cable_velocity_mm_s / cfg.control.rate_hz
-
-
-def reversal_hysteresis_mm(cfg: RigConfig) -> float:
-    """Reversal threshold of the dead-zone inverse (mm of wanted cable position): one drive count
-    of the finest drive, 1/max(counts_per_mm). A wanted-position dip smaller than a count is no
-    motion the drive can make, so it must not flip the pre-travel across the play; declaring a
-    real reversal one count late costs at most one count of cable travel (0.8 um on the Qi et
-    al. 2023 rig, 1238.6 counts/mm)."""
-    return 1.0 / max(abs(d.counts_per_mm) for d in cfg.drives)
-
-
-def robot_params(robot: RobotConfig) -> RobotParams:
-    """Segments, cables (with their pulleys in actuator -> robot order) and gravity, in model units.
-
-    Names are resolved to indices here (the loader's cross-check guarantees they exist).
-    """
-    seg_index = {s.name: i for i, s in enumerate(robot.segments)}
-    pulleys = {
-        p.name: PulleyParams(
-            name=p.name,
-            radius_mm=p.radius_mm,
-            wrap_angle_rad=p.wrap_angle_rad,
-            alpha=p.alpha,
-            n=p.n,
-        )
-        for p in robot.pulleys
-    }
-    segments = tuple(
-        SegmentParams(
-            name=s.name,
-            length_mm=s.length_mm,
-            EI_Nmm2=s.backbone.EI,
-            n_disks=s.disks.count,
-            disk_mass_g=s.disks.mass_g,
-            disk_thickness_mm=s.disks.thickness_mm,
-        )
-        for s in robot.segments
-    )
-    cables = tuple(
-        CableParams(
-            name=c.name,
-            segment=seg_index[c.segment],
-            hole_angle_rad=c.hole_angle_rad,
-            routing_radius_mm=c.routing_radius_mm,
-            diameter_mm=c.diameter_mm,
-            EA_N=c.EA,
-            pretension_N=c.pretension_N,
-            mu_disk=c.mu_disk,
-            free_length_mm=c.free_length_mm,
-            pulleys=tuple(pulleys[name] for name in c.pulleys),
-            backlash_mm=c.backlash_mm,
-        )
-        for c in robot.cables
-    )
-    g = robot.gravity_mm_s2
-    f = robot.tip_load.force_N
-    return RobotParams(
-        segments=segments,
-        cables=cables,
-        gravity_mm_s2=(g[0], g[1], g[2]),
-        tip_mass_g=1000.0 * robot.tip_load.payload_kg,
-        tip_force_N=(f[0], f[1], f[2]),
-    )
-
-
-def model_effects(cfg: RigConfig) -> Effects:
-    """The controller model's effects from ``control.model_effects`` and ``control.geometry``."""
-    # the section's keys are the Effects fields of the same names (switches, coupling_gain)
-    return Effects(**cfg.control.model_effects.model_dump(), geometry=cfg.control.geometry)
-
-
-def loadcell_locations(cfg: RigConfig) -> list[Location]:
-    """Per cable (config order): where its load cell sits; ``robot_base`` when it has none."""
-    where: dict[str, Location] = {}
-    if cfg.sensors.load_cells is not None:
-        for cell in cfg.sensors.load_cells.cells:
-            where[cell.cable] = cell.location
-    return [where.get(c.name, "robot_base") for c in cfg.robot.cables]
+__all__ = [
+    "DEAD_ZONE_STEP_FRACTION",
+    "build_cc_disk_model",
+    "build_model",
+    "cable_names",
+    "dead_zone_step_mm",
+    "loadcell_locations",
+    "model_effects",
+    "reversal_hysteresis_mm",
+    "robot_params",
+]
 
 
 def build_model(
     cfg: RigConfig,
-    effects: Effects | None = None,
+    effects: Any = None,
     reversal_band_mm: float | None = None,
     source: str = "rig config",
 ) -> RobotModelPort:
-    """The control loop's model (``RobotModelPort``) for the rig's ``design``.
-
-    ``cc_disk``: ``effects`` defaults to the switches of ``control.model_effects`` (every
-    effect on unless the config says otherwise), with the cable geometry of
-    ``control.geometry``; the cables' lost motion (``backlash_mm``) is added to it as the first
-    transmission effect, its inverse bounded by :func:`dead_zone_step_mm`;
-    ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
-    ``ujoint``/``vertebra``: built by :mod:`cdcr_ctl.config.designs` (``effects`` and
-    ``reversal_band_mm`` do not apply and must be None). ``source`` names the file in errors;
-    a design section that contradicts the drives raises :class:`ConfigError`.
-    """
-    if cfg.design != "cc_disk":
-        if effects is not None or reversal_band_mm is not None:
-            raise ConfigError(
-                source, "design", "effects/reversal band are cc_disk options", cfg.design
-            )
-        tl = cfg.robot.tip_load
-        if tl.payload_kg or any(tl.force_N):
-            raise ConfigError(
-                source,
-                "robot.tip_load",
-                f"the {cfg.design} model has no tip load; only cc_disk carries one",
-                tl.model_dump(),
-            )
-        return build_design_model(cfg, source)
-    return build_cc_disk_model(cfg, effects, reversal_band_mm, source)
-
-
-def build_design_model(cfg: RigConfig, source: str = "rig config") -> RobotModelPort:
-    """The model of a ``ujoint`` or ``vertebra`` rig (see :func:`build_model`)."""
-    from cdcr_ctl.config import designs
-    from cdcr_ctl.model.ujoint import UJointModel
-    from cdcr_ctl.model.vertebra import VertebraModel
-
-    if cfg.design == "ujoint":
-        return UJointModel(
-            designs.ujoint_arm(cfg, source),
-            cable_velocity_mm_s=cfg.limits.cable_velocity_mm_s,
-            period_s=1.0 / cfg.control.rate_hz,
-        )
-    if cfg.design == "vertebra":
-        return VertebraModel(designs.vertebra_arm(cfg, source), designs.attitude_loop_params(cfg))
-    raise ConfigError(source, "design", "no model for this design", cfg.design)
-
-
-def build_cc_disk_model(
-    cfg: RigConfig,
-    effects: Effects | None = None,
-    reversal_band_mm: float | None = None,
-    source: str = "rig config",
-) -> CCDiskModel:
-    """The constant-curvature disk model of a ``cc_disk`` rig (see :func:`build_model`)."""
-    if effects is None:
-        effects = model_effects(cfg)
-    if reversal_band_mm is None:
-        reversal_band_mm = cfg.control.reversal_band_mm
-    if cfg.design != "cc_disk":
-        raise ConfigError(
-            source, "design", "the constant-curvature model needs cc_disk", cfg.design
-        )
-    params = robot_params(cfg.robot)
-    # The cables' lost motion (robot.cables[].backlash_mm) is part of every cc_disk model.
-    effects = with_cable_play(params, effects, dead_zone_step_mm(cfg), reversal_hysteresis_mm(cfg))
-    return CCDiskModel(
-        params,
-        effects,
-        locations=loadcell_locations(cfg),
-        reversal_band_mm=reversal_band_mm,
-    )
-
-
-def cable_names(cfg: RigConfig) -> Sequence[str]:
-    """Cable names in model order."""
-    return [c.name for c in cfg.robot.cables]
+    """The control loop's model (``RobotModelPort``) for the rig's ``design``: its registered
+    builder. ``effects`` and ``reversal_band_mm`` are cc_disk's options (see
+    :func:`~cdcr_ctl.config.designs_cc_disk.build_cc_disk_model`; None: the config's); the other
+    designs refuse them. ``source`` names the file in errors; a design section that contradicts
+    the drives raises :class:`~cdcr_ctl.errors.ConfigError`."""
+    return design_of(cfg.design).build(cfg, source, effects, reversal_band_mm)

@@ -7,12 +7,12 @@
 
 The sections, checks and builders live in :mod:`cdcr_ctl.config.designs_ujoint` and
 :mod:`cdcr_ctl.config.designs_vertebra` (the shared bits in :mod:`cdcr_ctl.config.designs_common`);
-this module re-exports them. Hook into the rig config: ``RigConfig``
-(:mod:`cdcr_ctl.config.schema`) carries the two optional keys and checks that the section of the
-chosen design is present (and no other); these modules must therefore not import the schema or the
-loader. :func:`check_design` returns cross-section problems in the shape of ``loader.cross_check``;
-the builders run it, so a rig whose drives do not match its design's transmission fails when its
-model is built (before any I/O).
+this module re-exports them; the design registry (:mod:`cdcr_ctl.config.registry`) names them
+for each design. Hook into the rig config: ``RigConfig`` (:mod:`cdcr_ctl.config.schema`) carries
+the optional keys and checks that the section of the chosen design is present (and no other);
+these modules must therefore not import the schema or the loader. :func:`check_design` returns
+cross-section problems in the shape of ``loader.cross_check``; the builders run it, so a rig whose
+drives do not match its design's transmission fails when its model is built (before any I/O).
 
 How the shared ``robot:`` section reads for these designs (no key changes meaning silently; what
 is unused is said so):
@@ -39,12 +39,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from cdcr_ctl.config.designs_common import (
-    COUNTS_PER_MM_REL_TOL,
-    LENGTH_TOL_MM,
-    Vec3,
-    check_design_section,
-)
+from cdcr_ctl.config.designs_common import COUNTS_PER_MM_REL_TOL, LENGTH_TOL_MM, Vec3
 from cdcr_ctl.config.designs_ujoint import (
     DeadZoneCalibrationConfig,
     DeadZoneConfig,
@@ -67,6 +62,7 @@ from cdcr_ctl.config.designs_vertebra import (
     vertebra_arm,
 )
 from cdcr_ctl.config.keys import KeyPath
+from cdcr_ctl.config.registry import check_design_section, design_of
 
 __all__ = [
     "COUNTS_PER_MM_REL_TOL",
@@ -95,13 +91,9 @@ __all__ = [
 
 
 def check_design(cfg: Any) -> list[tuple[KeyPath, str, Any]]:
-    """Cross-section checks of a ujoint / vertebra rig (shape of ``loader.cross_check``):
-    :func:`check_ujoint` or :func:`check_vertebra`.
+    """Cross-section checks of a rig (shape of ``loader.cross_check``): its design's registered
+    ``check`` (:func:`check_ujoint`, :func:`check_vertebra`; none for cc_disk).
 
-    ``cfg`` is a ``RigConfig``. Other designs: no problems.
+    ``cfg`` is a ``RigConfig``.
     """
-    if cfg.design == "ujoint":
-        return check_ujoint(cfg)
-    if cfg.design == "vertebra":
-        return check_vertebra(cfg)
-    return []
+    return design_of(cfg.design).check(cfg)

@@ -1,6 +1,6 @@
-"""What the two design sections of the rig config share (:mod:`cdcr_ctl.config.designs`):
-tolerances, the check that a design's section is present exactly for that design, the drives'
-counts_per_mm check, and raising the collected problems as :class:`ConfigErrors`."""
+"""What the design sections of the rig config share (:mod:`cdcr_ctl.config.designs`): tolerances,
+the refusal of cc_disk's options by the other designs' builders, the drives' counts_per_mm
+check, and raising the collected problems as :class:`ConfigErrors`."""
 
 from __future__ import annotations
 
@@ -19,13 +19,19 @@ COUNTS_PER_MM_REL_TOL = 1e-3
 LENGTH_TOL_MM = 1e-6
 
 
-def check_design_section(design: str, key: str, section: object) -> None:
-    """Section ``key`` (``ujoint``/``vertebra``) is present exactly when ``design`` is ``key``
-    (ValueError otherwise); called by ``RigConfig``'s validator of that key."""
-    if design == key and section is None:
-        raise ValueError(f"design {key} needs a '{key}:' section")
-    if design != key and section is not None:
-        raise ValueError(f"a '{key}:' section is only for design {key}")
+def no_cc_disk_options(cfg: Any, source: str, effects: Any, band: Any) -> None:
+    """A model builder of a design other than cc_disk refuses cc_disk's options: ``effects``,
+    the reversal band (``band``) and a tip load (:class:`ConfigError` naming ``source``)."""
+    if effects is not None or band is not None:
+        raise ConfigError(source, "design", "effects/reversal band are cc_disk options", cfg.design)
+    tl = cfg.robot.tip_load
+    if tl.payload_kg or any(tl.force_N):
+        raise ConfigError(
+            source,
+            "robot.tip_load",
+            f"the {cfg.design} model has no tip load; only cc_disk carries one",
+            tl.model_dump(),
+        )
 
 
 def _check_counts(

@@ -179,7 +179,7 @@ def ujoint_arm(cfg: Any, source: str = "rig config") -> UJointArm:
 
     Raises :class:`ConfigError` for another design or a failed :func:`check_design`.
     """
-    if cfg.design != "ujoint" or getattr(cfg, "ujoint", None) is None:
+    if getattr(cfg, "ujoint", None) is None:  # the schema allows it for design ujoint alone
         raise ConfigError(
             source,
             "design",

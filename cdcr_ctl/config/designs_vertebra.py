@@ -28,7 +28,7 @@ from cdcr_ctl.model.vertebra import (
     VertebraJoint,
     rotvec_matrix,
 )
-from cdcr_ctl.model.vertebra_follow import SPEED_FRACTION, plan_session
+from cdcr_ctl.model.vertebra.follow import SPEED_FRACTION, plan_session
 
 
 class LinearModuleConfig(Section):
@@ -46,7 +46,7 @@ class FollowConfig(Section):
     """Joystick end-following (section 2.2): ``step_rad`` per synchronised step (0.05 in the
     paper), distal target increments per joystick tick at full deflection, bend limit.
     ``speed_fraction``: share of each linear module's ``v_max_mm_s`` the planned steps use
-    (:class:`cdcr_ctl.model.vertebra_follow.EndFollowSource`; 1 is the paper's synchronisation
+    (:class:`cdcr_ctl.model.vertebra.follow.EndFollowSource`; 1 is the paper's synchronisation
     at the limits); the rest is left for the compensation (``compensation_max_rate_mm_s``)."""
 
     step_rad: PositiveFloat = 0.05
@@ -171,7 +171,7 @@ def vertebra_arm(cfg: Any, source: str = "rig config") -> VertebraArm:
 
     Raises :class:`ConfigError` for another design or a failed :func:`check_design`.
     """
-    if cfg.design != "vertebra" or getattr(cfg, "vertebra", None) is None:
+    if getattr(cfg, "vertebra", None) is None:  # the schema allows it for design vertebra alone
         raise ConfigError(
             source,
             "design",
@@ -224,7 +224,7 @@ def plan_follow_offline(
     cfg: Any, script: list[Any], planner: EndFollowPlanner | None = None
 ) -> tuple[np.ndarray, np.ndarray, EndFollowPlanner]:
     """A scripted joystick session planned offline at the rig's loop rate and follow speed
-    (:func:`cdcr_ctl.model.vertebra_follow.plan_session`): (t_s (M,), psi (M, N, 2) rad, the
+    (:func:`cdcr_ctl.model.vertebra.follow.plan_session`): (t_s (M,), psi (M, N, 2) rad, the
     planner, for planning on from where the session left it)."""
     if planner is None:
         planner = EndFollowPlanner(vertebra_arm(cfg), follow_params(cfg))

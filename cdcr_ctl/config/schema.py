@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import Field, ValidationInfo, field_validator
 
@@ -14,17 +14,18 @@ from cdcr_ctl.config.control import (
     LiveViewConfig,
     LoggingConfig,
 )
-from cdcr_ctl.config.designs import UJointConfig, VertebraConfig, check_design_section
+from cdcr_ctl.config.designs import UJointConfig, VertebraConfig
 from cdcr_ctl.config.drives import CanBusConfig, DriveConfig
 from cdcr_ctl.config.loadcells import LoadCellsConfig
+from cdcr_ctl.config.registry import check_design_section, design_of
 from cdcr_ctl.config.robot import Name, RobotConfig
 from cdcr_ctl.config.tracking import AttitudeSensorsConfig, JoystickConfig, TrackerConfig
 
-#: Robot designs the controller serves.
-#: ``cc_disk``: constant-curvature segments with spacer disks (Qi et al. 2023);
-#: ``ujoint``: universal-joint segments (Yang et al. 2022);
-#: ``vertebra``: ball-jointed vertebrae on an elastic rod (fuel-tank inspection arm).
-Design = Literal["cc_disk", "ujoint", "vertebra"]
+#: A robot design's name: one registered in :data:`cdcr_ctl.config.registry.DESIGNS`
+#: (``cc_disk``: constant-curvature segments with spacer disks, Qi et al. 2023; ``ujoint``:
+#: universal-joint segments, Yang et al. 2022; ``vertebra``: ball-jointed vertebrae on an
+#: elastic rod, the fuel-tank inspection arm).
+Design = str
 
 
 class SensorsConfig(Section):
@@ -46,7 +47,8 @@ class RigConfig(Section):
     #: The rig's name: in run logs, ``status`` and the live view.
     name: Name
     #: The robot design, which picks the model: ``cc_disk`` (Qi et al. 2023), ``ujoint`` (Yang et
-    #: al. 2022) or ``vertebra`` (the vertebra arm).
+    #: al. 2022), ``vertebra`` (the vertebra arm), or another name registered in the design
+    #: registry (:mod:`cdcr_ctl.config.registry`).
     design: Design = "cc_disk"
     robot: RobotConfig
     can: CanBusConfig = Field(default_factory=CanBusConfig)
@@ -60,6 +62,12 @@ class RigConfig(Section):
     # validate_default: a missing section is checked too, and the error names its key
     ujoint: UJointConfig | None = Field(default=None, validate_default=True)
     vertebra: VertebraConfig | None = Field(default=None, validate_default=True)
+
+    @field_validator("design")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        design_of(value)  # ValueError naming the registered designs
+        return value
 
     @field_validator("ujoint", "vertebra")
     @classmethod

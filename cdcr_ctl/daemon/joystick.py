@@ -1,7 +1,7 @@
 """Live joystick end-following sessions of the daemon (``joystick`` command).
 
 A session is one run of the control loop whose setpoint source is the vertebra arm's
-:class:`~cdcr_ctl.model.vertebra_follow.EndFollowSource` fed by the rig's joystick
+:class:`~cdcr_ctl.model.vertebra.follow.EndFollowSource` fed by the rig's joystick
 (``sensors.joystick``): a local evdev device or a network joystick
 (:func:`cdcr_ctl.sensors.joystick.open_joystick`). Everything design-specific comes from the
 config (:func:`~cdcr_ctl.config.designs.vertebra_arm`, ``follow_params``) and the model; a rig
@@ -118,7 +118,7 @@ def end_follow_source(cfg: RigConfig, psi0: np.ndarray, read: Any, source: str =
     from cdcr_ctl.config.designs import follow_params, vertebra_arm
     from cdcr_ctl.errors import ModelError
     from cdcr_ctl.model.vertebra import EndFollowPlanner
-    from cdcr_ctl.model.vertebra_follow import EndFollowSource
+    from cdcr_ctl.model.vertebra.follow import EndFollowSource
 
     assert cfg.vertebra is not None and cfg.sensors.joystick is not None
     arm = vertebra_arm(cfg, source or "rig config")

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.control.loop import OFFSET_RAMP_FRACTION
-from cdcr_ctl.control.ports import RobotModelPort
+from cdcr_ctl.model.port import RobotModelPort
 
 #: The lead-in move keeps its fastest cable within this fraction of the velocity limit (the rest
 #: is room for the compensation's own motion and the loop's timing).

@@ -18,20 +18,18 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
+from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.control.ports import DriveState
 from cdcr_ctl.control.supervisor import Reaction, Supervisor
 from cdcr_ctl.daemon.planning import estimate_pose, plan_lead_in
+from cdcr_ctl.daemon.rig import Rig
 from cdcr_ctl.daemon.rigshare import STOP_ACK_TIMEOUT_S
 from cdcr_ctl.errors import RigError
-
-if TYPE_CHECKING:
-    from cdcr_ctl.config.schema import RigConfig
-    from cdcr_ctl.daemon.service import Daemon
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +48,7 @@ REOPEN_RESET_ATTEMPTS = 3
 STALE_FACTOR = 1.0
 
 
-def stop_now(d: Daemon, reaction: Reaction) -> dict[str, Any]:
+def stop_now(d: Rig, reaction: Reaction) -> dict[str, Any]:
     """Raise the loop's stop flag and wait (bounded) for the cycle that acted on it.
 
     Returns ``acted_cycle`` (the loop cycle that sent the stop), ``cycles_waited`` (how many
@@ -67,7 +65,7 @@ def stop_now(d: Daemon, reaction: Reaction) -> dict[str, Any]:
 
 
 def await_stop(
-    d: Daemon, reaction: Reaction, seq: int, cycle0: int, arrived_wall_s: float
+    d: Rig, reaction: Reaction, seq: int, cycle0: int, arrived_wall_s: float
 ) -> dict[str, Any]:
     """The second half of :func:`stop_now`, for a flag raised elsewhere (the daemon's front
     process writes the shared-memory flag itself): request ``seq`` arrived at
@@ -121,12 +119,12 @@ def hold_tracker_check(supervisor: Supervisor) -> Callable[[], None]:
     return restore
 
 
-def _q_act_mm(d: Daemon, fb: Sequence[DriveState]) -> np.ndarray:
+def _q_act_mm(d: Rig, fb: Sequence[DriveState]) -> np.ndarray:
     counts = np.array([f.position_counts for f in fb], dtype=float)
     return (counts - d.loop.home_counts) / d.loop.cfg.counts_per_mm
 
 
-def adopt_start_pose(d: Daemon, restore: Callable[[], None]) -> None:
+def adopt_start_pose(d: Rig, restore: Callable[[], None]) -> None:
     """(start-up thread) Wait for every drive's feedback, fit the pose it shows and have the
     loop hold there; then restore the tracker check."""
     try:
@@ -154,7 +152,7 @@ def adopt_start_pose(d: Daemon, restore: Callable[[], None]) -> None:
         restore()
 
 
-def straighten(d: Daemon) -> None:
+def straighten(d: Rig) -> None:
     """Bring the arm straight (ψ = 0, no offset) at the lead-in's cable speed before homing.
 
     Nothing to do when every cable is within :data:`STRAIGHT_TOLERANCE_MM` of straight. Raises
@@ -204,7 +202,7 @@ def drive_status(cfg: RigConfig, fb: Sequence[DriveState]) -> list[dict[str, Any
     return out
 
 
-def reset_fault(d: Daemon) -> dict[str, Any]:
+def reset_fault(d: Rig) -> dict[str, Any]:
     """Clear the drives' faults and the supervisor's latch; when the drives do not answer (a
     lost bus, a restarted rig) re-open the bus and boot them again first."""
     drives = d.io.drives
@@ -243,7 +241,7 @@ def reset_fault(d: Daemon) -> dict[str, Any]:
     }
 
 
-def _reopen_stale_sensors(d: Daemon) -> list[str]:
+def _reopen_stale_sensors(d: Rig) -> list[str]:
     """After a lost bus the rest of the rig may have gone and come back too: re-open a load-cell
     port whose samples are older than the sensor timeout, and wait (bounded) for fresh ones."""
     out: list[str] = []

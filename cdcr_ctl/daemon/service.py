@@ -21,11 +21,11 @@ import numpy as np
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.control.clock import LoopClock
 from cdcr_ctl.control.loop import OPERATOR_STOP, ControlLoop, LoopConfig
-from cdcr_ctl.control.ports import RigIO, RobotModelPort
+from cdcr_ctl.control.ports import RigIO
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.daemon import recovery
 from cdcr_ctl.daemon.bustap import StopBusTap
-from cdcr_ctl.daemon.commands_drive import DriveCommands
+from cdcr_ctl.daemon.commands_drive import DriveCommands, stopped
 from cdcr_ctl.daemon.commands_log import LogCommands
 from cdcr_ctl.daemon.commands_run import RUN_PICKUP_TIMEOUT_S, RunCommands
 from cdcr_ctl.daemon.intake import Intake
@@ -36,6 +36,7 @@ from cdcr_ctl.daemon.protocol import Request
 from cdcr_ctl.daemon.server import ControlServer
 from cdcr_ctl.daemon.serving import open_control_server, stop_signals
 from cdcr_ctl.daemon.status import StatusCommands, _trip_dict
+from cdcr_ctl.model.port import RobotModelPort
 from cdcr_ctl.runlog.annotate import annotate_when_ended
 from cdcr_ctl.runlog.live import LiveView, live_view_for
 
@@ -47,8 +48,12 @@ LOOP_JOIN_TIMEOUT_S = 2.0
 UNLOCKED_COMMANDS = ("stop", "shutdown", "status")
 
 
-class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
-    """Wires config, model, I/O, loop and control socket; :meth:`serve` runs until stopped."""
+class Daemon(RunCommands, LogCommands):
+    """Wires config, model, I/O, loop and control socket; :meth:`serve` runs until stopped.
+
+    The drive and status commands are handlers over the daemon as a
+    :class:`~cdcr_ctl.daemon.rig.Rig` (:class:`DriveCommands`, :class:`StatusCommands`); the run
+    and log commands are its ``_cmd_*`` methods."""
 
     def __init__(
         self,
@@ -133,6 +138,12 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
         self.planner = planner
         #: Times ``stop`` on the CAN traffic a run logs (first quick-stop frame after a request).
         self.bus_tap = StopBusTap()
+        self.status_commands = StatusCommands(self)
+        #: Command name -> handler; the rest are this class's ``_cmd_<name>`` methods.
+        self.handlers: dict[str, Callable[[Any], Any]] = {
+            **DriveCommands(self).handlers,
+            **self.status_commands.handlers,
+        }
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, serve_socket: bool = True) -> None:
@@ -172,7 +183,7 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
                     # Pet the watchdog only while the loop is alive: a hung loop gets us
                     # restarted.
                     self.notifier.watchdog()
-                    self.notifier.status(self._status_line())
+                    self.notifier.status(self.status_commands.line())
                 else:
                     log.error("control loop thread died; stopping")
                     self._stop_reason = "control loop died"
@@ -218,13 +229,18 @@ class Daemon(StatusCommands, DriveCommands, RunCommands, LogCommands):
 
     # ------------------------------------------------------------------ control socket
     def handle(self, req: Request) -> Any:
-        method = getattr(self, f"_cmd_{req.cmd}")
+        method = self.handlers.get(req.cmd) or getattr(self, f"_cmd_{req.cmd}")
         if req.cmd in UNLOCKED_COMMANDS:
             return method(req.args)
         with self._cmd_lock:
             if self._before_command is not None:
                 self._before_command(req)
             return method(req.args)
+
+    def stopped(self, mode: str, acted: dict[str, Any]) -> dict[str, Any]:
+        """The reply to a ``stop`` whose flag the front process raised (see
+        :func:`~cdcr_ctl.daemon.commands_drive.stopped`)."""
+        return stopped(self, mode, acted)
 
     def _on_trip(self, trip: Trip) -> None:
         if trip.reaction is Reaction.QUICK_STOP:

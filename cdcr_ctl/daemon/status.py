@@ -1,7 +1,8 @@
 """The daemon's status: the ``status`` command (drives, sensors, supervisor, loop, runs), what the
 layers below the supervisor latched, and the one-line status for systemd.
 
-:class:`StatusCommands` is a mixin of :class:`~cdcr_ctl.daemon.service.Daemon`.
+:class:`StatusCommands` builds them from the daemon's narrow :class:`~cdcr_ctl.daemon.rig.Rig`
+view (it never imports the daemon).
 """
 
 from __future__ import annotations
@@ -11,27 +12,33 @@ from typing import Any
 
 from cdcr_ctl.control.supervisor import Trip
 from cdcr_ctl.daemon import recovery
+from cdcr_ctl.daemon.rig import Rig
 
 
 class StatusCommands:
-    """Status building (mixin of the daemon)."""
+    """Status of ``rig``: the ``status`` command (:attr:`handlers`) and the systemd line."""
 
-    def _cmd_status(self, args: Any) -> dict[str, Any]:
-        fb = self.io.drives.feedback()
-        force, force_age = self.io.tensions.latest()
-        tip, tip_age = self.io.tip.latest()
-        trip = self.supervisor.trip
-        snap = self.loop.snapshot()
+    def __init__(self, rig: Rig) -> None:
+        self.rig = rig
+        self.handlers = {"status": self.status}
+
+    def status(self, args: Any) -> dict[str, Any]:
+        rig = self.rig
+        fb = rig.io.drives.feedback()
+        force, force_age = rig.io.tensions.latest()
+        tip, tip_age = rig.io.tip.latest()
+        trip = rig.supervisor.trip
+        snap = rig.loop.snapshot()
         run = snap.pop("run")
         return {
-            "state": self.state,
-            "rig": self.cfg.name,
-            "design": self.cfg.design,
-            "config": str(self.config_path),
-            "enabled": self.enabled,
-            "homed": self.homed,
-            "compensation": self.loop.cfg.compensation,
-            "drives": recovery.drive_status(self.cfg, fb),
+            "state": rig.state,
+            "rig": rig.cfg.name,
+            "design": rig.cfg.design,
+            "config": str(rig.config_path),
+            "enabled": rig.enabled,
+            "homed": rig.homed,
+            "compensation": rig.loop.cfg.compensation,
+            "drives": recovery.drive_status(rig.cfg, fb),
             "tension_N": [None if not math.isfinite(v) else round(float(v), 3) for v in force],
             "tension_age_s": [
                 None if not math.isfinite(v) else round(float(v), 4) for v in force_age
@@ -39,24 +46,25 @@ class StatusCommands:
             "tip_mm": [None if not math.isfinite(v) else round(float(v), 3) for v in tip],
             "tip_age_s": None if not math.isfinite(tip_age) else round(tip_age, 4),
             "fault": None if trip is None else _trip_dict(trip),
-            "trips": [_trip_dict(t) for t in self.supervisor.history[-20:]],
-            "safety": self._safety_status(),
+            "trips": [_trip_dict(t) for t in rig.supervisor.history[-20:]],
+            "safety": self.safety(),
             "run": run,
-            "runs": [r.__dict__ for r in self.loop.history[-10:]],
+            "runs": [r.__dict__ for r in rig.loop.history[-10:]],
             "loop": snap,
             # A manual log, or the running run's own log (where rows go now).
-            "logging": self._manual_sink is not None
+            "logging": rig._manual_sink is not None
             or bool(run and run.get("state") == "running" and run.get("log_dir")),
-            "log_dir": _log_dir(self._manual_sink, run),
-            "joystick": None if self._session is None else self._session.status(),
+            "log_dir": _log_dir(rig._manual_sink, run),
+            "joystick": None if rig._session is None else rig._session.status(),
         }
 
-    def _safety_status(self) -> dict[str, Any]:
+    def safety(self) -> dict[str, Any]:
         """What the layers below the supervisor latched: the drive group's first fault with the
         SYNC counts when it was latched and when the quick stop went out, and a sensor link
         that failed (each only when the I/O offers it)."""
-        out: dict[str, Any] = {"later_trips": self.supervisor.later_trips}
-        group = getattr(self.io.drives, "group", None)
+        rig = self.rig
+        out: dict[str, Any] = {"later_trips": rig.supervisor.later_trips}
+        group = getattr(rig.io.drives, "group", None)
         if group is not None:
             fault = group.fault()
             out["drives"] = {
@@ -68,20 +76,22 @@ class StatusCommands:
                 "quick_stop_at_sync": group.quick_stop_at_sync,
                 "traffic_log_failure": getattr(group, "traffic_failure", None),
             }
-        sampler = getattr(self.io.tensions, "sampler", None)
+        sampler = getattr(rig.io.tensions, "sampler", None)
         if sampler is not None:
             failure = getattr(sampler, "failure", None)
             out["load_cells"] = {"failure": None if failure is None else str(failure)}
-        tracker = getattr(self.io.tip, "tracker", None)
+        tracker = getattr(rig.io.tip, "tracker", None)
         if tracker is not None:
             failure = getattr(tracker, "failure", None)
             out["tracker"] = {"failure": None if failure is None else str(failure)}
         return out
 
-    def _status_line(self) -> str:
-        run = self.loop.snapshot()["run"]
-        trip = self.supervisor.trip
-        parts = [self.state, "enabled" if self.enabled else "disabled"]
+    def line(self) -> str:
+        """One line for systemd's status: state, drives, the running run, a trip."""
+        rig = self.rig
+        run = rig.loop.snapshot()["run"]
+        trip = rig.supervisor.trip
+        parts = [rig.state, "enabled" if rig.enabled else "disabled"]
         if run:
             parts.append(f"run {run['name']} {run['elapsed_s']:.1f}/{run['duration_s']:.1f} s")
         if trip:

@@ -34,10 +34,10 @@ from cdcr_ctl.config.loader import load_rig_config, validate_mapping
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.timing import TipTiming, no_timing
 from cdcr_ctl.errors import ConfigError, RigError
-from cdcr_ctl.model.effects import ModelSpec, with_cable_play
-from cdcr_ctl.model.kinematics import tip_position_fast
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.routing import cable_matrix_x
+from cdcr_ctl.model.cc_disk.effects import ModelSpec, with_cable_play
+from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
 from cdcr_ctl.runlog.reader import Run, load_run
 from cdcr_ctl.runlog.writer import CONFIG_YAML, EFFECTIVE_CONFIG_YAML
 

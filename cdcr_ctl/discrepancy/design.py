@@ -16,7 +16,7 @@ import numpy as np
 
 from cdcr_ctl.discrepancy.alignment import AlignedRun
 from cdcr_ctl.discrepancy.simulate import Prediction
-from cdcr_ctl.model.effects import EffectParam, EffectTerm, ModelSpec
+from cdcr_ctl.model.cc_disk.effects import EffectParam, EffectTerm, ModelSpec
 
 
 @dataclass

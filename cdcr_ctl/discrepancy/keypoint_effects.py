@@ -41,10 +41,10 @@ from cdcr_ctl.identify.keypoints import candidates
 from cdcr_ctl.identify.observability import tolerance
 from cdcr_ctl.identify.parameters import FitParameter
 from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, RunRows
-from cdcr_ctl.model.forward import ForwardStepper, replay
-from cdcr_ctl.model.identification import ParamRef
-from cdcr_ctl.model.kinematics import rotation
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.identification import ParamRef
+from cdcr_ctl.model.cc_disk.kinematics import rotation
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 EFFECTS = ("curvature", "registration", "routing", "hysteresis", "gravity")
 TITLES = {

@@ -46,7 +46,7 @@ from cdcr_ctl.identify.keypoints import HOLDOUT_FRACTION, _choose_rows, _load, _
 from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind, split_by_time
 from cdcr_ctl.identify.replay_fit import Evaluator
 from cdcr_ctl.identify.rowselect import rows_for_budget
-from cdcr_ctl.model.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
 from cdcr_ctl.runlog.reader import load_run
 
 

@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 from cdcr_ctl.discrepancy.alignment import AlignedRun
 from cdcr_ctl.discrepancy.design import Design, ModelFit, lag1_autocorrelation, predicted_vector
 from cdcr_ctl.discrepancy.simulate import Prediction
-from cdcr_ctl.model.effects import EffectTerm, ModelSpec
+from cdcr_ctl.model.cc_disk.effects import EffectTerm, ModelSpec
 
 #: Refits of at most this many simulated parameters use a fresh Jacobian at every iterate.
 FRESH_JACOBIAN_MAX_PARAMS = 3

@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from cdcr_ctl.discrepancy.workflow import DiscrepancyResult
-from cdcr_ctl.model.effects import rotation_from_rotvec, rotvec_from_rotation
+from cdcr_ctl.model.cc_disk.effects import rotation_from_rotvec, rotvec_from_rotation
 
 VERDICT_TEXT = {
     "named": "MISSING EFFECT: {name}",

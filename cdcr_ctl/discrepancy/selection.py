@@ -56,7 +56,7 @@ from cdcr_ctl.discrepancy.nonlinear_refit import (
     refit,
     split_values,
 )
-from cdcr_ctl.model.effects import EffectTerm
+from cdcr_ctl.model.cc_disk.effects import EffectTerm
 
 __all__ = [
     "FRESH_JACOBIAN_MAX_PARAMS",

@@ -19,8 +19,8 @@ import numpy as np
 
 from cdcr_ctl.discrepancy.alignment import AlignedRun
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.effects import ModelSpec, rotation_from_rotvec
-from cdcr_ctl.model.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.effects import ModelSpec, rotation_from_rotvec
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ from cdcr_ctl.discrepancy.selection import (
 from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
 from cdcr_ctl.discrepancy.timing import delay_bound_s, estimate_timing
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.model.effects import CANDIDATES, EffectTerm, ModelSpec
+from cdcr_ctl.model.cc_disk.effects import CANDIDATES, EffectTerm, ModelSpec
 
 
 @dataclass

@@ -37,7 +37,7 @@ import numpy as np
 from scipy.stats import t as student_t
 
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.cc_disk.params import RobotParams
 from cdcr_ctl.runlog.reader import Run, load_run
 
 #: A cable counts as pulled beyond this displacement (mm); the others must stay within

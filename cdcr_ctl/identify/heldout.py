@@ -13,8 +13,8 @@ import numpy as np
 
 from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.replay_fit import Evaluator
-from cdcr_ctl.model.forward import ForwardStepper, replay
-from cdcr_ctl.model.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 
 def heldout_errors(

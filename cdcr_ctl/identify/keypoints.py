@@ -61,8 +61,8 @@ from cdcr_ctl.identify.rowselect import (
     rows_for_budget,
     spread,
 )
-from cdcr_ctl.model.identification import ParamRef
-from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.cc_disk.identification import ParamRef
+from cdcr_ctl.model.cc_disk.params import RobotParams
 from cdcr_ctl.runlog.reader import load_run
 
 #: Fraction of each run's time span held out (the end of the run).

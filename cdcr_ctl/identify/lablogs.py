@@ -33,7 +33,7 @@ from cdcr_ctl.identify.keypoint_gate import MISFIT_FACTOR, OVERRIDE
 from cdcr_ctl.identify.keypoint_report import keypoint_report, report_lines
 from cdcr_ctl.identify.keypoints import KeypointOptions, identify_keypoint_runs
 from cdcr_ctl.identify.logkind import KINDS, detect_kind
-from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.cc_disk.params import RobotParams
 from cdcr_ctl.runlog.reader import load_run
 
 LOG_KINDS = ("auto", *KINDS, "pulls")

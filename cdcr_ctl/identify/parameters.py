@@ -45,9 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdcr_ctl.identify.dwell import DwellPoint
-from cdcr_ctl.model.effect_spec import STANDARD_GRAVITY_MM_S2, rotation_from_rotvec
-from cdcr_ctl.model.identification import ParamRef, get_value, with_values
-from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.cc_disk.effect_spec import STANDARD_GRAVITY_MM_S2, rotation_from_rotvec
+from cdcr_ctl.model.cc_disk.identification import ParamRef, get_value, with_values
+from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 #: Kinds of fitted parameters, in report order.
 KINDS = ("EI", "mu", "EA", "pretension", "backlash", "gravity_tilt", "pulley_alpha", "pulley_n")

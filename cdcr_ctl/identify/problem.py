@@ -18,10 +18,10 @@ from cdcr_ctl.errors import ModelError
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, FitOptions
 from cdcr_ctl.identify.parameters import FitParameter, apply_values
-from cdcr_ctl.model.kinematics import tip_position_fast
-from cdcr_ctl.model.params import Effects, Location, RobotParams
-from cdcr_ctl.model.routing import cable_matrix_x
-from cdcr_ctl.model.transfer import ForceTransfer
+from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
+from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 
 _H_VAR = 1e-6  # finite-difference step of a global unknown (log or natural units)
 _H_X = 1e-7  # rad

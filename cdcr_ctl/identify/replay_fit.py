@@ -37,9 +37,9 @@ from scipy.optimize import least_squares
 
 from cdcr_ctl.identify.fit_types import Estimate
 from cdcr_ctl.identify.parameters import FitParameter, apply_values
-from cdcr_ctl.model.effects import BacklashPlay, with_cable_play
-from cdcr_ctl.model.forward import ForwardStepper, replay
-from cdcr_ctl.model.params import Effects, Location, RobotParams
+from cdcr_ctl.model.cc_disk.effects import BacklashPlay, with_cable_play
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 #: Step of the forward differences in the fit variables (ln value, or rad): small next to a
 #: tolerance (25 %, 1 deg = 0.017 rad), large next to the forward solve's convergence.

@@ -48,8 +48,9 @@ from foxglove.messages import (
 )
 
 from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
-from cdcr_ctl.model import kinematics
+from cdcr_ctl.model.cc_disk import kinematics
 from cdcr_ctl.runlog import streams
 from cdcr_ctl.runlog.columns import LOOP_EXTRA_COLUMNS, phi_cmd, sample_columns, theta_cmd
 from cdcr_ctl.runlog.model_tip import model_tip_message
@@ -318,10 +319,11 @@ def live_view_for(
     tip_from_psi = build_model(cfg, source=source).tip
     live = cfg.live
     S, K = len(cfg.robot.segments), len(cfg.robot.cables)
-    if cfg.design == "cc_disk":
-        backbone: Backbone = cc_backbone([s.length_mm for s in cfg.robot.segments])
-    else:
-        backbone = tip_line(tip_from_psi)
+    draw = {  # how the design's registry entry says its arm is drawn
+        "cc": lambda: cc_backbone([s.length_mm for s in cfg.robot.segments]),
+        "tip_line": lambda: tip_line(tip_from_psi),
+    }
+    backbone: Backbone = draw[design_of(cfg.design).backbone]()
     return LiveView(
         latest_row,
         sample_columns(S, K, LOOP_EXTRA_COLUMNS),

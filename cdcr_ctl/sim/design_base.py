@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from cdcr_ctl.config.loader import merge_tree, validate_mapping
+from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError
 from cdcr_ctl.sim.simconfig import LoadedSim
@@ -46,13 +47,14 @@ def truth_rig_config(loaded: LoadedSim) -> RigConfig:
     """The rig config of the simulated WORLD: truth robot, and the design section with the
     simulator's ``truth_design`` merged over it (validated; errors name the simulator file)."""
     rig = loaded.rig
-    key = rig.design
-    section = getattr(rig, key, None) if key in ("ujoint", "vertebra") else None
+    design = design_of(rig.design)
+    key = design.section
+    section = None if key is None else getattr(rig, key, None)
     over: dict[str, Any] = dict(getattr(loaded.sim, "truth_design", {}) or {})
     if section is None:
         if over:
             raise ConfigError(
-                str(loaded.path), "truth_design", f"design {key} has no design section", over
+                str(loaded.path), "truth_design", f"design {rig.design} has no design section", over
             )
         return rig.model_copy(update={"robot": loaded.truth})
     data = rig.model_dump()

@@ -1,8 +1,8 @@
 """Disk friction of another law than the controller's, for simulated worlds unlike the model.
 
-The controller's model (Qi et al. 2023 eq. 16-24, :mod:`cdcr_ctl.model.transfer`) gives every
-disk hole the same Coulomb coefficient mu and the capstan law T_in / T_out = exp(s mu dphi) over
-the wrap dphi of each hole: the log tension ratio grows linearly with the wrap accumulated from
+The controller's model (Qi et al. 2023 eq. 16-24, :mod:`cdcr_ctl.model.cc_disk.transfer`) gives
+every disk hole the same Coulomb coefficient mu and the capstan law T_in / T_out = exp(s mu dphi)
+over the wrap dphi of each hole: the log tension ratio grows linearly with the wrap accumulated from
 the anchor, z (rad), ln(T(z)/T_anchor) = s mu z.
 
 The ``wrap_power`` law of this module (:class:`WrapPowerTransfer`) is a different one, what a
@@ -19,7 +19,8 @@ same law span by span, and the stick capacity of a cable is the law's total rati
 model's law exactly.
 
 The truth uses it in place of the controller's chain: :func:`use_friction_law` swaps the
-:class:`~cdcr_ctl.model.transfer.ForceTransfer` of a :class:`~cdcr_ctl.model.ForwardStepper`.
+:class:`~cdcr_ctl.model.cc_disk.transfer.ForceTransfer` of a
+:class:`~cdcr_ctl.model.ForwardStepper`.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from __future__ import annotations
 import math
 
 from cdcr_ctl.model import ForwardStepper
-from cdcr_ctl.model.transfer import ForceTransfer, Pose
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose
 
 #: Wrap at which the two laws agree (rad).
 Z_REF_RAD = 1.0

@@ -3,10 +3,11 @@
 What a lab without the daemon records (issue 18): rows about 0.5 s apart, each with the measured
 actuator positions (``cable{k}_q_act_mm``) and one tracked tip marker (``tip_{x,y,z}_mm``),
 optionally the load cells (``cable{k}_tension_N``), and no commanded pose. The world is the
-forward model (:class:`~cdcr_ctl.model.forward.ForwardStepper`, friction memory kept from row to
-row) with parameters off the rig config's nominal values (:func:`perturbed_truth`); the actuator
-path is the config's *nominal* inverse kinematics (eq. 4, no compensation) of out-and-back sweeps
-between random poses, so the log is full of reversals and some cables go slack, as on a real rig.
+forward model (:class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper`, friction memory kept from
+row to row) with parameters off the rig config's nominal values (:func:`perturbed_truth`); the
+actuator path is the config's *nominal* inverse kinematics (eq. 4, no compensation) of out-and-back
+sweeps between random poses, so the log is full of reversals and some cables go slack, as on a real
+rig.
 
 Writes ``samples.csv`` and ``run.yaml`` in the run-log format (:mod:`cdcr_ctl.runlog`), and the
 world's parameters into ``truth.json`` *beside* the run directory (never read by the fit; tests
@@ -25,10 +26,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cdcr_ctl.model.effects import BacklashPlay, with_cable_play
-from cdcr_ctl.model.forward import ForwardStepper
-from cdcr_ctl.model.params import Effects, RobotParams
-from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.model.cc_disk.effects import BacklashPlay, with_cable_play
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_displacement
 
 #: Tracker noise (mm, per axis), drive position resolution (mm), load-cell noise (N).
 TIP_NOISE_MM = 0.05
@@ -133,7 +134,7 @@ def write_log(
     locations: tuple[str, ...] = (),
 ) -> dict[str, int]:
     """Solve the world along ``q_act_mm`` (N, K) and write the run directory; returns counts."""
-    from cdcr_ctl.model.forward import replay
+    from cdcr_ctl.model.cc_disk.forward import replay
 
     run_dir.mkdir(parents=True, exist_ok=True)
     q = np.round(np.asarray(q_act_mm) / Q_RESOLUTION_MM) * Q_RESOLUTION_MM

@@ -3,8 +3,8 @@
 The controller's model (:mod:`cdcr_ctl.model`) is constant curvature per segment with capstan
 friction in the holes. A log made by that same model proves nothing about a real robot, so this
 world is written from other physics and shares no code with the model (it reads only the
-nominal numbers of a :class:`~cdcr_ctl.model.params.RobotParams`: lengths, hole angles and radii,
-EI, EA, pretension, masses):
+nominal numbers of a :class:`~cdcr_ctl.model.cc_disk.params.RobotParams`: lengths, hole angles and
+radii, EI, EA, pretension, masses):
 
 * **Backbone**: each segment is cut into ``links`` equal pieces of length l with a two-axis
   joint at the middle of each (rotation R_j = Rx(a_j) Ry(b_j) relative to the previous link;
@@ -54,8 +54,8 @@ import numpy as np
 import yaml
 from scipy.optimize import minimize
 
-from cdcr_ctl.model.params import RobotParams
-from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.model.cc_disk.params import RobotParams
+from cdcr_ctl.model.cc_disk.routing import cable_displacement
 from cdcr_ctl.sim.keypoint_log import sweep_poses
 
 Q_RESOLUTION_MM = 1.0 / 1238.6

@@ -280,7 +280,7 @@ class SimRig:
 def stick_script(loaded: LoadedSim) -> list[Any]:
     """The simulator config's stick session as :class:`~cdcr_ctl.sim.joystick.JoystickFrame`
     keyframes (times from the connection, s): ``paper`` or a YAML script file."""
-    from cdcr_ctl.model.vertebra_follow import paper_session
+    from cdcr_ctl.model.vertebra.follow import paper_session
     from cdcr_ctl.sim.joystick import JoystickFrame, load_stick_script
 
     cfg = loaded.sim.joystick

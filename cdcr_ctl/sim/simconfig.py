@@ -77,7 +77,7 @@ class JoystickSimConfig(Section):
     ``tcp://127.0.0.1:PORT``: what each connecting client gets.
 
     ``script``: ``paper`` (the fuel-tank paper's Fig. 12 session,
-    :func:`cdcr_ctl.model.vertebra_follow.paper_session`, with the rig's advance button) or a
+    :func:`cdcr_ctl.model.vertebra.follow.paper_session`, with the rig's advance button) or a
     YAML stick script (:func:`cdcr_ctl.sim.joystick.load_stick_script`; a path relative to this
     file). ``scale``: shortens the paper session's bend moves (0, 1]. ``disconnect_after_s``:
     drop the connection this long after the client connected (s; a sender unplugged

@@ -1,10 +1,11 @@
 """The simulated world's physics: actuator positions in, robot pose and cable tensions out.
 
-The truth is the same forward static model the controller could use (:mod:`cdcr_ctl.model.forward`),
-with the simulator's own parameters (``truth_robot`` of the simulator YAML) and effects: the exact
-chord geometry of the disk holes, friction with stick at reversals, elastic cables, gravity,
-pulley losses, and transmission effects the controller's config does not know (actuator scale
-error, backlash). Quasi-static: the robot's dynamics are far faster than the cable motion.
+The truth is the same forward static model the controller could use
+(:mod:`cdcr_ctl.model.cc_disk.forward`), with the simulator's own parameters (``truth_robot`` of the
+simulator YAML) and effects: the exact chord geometry of the disk holes, friction with stick at
+reversals, elastic cables, gravity, pulley losses, and transmission effects the controller's config
+does not know (actuator scale error, backlash). Quasi-static: the robot's dynamics are far faster
+than the cable motion.
 """
 
 from __future__ import annotations
@@ -20,8 +21,8 @@ import numpy as np
 from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model import Effects, ForwardStepper
-from cdcr_ctl.model.effects import with_cable_play
-from cdcr_ctl.model.kinematics import tip_frame_fast
+from cdcr_ctl.model.cc_disk.effects import with_cable_play
+from cdcr_ctl.model.cc_disk.kinematics import tip_frame_fast
 from cdcr_ctl.sim.friction_law import use_friction_law
 from cdcr_ctl.sim.simconfig import LoadedSim
 

@@ -12,7 +12,7 @@ import yaml
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model, cable_names, loadcell_locations, robot_params
 from cdcr_ctl.errors import ConfigErrors
-from cdcr_ctl.model.compensation import CCDiskModel
+from cdcr_ctl.model.cc_disk.compensation import CCDiskModel
 
 ROOT = Path(__file__).resolve().parents[2]
 QI = ROOT / "config" / "qi2023.yaml"

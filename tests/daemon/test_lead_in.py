@@ -29,7 +29,7 @@ from cdcr_ctl.daemon.planning import (
     peak_cable_speed,
     plan_lead_in,
 )
-from cdcr_ctl.model.compensation import MODES
+from cdcr_ctl.model.cc_disk.compensation import MODES
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: Replay step (s): the loop's offset ramp moves OFFSET_RAMP_FRACTION * v * step per step, so the

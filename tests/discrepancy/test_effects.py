@@ -10,7 +10,7 @@ import pytest
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import robot_params
-from cdcr_ctl.model.effects import (
+from cdcr_ctl.model.cc_disk.effects import (
     CANDIDATES,
     ActuatorScale,
     BacklashPlay,
@@ -27,8 +27,8 @@ from cdcr_ctl.model.effects import (
     rotation_from_rotvec,
     rotvec_from_rotation,
 )
-from cdcr_ctl.model.forward import ForwardStepper
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.params import Effects
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -117,7 +117,7 @@ def test_switched_off_effects_are_switched_on_with_the_fitted_value(spec):
 def test_disk_friction_without_configured_mu_uses_the_reference(spec):
     from dataclasses import replace
 
-    from cdcr_ctl.model.effects import REFERENCE_MU_DISK
+    from cdcr_ctl.model.cc_disk.effects import REFERENCE_MU_DISK
 
     cables = tuple(replace(c, mu_disk=0.0) for c in spec.params.cables)
     bare = ModelSpec(replace(spec.params, cables=cables), Effects(disk_friction=False))

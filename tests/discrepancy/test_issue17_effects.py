@@ -18,9 +18,9 @@ from cdcr_ctl.discrepancy.timing import (
     delay_bound_s,
     frame_period_s,
 )
-from cdcr_ctl.model.effects import GravityDirection, ModelSpec, candidate
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.transfer import ForceTransfer
+from cdcr_ctl.model.cc_disk.effects import GravityDirection, ModelSpec, candidate
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 from cdcr_ctl.sim.friction_law import WrapPowerTransfer
 from cdcr_ctl.sim.simconfig import load_sim_config
 from cdcr_ctl.sim.truth import TruthModel

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from cdcr_ctl.discrepancy import analyse
-from cdcr_ctl.model.effects import candidate
+from cdcr_ctl.model.cc_disk.effects import candidate
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "sim"
 FAST = dict(max_points=120, jobs=1, progress=False, refit_evals=5)

@@ -13,8 +13,8 @@ from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import robot_params
 from cdcr_ctl.discrepancy.alignment import align_run, kinematic_tip
 from cdcr_ctl.discrepancy.simulate import _interp, _step_path, path_weights, simulate
-from cdcr_ctl.model.kinematics import psi_to_x, tip_position
-from cdcr_ctl.model.routing import cable_matrix_x
+from cdcr_ctl.model.cc_disk.kinematics import psi_to_x, tip_position
+from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -21,7 +21,7 @@ from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy import analyse
 from cdcr_ctl.discrepancy.alignment import align_run, decimate, noise_sigma, turning_points
 from cdcr_ctl.discrepancy.report import config_fragment, text_report
-from cdcr_ctl.model.effects import candidate
+from cdcr_ctl.model.cc_disk.effects import candidate
 
 EFFECTS = Path(__file__).resolve().parents[2] / "config" / "sim" / "effects"
 FAST = dict(max_points=200, jobs=1, progress=False, refit_evals=5)

@@ -25,7 +25,7 @@ from cdcr_ctl.config.build_model import build_model, loadcell_locations, robot_p
 from cdcr_ctl.control.trajectory import Trajectory
 from cdcr_ctl.identify.sweep import CalibrationSweep
 from cdcr_ctl.model import Effects, ForwardStepper
-from cdcr_ctl.model.params import RobotParams
+from cdcr_ctl.model.cc_disk.params import RobotParams
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, sample_columns
 from cdcr_ctl.sim.simconfig import load_sim_config
 
@@ -64,7 +64,7 @@ def perturbed_world(
     the pulley alpha (unless ``pulleys`` is false) of the nominal config scaled by random
     factors 1 +- U(spread) (seeded),
     with the effects the simulator uses by default (chord geometry, everything on)."""
-    from cdcr_ctl.model.identification import ParamRef, get_value, with_values
+    from cdcr_ctl.model.cc_disk.identification import ParamRef, get_value, with_values
 
     nominal = robot_params(load_rig_config(RIG_CONFIG).robot)
     rng = np.random.default_rng(seed)

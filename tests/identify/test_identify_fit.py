@@ -27,9 +27,9 @@ from cdcr_ctl.identify.gate import judge_identification
 from cdcr_ctl.identify.parameters import plan_parameters, tilted_gravity
 from cdcr_ctl.identify.pipeline import overlay_text
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
-from cdcr_ctl.model.effects import with_cable_play
-from cdcr_ctl.model.identification import get_value
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.effects import with_cable_play
+from cdcr_ctl.model.cc_disk.identification import get_value
+from cdcr_ctl.model.cc_disk.params import Effects
 from cdcr_ctl.runlog import load_run
 
 EFFECTS = Effects(geometry="chord", capstan_points=25)

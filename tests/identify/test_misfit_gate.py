@@ -21,8 +21,8 @@ from cdcr_ctl.cli.identify import fit_and_write
 from cdcr_ctl.identify.estimator import FitOptions
 from cdcr_ctl.identify.gate import MISFIT_FACTOR, MisfitError, judge_fit
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
-from cdcr_ctl.model.effects import TransmissionScale
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.effects import TransmissionScale
+from cdcr_ctl.model.cc_disk.params import Effects
 
 SPEC = SweepSpec(
     betas_deg=(0.0, 120.0),

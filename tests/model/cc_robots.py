@@ -13,7 +13,7 @@ import numpy as np
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import robot_params
-from cdcr_ctl.model.params import CableParams, PulleyParams, RobotParams, SegmentParams
+from cdcr_ctl.model.cc_disk.params import CableParams, PulleyParams, RobotParams, SegmentParams
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cdcr_ctl.model import capstan as cap
+from cdcr_ctl.model.shared import capstan as cap
 
 
 def test_ratio_is_one_at_zero_wrap():
@@ -95,13 +95,3 @@ def test_lower_high_inverts_raise_low_across_the_table_and_beyond_its_edges(n):
             low = tr.lower_high(float(T_high), frac)
             assert low <= T_high * (1.0 + 1e-14)  # exp(ln T) rounds
             assert tr.raise_low(low, frac) == pytest.approx(T_high, rel=1e-13)
-
-
-@pytest.mark.parametrize("n", [1.0, 0.67, None])
-def test_to_actuator_stretch_equals_the_two_calls(n):
-    # None: a frictionless pulley
-    tr = cap.PulleyTransfer(8.0, 1.5708, 0.0 if n is None else 0.3, n or 1.0, 0.4)
-    for T in (-0.5, 0.0, 1e-4, 0.8, 2.4, 37.0, 2e3):
-        for s in (-1.0, -0.4, 0.0, 0.3, 1.0):
-            Tn = tr.to_actuator(T, s)
-            assert tr.to_actuator_stretch(T, s, 2.0) == (Tn, tr.stretch_integral(Tn, T, s, 2.0))

@@ -9,10 +9,10 @@ import pytest
 from cc_robots import make_robot, qi_params, three_params
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.compensation import CCDiskModel, Compensator
-from cdcr_ctl.model.kinematics import tip_position
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.model.cc_disk.compensation import CCDiskModel, Compensator
+from cdcr_ctl.model.cc_disk.kinematics import tip_position
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.routing import cable_displacement
 
 PSI3 = np.array([[0.8, 0.4], [0.6, 2.2], [1.1, -0.9]])
 RIGID_NO_FRICTION = Effects(disk_friction=False, pulley_friction=False, elongation=False)

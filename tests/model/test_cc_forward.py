@@ -7,11 +7,11 @@ import pytest
 from cc_robots import make_robot, qi_params, three_params
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.compensation import Compensator
-from cdcr_ctl.model.forward import ForwardModel, ForwardStepper
-from cdcr_ctl.model.friction import FrictionState
-from cdcr_ctl.model.kinematics import psi_to_x
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.compensation import Compensator
+from cdcr_ctl.model.cc_disk.forward import ForwardModel, ForwardStepper
+from cdcr_ctl.model.cc_disk.kinematics import psi_to_x
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.shared.friction import FrictionState
 
 ELASTIC_ONLY = Effects(disk_friction=False, pulley_friction=False)
 

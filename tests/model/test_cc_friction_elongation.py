@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from cc_robots import make_robot
 
-from cdcr_ctl.model import elongation as el
-from cdcr_ctl.model import friction as fr
-from cdcr_ctl.model.routing import wrap_angles
+from cdcr_ctl.model.cc_disk import elongation as el
+from cdcr_ctl.model.cc_disk.routing import wrap_angles
+from cdcr_ctl.model.shared import friction as fr
 
 
 def test_hole_by_hole_propagation_eq23():

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from cc_robots import make_robot, qi_params
 
-from cdcr_ctl.model import identification as idf
-from cdcr_ctl.model.compensation import Compensator
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk import identification as idf
+from cdcr_ctl.model.cc_disk.compensation import Compensator
+from cdcr_ctl.model.cc_disk.params import Effects
 
 MU_TRUE = (0.26, 0.31, 0.28)  # Table 1
 
@@ -81,7 +81,7 @@ def test_stiffness_fitted_from_tracker_tips():
     truth = make_robot(1)
     true_EI = truth.segments[0].EI_Nmm2
     comp = Compensator(truth, eff)
-    from cdcr_ctl.model.forward import ForwardModel
+    from cdcr_ctl.model.cc_disk.forward import ForwardModel
 
     fwd = ForwardModel(truth, eff)
     rng = np.random.default_rng(5)

@@ -9,7 +9,7 @@ import pytest
 from cc_robots import central_diff
 from scipy.spatial.transform import Rotation
 
-from cdcr_ctl.model import kinematics as kin
+from cdcr_ctl.model.cc_disk import kinematics as kin
 
 ANGLES = [(1.0, 0.3), (0.4, -2.0), (2.5, 3.0), (1e-7, 1.1), (0.0, 0.7), (-0.6, 0.2), (0.1, 1.3)]
 
@@ -149,17 +149,6 @@ def test_disk_point_jacobian_vs_finite_differences():
     pos = kin.disk_positions(psi, lengths, [3, 2])
     assert pos.shape == (5, 3)
     np.testing.assert_allclose(pos[2], kin.chain(psi, lengths)[0][1], atol=1e-12)
-
-
-def test_fast_tip_equals_reference():
-    rng = np.random.default_rng(3)
-    lengths = [90.0, 80.0, 70.0]
-    for _ in range(20):
-        psi = np.column_stack((rng.uniform(0, 2, 3), rng.uniform(-3, 3, 3)))
-        xs = kin.psi_to_x(psi).ravel().tolist()
-        np.testing.assert_allclose(
-            kin.tip_position_fast(xs, lengths), kin.tip_position(psi, np.array(lengths)), atol=1e-12
-        )
 
 
 def test_fast_tip_frame_equals_the_chain():

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from cc_robots import central_diff, make_robot
 
-from cdcr_ctl.model import routing as ro
-from cdcr_ctl.model.kinematics import psi_to_x
+from cdcr_ctl.model.cc_disk import routing as ro
+from cdcr_ctl.model.cc_disk.kinematics import psi_to_x
 
 
 def test_eq4_single_segment_hand_values():

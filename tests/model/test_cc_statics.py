@@ -9,10 +9,10 @@ import pytest
 from cc_robots import central_diff, make_robot
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model import statics as st
-from cdcr_ctl.model.kinematics import disk_positions, psi_to_x, x_to_psi
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.routing import cable_jacobian
+from cdcr_ctl.model.cc_disk import statics as st
+from cdcr_ctl.model.cc_disk.kinematics import disk_positions, psi_to_x, x_to_psi
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.routing import cable_jacobian
 
 PLAIN = Effects(disk_friction=False, pulley_friction=False, gravity=False)
 PLAIN_G = Effects(disk_friction=False, pulley_friction=False, gravity=True)

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from cc_robots import central_diff, make_robot, three_params
 
-from cdcr_ctl.model import elongation as el
-from cdcr_ctl.model import statics as st
-from cdcr_ctl.model.kinematics import psi_to_x
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.routing import chord_displacement, wrap_angles
-from cdcr_ctl.model.transfer import ForceTransfer
+from cdcr_ctl.model.cc_disk import elongation as el
+from cdcr_ctl.model.cc_disk import statics as st
+from cdcr_ctl.model.cc_disk.kinematics import psi_to_x
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.routing import chord_displacement, wrap_angles
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 
 POSES = [
     np.array([[0.9, 0.3], [0.7, 2.0], [1.1, -1.0]]),

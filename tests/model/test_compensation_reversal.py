@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from cc_robots import qi_params
 
-from cdcr_ctl.model.compensation import CCDiskModel, Compensator
-from cdcr_ctl.model.forward import ForwardStepper
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.compensation import CCDiskModel, Compensator
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.params import Effects
 
 EFF = Effects(geometry="chord", capstan_points=41)
 

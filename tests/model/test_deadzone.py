@@ -1,5 +1,5 @@
 """Lost motion (Yang et al. 2022 eq. 13-17): the play operator, its rate-bounded inverse, and the
-controller's command with it (cdcr_ctl.model.deadzone, BacklashPlay, build_model)."""
+controller's command with it (cdcr_ctl.model.shared.deadzone, BacklashPlay, build_model)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,28 @@ import yaml
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import DEAD_ZONE_STEP_FRACTION, build_model
-from cdcr_ctl.model.deadzone import dead_zone_inverse, dead_zone_inverse_list, play_forward
-from cdcr_ctl.model.effects import BacklashPlay
+from cdcr_ctl.model.cc_disk.effects import BacklashPlay
+from cdcr_ctl.model.shared.deadzone import dead_zone_inverse, play_forward
 
 ROOT = Path(__file__).resolve().parents[2]
 B = np.array([0.25, 0.35, 0.3])
+
+
+def _inverse(b: np.ndarray, step: float = math.inf):
+    """The rate-bounded inverse with the sample-to-sample reversal rule, fed row by row:
+    returns x(row) as an array, its state (rows [y_prev, c, y_ext, dir]) kept inside."""
+    state = [[0.0, 0.0, 0.0, 0.0] for _ in b]
+    half = (b / 2).tolist()
+
+    def call(row: np.ndarray) -> np.ndarray:
+        return np.array(dead_zone_inverse(row.tolist(), state, half, step))
+
+    call.state = state  # type: ignore[attr-defined]
+    return call
+
+
+def _play(x: np.ndarray, cable: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.array(play_forward(x.tolist(), cable.tolist(), (b / 2).tolist()))
 
 
 def _path(n: int = 400, seed: int = 0) -> np.ndarray:
@@ -26,22 +43,17 @@ def _path(n: int = 400, seed: int = 0) -> np.ndarray:
 
 
 def test_zero_play_is_the_identity():
-    y = _path(50)
-    yp, c = np.zeros(3), np.zeros(3)
-    for row in y:
-        x, c = dead_zone_inverse(row, yp, c, np.zeros(3))
-        yp = row
-        assert np.array_equal(x, row)
+    inverse = _inverse(np.zeros(3))
+    for row in _path(50):
+        assert np.array_equal(inverse(row), row)
 
 
 def test_exact_inverse_drives_the_play_to_the_wanted_path():
     """Inverse then play operator: the cable follows the wanted path exactly (up to rounding:
     x = y + c then y' = clip(y_prev, x - b/2, x + b/2) subtracts the same c again)."""
-    yp, c, cable = np.zeros(3), np.zeros(3), np.zeros(3)
+    inverse, cable = _inverse(B), np.zeros(3)
     for row in _path():
-        x, c = dead_zone_inverse(row, yp, c, B)
-        yp = row
-        cable = play_forward(x, cable, B)
+        cable = _play(inverse(row), cable, B)
         assert np.allclose(cable, row, atol=1e-12)
 
 
@@ -49,37 +61,26 @@ def test_without_the_inverse_the_play_loses_half_a_gap_on_each_side():
     cable = np.zeros(3)
     up = np.linspace(0, 2, 50)[:, None] * np.ones(3)
     for row in up:
-        cable = play_forward(row, cable, B)
+        cable = _play(row, cable, B)
     assert np.allclose(up[-1] - cable, B / 2)
 
 
 def test_rate_bounded_inverse_crosses_the_gap_in_bounded_steps():
     step = 0.04
-    yp, c, cable = np.zeros(3), np.zeros(3), np.zeros(3)
+    inverse, cable = _inverse(B, step), np.zeros(3)
     up = np.linspace(0.0, 1.0, 30)
     down = np.linspace(1.0, 0.5, 40)[1:]
-    xs = []
+    c = np.zeros(3)
     for v in np.concatenate([up, down]):
         row = np.full(3, v)
-        c_old = c
-        x, c = dead_zone_inverse(row, yp, c, B, step)
+        x = inverse(row)
+        c_old, c = c, x - row
+        # c = x - y is rounded once: the bound holds to a few ulps of |y| <= 1 mm
         assert np.all(np.abs(c - c_old) <= step + 1e-15)
-        yp = row
-        xs.append(x)
-        cable = play_forward(x, cable, B)
+        cable = _play(x, cable, B)
     # after the reversal, once ceil(b / step) calls have passed, the cable is on the path again
     assert np.allclose(cable, down[-1], atol=1e-12)
-    assert np.allclose(c, -B / 2)
-
-
-def test_list_version_matches_the_array_version():
-    state = [[0.0, 0.0] for _ in range(3)]
-    yp, c = np.zeros(3), np.zeros(3)
-    for row in _path(200, seed=3):
-        x, c = dead_zone_inverse(row, yp, c, B, 0.01)
-        yp = row
-        xl = dead_zone_inverse_list(row.tolist(), state, (B / 2).tolist(), 0.01)
-        assert np.allclose(xl, x, atol=1e-12)
+    assert np.allclose([r[1] for r in inverse.state], -B / 2)
 
 
 def test_backlash_play_round_trip_and_state_in_the_callers_hands():

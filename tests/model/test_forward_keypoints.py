@@ -19,8 +19,8 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_model
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.forward import ForwardStepper, replay
-from cdcr_ctl.model.routing import cable_displacement
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.routing import cable_displacement
 from cdcr_ctl.sim.keypoint_log import sweep_poses
 
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example.yaml"

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from cc_robots import qi_params, three_params
 
-from cdcr_ctl.model.forward import ForwardStepper
-from cdcr_ctl.model.forward.solver import ForwardModel
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.forward.solver import ForwardModel
+from cdcr_ctl.model.cc_disk.params import Effects
 
 
 def _path(K: int, n: int) -> np.ndarray:

@@ -13,13 +13,13 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_cc_disk_model, reversal_hysteresis_mm, robot_params
 from cdcr_ctl.errors import ConfigError, ConfigErrors
-from cdcr_ctl.model.compensation import Compensator, psi_to_flat_x
-from cdcr_ctl.model.deadzone import dead_zone_inverse, dead_zone_inverse_list
-from cdcr_ctl.model.effect_spec import ModelSpec, rotation_from_rotvec
-from cdcr_ctl.model.effect_terms import DiskFriction, GravityDirection, mount_axes
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.statics import moment_demand, moment_residual, solve_tensions
-from cdcr_ctl.model.transfer import ForceTransfer
+from cdcr_ctl.model.cc_disk.compensation import Compensator, psi_to_flat_x
+from cdcr_ctl.model.cc_disk.effect_spec import ModelSpec, rotation_from_rotvec
+from cdcr_ctl.model.cc_disk.effect_terms import DiskFriction, GravityDirection, mount_axes
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.statics import moment_demand, moment_residual, solve_tensions
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
+from cdcr_ctl.model.shared.deadzone import dead_zone_inverse
 
 ROOT = Path(__file__).resolve().parents[2]
 QI = ROOT / "config" / "qi2023.yaml"
@@ -231,20 +231,6 @@ def test_gravity_direction_reaches_every_direction():
         assert np.linalg.norm(gt) == pytest.approx(np.linalg.norm(g0), rel=1e-12)
 
 
-def test_dead_zone_threshold_zero_is_the_sample_rule():
-    """With no hysteresis the list inverse is the sample-to-sample rule of the numpy one."""
-    rng = np.random.default_rng(3)
-    y = np.cumsum(rng.normal(0, 0.01, (400, 3)) * (rng.random((400, 3)) > 0.3), axis=0)
-    half = [0.1, 0.15, 0.2]
-    rows = [[0.0, 0.0, 0.0, 0.0] for _ in range(3)]
-    yp, c = np.zeros(3), np.zeros(3)
-    for yk in y:
-        x_list = dead_zone_inverse_list(yk.tolist(), rows, half, 0.02)
-        x_np, c = dead_zone_inverse(yk, yp, c, 2 * np.array(half), 0.02)
-        yp = yk
-        assert x_list == pytest.approx(x_np.tolist(), abs=1e-15)
-
-
 def test_dead_zone_ignores_a_sub_count_dip_and_turns_after_one_count():
     """Rising wanted position, then a dip of 1e-6 mm (below one count, 1/1238.6 mm): the
     pre-travel stays at +b/2; a retreat of two counts turns it to -b/2."""
@@ -253,17 +239,15 @@ def test_dead_zone_ignores_a_sub_count_dip_and_turns_after_one_count():
     half = [0.15]
     rows = [[0.0, 0.0, 0.0, 0.0]]
     for y in np.linspace(0.0, 1.0, 11):
-        x = dead_zone_inverse_list([float(y)], rows, half, math.inf, h)
+        x = dead_zone_inverse([float(y)], rows, half, math.inf, h)
     assert x[0] == pytest.approx(1.15)
-    x = dead_zone_inverse_list([1.0 - 1e-6], rows, half, math.inf, h)
+    x = dead_zone_inverse([1.0 - 1e-6], rows, half, math.inf, h)
     assert x[0] == pytest.approx(1.0 - 1e-6 + 0.15)
-    x = dead_zone_inverse_list([1.0 - 2 * h], rows, half, math.inf, h)
+    x = dead_zone_inverse([1.0 - 2 * h], rows, half, math.inf, h)
     assert x[0] == pytest.approx(1.0 - 2 * h - 0.15)
     # without the threshold the sub-count dip flips the pre-travel across the whole play
     rows0 = [[1.0, 0.15, 1.0, 1.0]]
-    assert dead_zone_inverse_list([1.0 - 1e-6], rows0, half)[0] == pytest.approx(
-        1.0 - 0.15, abs=1e-5
-    )
+    assert dead_zone_inverse([1.0 - 1e-6], rows0, half)[0] == pytest.approx(1.0 - 0.15, abs=1e-5)
 
 
 def test_sideways_gravity_loads_a_straight_robot_as_the_disk_levers_say(tmp_path):
@@ -311,8 +295,8 @@ def test_forward_model_under_a_tip_load_inverts_the_compensation(geometry):
     the compensation commands for a pose under a 5 g payload and a sideways tip force bring the
     forward model (every effect on, stepped through a monotone path) to that pose (1e-8 rad
     of bending vector: the Newton tolerance), and not the unloaded robot."""
-    from cdcr_ctl.model.forward import ForwardStepper
-    from cdcr_ctl.model.kinematics import psi_to_x
+    from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+    from cdcr_ctl.model.cc_disk.kinematics import psi_to_x
 
     p = robot_params(load_rig_config(THREE).robot)
     loaded = replace(p, tip_mass_g=5.0, tip_force_N=(0.02, -0.01, 0.0))

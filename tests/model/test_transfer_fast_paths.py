@@ -1,9 +1,12 @@
-"""The force-transfer chain's written-out hot paths against the general forms, bit for bit.
+"""The force-transfer chain's hot paths against their equations.
 
-``TensionChain.cable`` against ``outside``/``inside``, ``_along`` against ``cable``, the disk
-weight sums against :func:`~cdcr_ctl.model.transfer._ratios`, the chord factors against
-:func:`~cdcr_ctl.model.kinematics.s1`/``d1``, the pulley table's inverse against its per-piece
-formula (the same floats, not approximately).
+``TensionChain.cable`` against the stretch of Qi et al. 2023 eq. 33-36 (the tension chain's
+sums, to rounding), ``_along`` assembling ``cable``'s values, the chord geometry against the
+segment shortening and its gradient written from :func:`~cdcr_ctl.model.cc_disk.kinematics.s1` and
+``d1``, the pulley table's inverse against its per-piece formula. The two kept pairs, the disk
+weight sums against :func:`~cdcr_ctl.model.cc_disk.transfer._ratios` and the pulley's fused
+``to_actuator_stretch`` against its two calls, are held to the same floats: their measurement is
+printed by ``benchmarks/bench_hot_paths.py`` (docs/performance/figures.md).
 """
 
 from __future__ import annotations
@@ -14,10 +17,10 @@ import numpy as np
 import pytest
 from cc_robots import make_robot, qi_params, three_params
 
-from cdcr_ctl.model import capstan as cap
-from cdcr_ctl.model.kinematics import d1, s1
-from cdcr_ctl.model.params import Effects
-from cdcr_ctl.model.transfer import ForceTransfer, _disk_sums, _ratios
+from cdcr_ctl.model.cc_disk.kinematics import d1, s1
+from cdcr_ctl.model.cc_disk.params import Effects
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, _disk_sums, _ratios
+from cdcr_ctl.model.shared import capstan as cap
 
 ROBOTS = [qi_params, three_params, lambda: make_robot(2, thickness_mm=1.5)]
 
@@ -48,8 +51,13 @@ def test_cable_and_along_equal_outside_and_inside(robot, geometry):
             for Tk in (T[k], 0.0, 0.5 * T[k], 3.0 * T[k]):
                 tb = Tk * math.exp(Eb[k])
                 ta, do = ft.outside(k, tb, s[k])
-                wk = P.q_geom[k] + ft.inside(k, Tk, Fb[k])
-                assert ft.cable(P, k, Tk, s[k], Fb[k], Eb[k]) == (tb, ta, wk, wk + do)
+                iEA, T0 = ft._iEA[k], ft._T0[k]
+                d_in = sum(ft._l[i] * (Tk * f - T0) for i, f in enumerate(Fb[k])) * iEA
+                wk = P.q_geom[k] + d_in
+                got = ft.cable(P, k, Tk, s[k], Fb[k], Eb[k])
+                assert got[:2] == (tb, ta)
+                # the same sum in the same order: equal to rounding of |q| (mm)
+                assert got[2:] == pytest.approx((wk, wk + do), rel=1e-14, abs=1e-12)
             tb, ta, wk, qk = ft.cable(P, k, T[k], s[k], Fb[k], Eb[k])
             assert (res.T_base[k], res.T_actuator[k], res.w[k], res.q[k]) == (tb, ta, wk, qk)
             assert (res.delta_in[k], res.delta_out[k]) == (wk - P.q_geom[k], qk - wk)

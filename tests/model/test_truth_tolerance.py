@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdcr_ctl.model.kinematics import tip_position_fast
+from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
 from cdcr_ctl.sim.design_truth import make_truth
 from cdcr_ctl.sim.simconfig import load_sim_config
 from cdcr_ctl.sim.truth import TRUTH_TOL, TruthModel

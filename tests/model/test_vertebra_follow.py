@@ -11,7 +11,7 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.designs import follow_params, vertebra_arm
 from cdcr_ctl.model.vertebra import EndFollowPlanner, cable_displacements
-from cdcr_ctl.model.vertebra_follow import (
+from cdcr_ctl.model.vertebra.follow import (
     SPEED_FRACTION,
     StickFrame,
     paper_session,

@@ -28,7 +28,7 @@ from cdcr_ctl.identify.dwell import extract_dwells
 from cdcr_ctl.identify.estimator import identify
 from cdcr_ctl.identify.parameters import plan_parameters
 from cdcr_ctl.identify.sweep import SweepSpec, calibration_sweep
-from cdcr_ctl.model.params import Effects
+from cdcr_ctl.model.cc_disk.params import Effects
 from cdcr_ctl.runlog import load_run
 from cdcr_ctl.runlog.mcap_sink import RUN_MCAP, McapSink
 from cdcr_ctl.runlog.writer import CONFIG_YAML, EFFECTIVE_CONFIG_YAML, RUN_YAML, SAMPLES_CSV

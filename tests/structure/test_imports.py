@@ -1,7 +1,8 @@
 """The package's rooms and the way its imports point (README "Layout").
 
-Walks every module of ``cdcr_ctl`` with :mod:`ast` (imports inside functions count: a lazy import
-that dodges a cycle is still a cycle; only ``if TYPE_CHECKING:`` blocks are skipped) and fails on
+Walks every module of ``cdcr_ctl`` with :mod:`ast` (every import counts: one inside a function,
+as a lazy import that dodges a cycle is still a cycle, and one under ``if TYPE_CHECKING:``, as a
+type-only import that closes a circle still ties the rooms together) and fails on
 
 - an import cycle between modules (the command modules that ``cdcr_ctl.cli.main``'s lazy command
   group imports by name count as that module's imports);
@@ -15,6 +16,7 @@ that dodges a cycle is still a cycle; only ``if TYPE_CHECKING:`` blocks are skip
 from __future__ import annotations
 
 import ast
+from functools import cache
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[2] / "cdcr_ctl"
@@ -56,23 +58,12 @@ def modules() -> dict[str, Path]:
     return out
 
 
-def _type_checking_nodes(tree: ast.AST) -> set[int]:
-    skip: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            skip.update(id(n) for n in ast.walk(node))
-    return skip
-
-
 def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
     """The package modules ``name`` imports (``from a import b`` is module ``a.b`` if it is one)."""
     pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
     tree = ast.parse(path.read_text(encoding="utf-8"))
-    skip = _type_checking_nodes(tree)
     found: set[str] = set()
     for node in ast.walk(tree):
-        if id(node) in skip:
-            continue
         if isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
@@ -97,19 +88,30 @@ def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
 def imported_by_name() -> dict[str, set[str]]:
     """Imports made from a string at run time: the command modules of the CLI's lazy group
     (:data:`cdcr_ctl.cli.main.COMMANDS`, ``"module.attribute"``), counted as imports of
-    ``cdcr_ctl.cli.main``, and the modules of the packages' ``LAZY`` tables, as imports of the
-    package."""
-    from cdcr_ctl import identify, runlog
+    ``cdcr_ctl.cli.main``; the modules of the packages' ``LAZY`` tables, as imports of the
+    package; the design registry's truths and demos (``"module:attribute"``), as imports of the
+    modules that resolve them."""
+    from cdcr_ctl import identify, model, runlog
     from cdcr_ctl.cli.main import COMMANDS
+    from cdcr_ctl.config.registry import DESIGNS
+
+    def named(attr: str) -> set[str]:
+        refs = (getattr(d, attr) for d in DESIGNS.values())
+        return {r.partition(":")[0] for r in refs if isinstance(r, str)}
 
     return {
         "cdcr_ctl.cli.main": {path.rpartition(".")[0] for path in COMMANDS.values()},
         # the packages' attributes imported on first use (cdcr_ctl.firstuse)
         "cdcr_ctl.identify": set(identify.LAZY.values()),
+        "cdcr_ctl.model": set(model.LAZY.values()),
         "cdcr_ctl.runlog": set(runlog.LAZY.values()),
+        # the design registry's plug-ins, resolved by the layer that uses them
+        "cdcr_ctl.sim.design_truth": named("truth"),
+        "cdcr_ctl.cli.demo": named("demo"),
     }
 
 
+@cache  # one walk of the package for the module's tests (they only read it)
 def graph() -> dict[str, set[str]]:
     mods = modules()
     known = set(mods)
@@ -166,6 +168,21 @@ def test_the_walker_finds_a_cycle_and_a_layer_break():
     g = {"cdcr_ctl.model.a": {"cdcr_ctl.config.b"}, "cdcr_ctl.config.b": {"cdcr_ctl.model.a"}}
     assert find_cycles(g) == [["cdcr_ctl.config.b", "cdcr_ctl.model.a"]]
     assert layer_breaks(g) == [("cdcr_ctl.model.a", "cdcr_ctl.config.b")]
+
+
+def test_the_walker_counts_type_only_and_lazy_imports(tmp_path):
+    src = tmp_path / "m.py"
+    src.write_text(
+        "from typing import TYPE_CHECKING\n"
+        "if TYPE_CHECKING:\n"
+        "    from cdcr_ctl.daemon.service import Daemon\n"
+        "def f():\n"
+        "    from cdcr_ctl.daemon import status\n",
+        encoding="utf-8",
+    )
+    known = {"cdcr_ctl.daemon.service", "cdcr_ctl.daemon.status", "cdcr_ctl.daemon.m"}
+    found = imports_of("cdcr_ctl.daemon.m", src, known)
+    assert found == {"cdcr_ctl.daemon.service", "cdcr_ctl.daemon.status"}
 
 
 def layer_breaks(g: dict[str, set[str]]) -> list[tuple[str, str]]:

@@ -41,7 +41,7 @@ from cdcr_ctl.cli.demo import ROOT_CONFIG, _cli, make_session, running, wait_for
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.designs import plan_follow_offline, vertebra_arm
 from cdcr_ctl.model.vertebra import joints_from_displacements, x_from_psi
-from cdcr_ctl.model.vertebra_follow import paper_session
+from cdcr_ctl.model.vertebra.follow import paper_session
 from cdcr_ctl.runlog import load_run
 
 TRUTH = ROOT_CONFIG / "sim" / "vertebra-truth.yaml"

@@ -5,8 +5,8 @@ the load-cell tensions (Qi et al. 2023 eq. 37 with measured T instead of modelle
 change as fast as the world does: a reversal flips the friction in a few cycles, and a return
 from a 90 deg bend changed delta on cable 1 by 0.28 mm in one 4 ms cycle on the hard simulated
 world (68.8 mm/s against the 40 mm/s limit). Like the dead zone's pre-travel
-(:func:`cdcr_ctl.model.deadzone.dead_zone_inverse`), the term therefore moves towards its target
-by at most what the velocity limit leaves after the trajectory's own step: per cable,
+(:func:`cdcr_ctl.model.shared.deadzone.dead_zone_inverse`), the term therefore moves towards its
+target by at most what the velocity limit leaves after the trajectory's own step: per cable,
 room = max(COMMAND_STEP_FRACTION v dt - |q_nominal - q_nominal_prev|, 0) (mm per cycle).
 
 Units: mm, mm/s, s.

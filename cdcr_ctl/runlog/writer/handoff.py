@@ -1,13 +1,13 @@
 """Rows handed to the shared ring between the loop's cycles (issue #23, the log stage's mean).
 
 The process writer's ring store (:meth:`~cdcr_ctl.runlog.writer.process.ProcessRunLogWriter`'s
-store: one packed store of the row's head, one memoryview copy of its numbers, the head
-counter) costs 0.75 us a row with warm caches, but 4.0-4.9 us in the 1 kHz loop's log stage,
-where the loop comes back from its sleep with cold caches: measured with the log stage split by
-``time.perf_counter`` marks in the loop (``benchmarks/bench_runlog_split.py``; README, "Run
-logs"). The same store into one slot that never leaves the cache cost the same (3.8-3.9 us), so
-the cost is the interpreter's cold path, not the ring's memory; with the writer process stopped
-(SIGSTOP) or the CAN traffic log off the stage was no faster. The old thread writer's
+store: one packed store of the row's head, one memoryview copy of its numbers, the head counter)
+costs 0.75 us a row with warm caches, but 4.0-4.9 us in the 1 kHz loop's log stage, where the loop
+comes back from its sleep with cold caches: measured with the log stage split by
+``time.perf_counter`` marks in the loop (``git show 4f9c215:benchmarks/bench_runlog_split.py``;
+README, "Run logs"). The same store into one slot that never leaves the cache cost the same (3.8-3.9
+us), so the cost is the interpreter's cold path, not the ring's memory; with the writer process
+stopped (SIGSTOP) or the CAN traffic log off the stage was no faster. The old thread writer's
 ``deque.append`` costs 0.7-0.8 us there: that difference was the log stage's regression.
 
 So in real time the loop's ``write`` only appends the row to a deque (as the thread writer

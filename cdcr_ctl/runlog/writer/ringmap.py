@@ -27,13 +27,14 @@ half-written slot. The counters are aligned 8-byte stores, single instructions o
 AArch64, and x86-64 keeps stores in program order; on a weaker memory model the Python
 interpreter's own locking between the two stores orders them in practice.
 
-Nothing here formats text or takes a lock on the loop's path: a row is one ``struct`` store of
-its five head fields and one memoryview slice store of the loop's array (no numpy indexing, no
-rounding): 0.75 us a row with warm caches, against 1.8 us with numpy stores and the rounding
-before, and 0.06 us for the thread writer's ``deque.append`` (``benchmarks/bench_runlog_write.py``;
-in the 1 kHz loop, after its sleep, about 4 us against 0.8 us). CAN frames are stored a batch at
-a time (:meth:`SharedRing.put_frames`, one numpy store of a list of records): 0.6 us a frame in
-batches of 64 against 2.1 us a frame one at a time (same benchmark).
+Nothing here formats text or takes a lock on the loop's path: a row is one ``struct`` store of its
+five head fields and one memoryview slice store of the loop's array (no numpy indexing, no
+rounding): 0.75 us a row with warm caches, against 1.8 us with numpy stores and the rounding before,
+and 0.06 us for the thread writer's ``deque.append`` (``git show
+4f9c215:benchmarks/bench_runlog_write.py``; in the 1 kHz loop, after its sleep, about 4 us against
+0.8 us). CAN frames are stored a batch at a time (:meth:`SharedRing.put_frames`, one numpy store of
+a list of records): 0.6 us a frame in batches of 64 against 2.1 us a frame one at a time (same
+benchmark).
 """
 
 from __future__ import annotations

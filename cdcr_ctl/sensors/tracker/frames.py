@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
@@ -96,19 +95,6 @@ def _norm(v: np.ndarray) -> float:
     return math.sqrt(v.dot(v))
 
 
-def _rows(R: np.ndarray) -> list[list[float]] | None:
-    """A 3x3 matrix as three rows of Python floats, None for another shape."""
-    a = np.asarray(R, dtype=float)
-    return a.tolist() if a.shape == (3, 3) else None
-
-
-def _identity_exact(values: list[float]) -> bool:
-    """Whether every value is finite and non-zero: then multiplying by an identity matrix and
-    adding or subtracting a zero vector give each one back exactly (the other terms are signed
-    zeros, whatever the summation order, with or without fused multiply-add)."""
-    return 0.0 not in values and math.isfinite(sum(values))
-
-
 # -- frames ---------------------------------------------------------------------------------
 
 
@@ -152,29 +138,10 @@ class TrackerTransform:
         """From a tracker config section."""
         return cls.from_transforms(cfg.base_from_tracker, cfg.marker_to_tip, cfg.mm_per_unit)
 
-    @cached_property
-    def aligned(self) -> bool:
-        """The tracker frame is the base frame and the tip the body origin: identity rotations,
-        zero translations (the arrays are constants: set once, never written)."""
-        eye = np.eye(3)
-        return bool(
-            np.array_equal(self.R_base_tracker, eye)
-            and np.array_equal(self.R_body_tip, eye)
-            and not np.any(self.t_base_tracker_mm)
-            and not np.any(self.t_body_tip_mm)
-        )
-
     def tip_in_base(
         self, position_units: np.ndarray | tuple[float, ...], R_tracker_body: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(tip position in the base frame (mm), R_base_tip) for a body pose in tracker units."""
-        if self.aligned and type(position_units) is tuple and len(position_units) == 3:
-            # The products below with identities and zeros give back their operands exactly
-            # (tests/sensors/test_tracker_aligned.py): only the scale is applied.
-            p = [self.mm_per_unit * float(v) for v in position_units]
-            rows = _rows(R_tracker_body)
-            if rows is not None and _identity_exact([*p, *rows[0], *rows[1], *rows[2]]):
-                return np.array(p), np.array(rows)
         p_tracker_mm = self.mm_per_unit * np.asarray(position_units, dtype=float)
         p_tracker_mm = p_tracker_mm + R_tracker_body @ self.t_body_tip_mm
         p_base = self.R_base_tracker @ p_tracker_mm + self.t_base_tracker_mm
@@ -184,9 +151,6 @@ class TrackerTransform:
         self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`tip_in_base`: (body position in tracker units, R_tracker_body)."""
-        got = self._aligned_body(p_tip_base_mm, R_base_tip)
-        if got is not None:
-            return np.array(got[0]), np.array(got[1])
         R_tb = self.R_base_tracker.T @ np.asarray(R_base_tip, dtype=float) @ self.R_body_tip.T
         p_tracker_mm = self.R_base_tracker.T @ (
             np.asarray(p_tip_base_mm, dtype=float) - self.t_base_tracker_mm
@@ -198,25 +162,5 @@ class TrackerTransform:
     ) -> tuple[list[float], list[list[float]]]:
         """:meth:`body_in_tracker` as Python floats (the same doubles): the position and the
         three rows of R_tracker_body."""
-        got = self._aligned_body(p_tip_base_mm, R_base_tip)
-        if got is not None:
-            return got
         p, R = self.body_in_tracker(p_tip_base_mm, R_base_tip)
         return p.tolist(), R.tolist()
-
-    def _aligned_body(
-        self, p_tip_base_mm: np.ndarray, R_base_tip: np.ndarray
-    ) -> tuple[list[float], list[list[float]]] | None:
-        """:meth:`body_in_tracker` of an aligned transform as floats where its products with
-        identities and zeros give back their operands exactly (only the scale applied); None
-        where the numpy formula must decide (tests/sensors/test_tracker_aligned.py)."""
-        if not self.aligned:
-            return None
-        p_mm = np.asarray(p_tip_base_mm, dtype=float)
-        rows = _rows(R_base_tip)
-        if p_mm.shape != (3,) or rows is None:
-            return None
-        p = p_mm.tolist()
-        if not _identity_exact([*p, *rows[0], *rows[1], *rows[2]]):
-            return None
-        return [v / self.mm_per_unit for v in p], rows

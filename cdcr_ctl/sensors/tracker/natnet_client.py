@@ -26,7 +26,6 @@ from cdcr_ctl.sensors.natnet import (
     split_message,
 )
 from cdcr_ctl.sensors.natnet.messages import server_latency_s
-from cdcr_ctl.sensors.natnet.single import read_single_body_frame
 from cdcr_ctl.sensors.sample import Clock
 from cdcr_ctl.sensors.tracker.frames import TrackerTransform, rotation_from_quaternion
 from cdcr_ctl.sensors.tracker.reader import (
@@ -145,19 +144,6 @@ class NatNetTracker(TipTracker):
             self.stats.foreign += 1
             self.stats.discarded_bytes += len(data)
             return
-        if self.version is not None:
-            # The common frame (one rigid body, nothing else) read in one struct: the values
-            # the general decoder gives (natnet.single), else the general path below.
-            one = read_single_body_frame(data, self.version)
-            if one is not None:
-                pose = (
-                    ((one.x, one.y, one.z), (one.qx, one.qy, one.qz, one.qw))
-                    if one.body_id == self.rigid_body_id and one.body_params & 0x01
-                    else None
-                )
-                stamps = (one.timestamp_s, one.stamp_mid_exposure, one.stamp_transmit)
-                self._accept(one.frame_number, pose, stamps, t)
-                return
         try:
             message_id, payload = split_message(data)
         except NatNetDecodeError as exc:

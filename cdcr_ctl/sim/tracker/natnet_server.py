@@ -35,7 +35,6 @@ from cdcr_ctl.sensors.natnet import (
     pack_server_info,
     split_message,
 )
-from cdcr_ctl.sensors.natnet.single import SingleBodyFrame, pack_single_body_frame
 from cdcr_ctl.sensors.tracker import TrackerTransform
 from cdcr_ctl.sensors.tracker.frames import quaternion_xyzw
 from cdcr_ctl.sim.tracker.feed import Truth, TruthSampler
@@ -187,28 +186,8 @@ class SimNatNetServer(_ServerThread):
         )
 
     def make_datagram(self, now: float, transmit_s: float | None = None) -> bytes:
-        """``pack_frame_of_data(self.make_frame(now, transmit_s), self.version)``: the same
-        frame and bytes, packed in one struct when it holds the tracked body alone (no dropout
-        draw, no occlusion, no markers; ``tests/sensors/test_natnet_single.py``)."""
-        if self._occluded or self.dropout > 0 or self.include_markers:
-            return pack_frame_of_data(self.make_frame(now, transmit_s), self.version)
-        self.frame_number += 1
-        pose = self._pose()
-        ticks, transmit = self._ticks(now, transmit_s)
-        timestamp = now - self._t0
-        if pose is None:  # the truth failed: a frame without bodies
-            frame = FrameOfData(self.frame_number, (), timestamp, ticks, ticks, transmit)
-            return pack_frame_of_data(frame, self.version)
-        (x, y, z), (qx, qy, qz, qw) = pose
-        one = SingleBodyFrame(
-            self.frame_number,
-            self.rigid_body_id,
-            *(x, y, z, qx, qy, qz, qw),
-            MEAN_ERROR_UNITS,
-            1,
-            *(0, 0, timestamp, ticks, ticks, transmit, 0),
-        )
-        return pack_single_body_frame(self.version, one)
+        """:meth:`make_frame` packed for the stream's version (the datagram to send)."""
+        return pack_frame_of_data(self.make_frame(now, transmit_s), self.version)
 
     def _pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]] | None:
         """The body's pose sampled now: (position in tracker units, quaternion xyzw), or None
