@@ -16,13 +16,15 @@
         world (cdcr_ctl.sim.keypoint_world.hard_world: chain of rigid links, curvature not
         constant, routing offsets, per-segment friction and play, gravity sag, registration
         error, 1 mm tracker noise) per seed, then ``cdcr-ctl identify --from-run`` with its
-        defaults as a lab types it: wall time, rows chosen and their spread, held-out tip RMSE
-        config -> fitted, gate, intervals; prints the machine's load average.
+        defaults as a lab types it: wall and CPU time, rows chosen and their spread, held-out
+        tip RMSE config -> fitted, gate, intervals; prints the machine's load average.
     .venv/bin/python benchmarks/bench_keypoint_identify.py make-log --world hard --rows 1600 \
         --seed 1 --out runs/hard1
-        writes one such log (``--world hard`` or a hidden-effect name) for the commands above.
+        writes one such log (``--world hard``, a hidden-effect name or ``gravity-sideways``:
+        the gravity world on the sideways mount) for the commands above.
     .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy-worlds --rows 1600
-        acceptance 3: one keypoint log per hidden-effect world (hidden_effect_worlds), then
+        acceptance 3: one keypoint log per hidden-effect world (hidden_effect_worlds; the
+        gravity world also as ``gravity-sideways``, against tip_only_side_rig.yaml), then
         ``cdcr-ctl discrepancy`` with its defaults: the effect named and its held-out shrink.
     .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy --rows 2000
         acceptance 5: ``cdcr-ctl discrepancy`` on a 2000-row keypoint log of a world with the

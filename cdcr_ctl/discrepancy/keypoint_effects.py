@@ -203,7 +203,7 @@ def replay_candidates(params: RobotParams, name: str) -> list[FitParameter]:
         sc = tuple((s.disk_mass_g or m0) / m0 for s in params.segments)
         t0 = params.tip_mass_g
         return [
-            FitParameter("segments.disk_mass_g", "gravity", -1, refs, sc, m0, m0 / 10, m0 * 500),
+            FitParameter("segments.disk_mass_g", "gravity", -1, refs, sc, m0, m0 / 2, m0 * 200),
             FitParameter(
                 "tip_load.mass_g", TIP_MASS, -1, (), (), t0, 0.0, t0 + TIP_MASS_MAX_G, log=False
             ),

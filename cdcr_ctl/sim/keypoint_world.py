@@ -360,6 +360,49 @@ def make_world_log(
     return run_dir
 
 
+def make_world_dwell_log(
+    nominal: RobotParams,
+    spec: WorldSpec,
+    out_dir: Path,
+    n_dwells: int,
+    name: str = "dwells",
+    period_s: float = 0.01,
+    dwell_s: float = 0.8,
+) -> Path:
+    """A ``tip``-kind log of the world: commanded poses (out-and-back sweeps) held for
+    ``dwell_s`` each, a row every ``period_s`` with the commanded pose, the drives' positions
+    (the nominal inverse kinematics of the pose, as a controller sends them) and the tracked
+    tip (the world settled at the pose, a fresh tracker noise per row); no load cells."""
+    rng = np.random.default_rng(spec.seed)
+    S, K = nominal.n_segments, nominal.n_cables
+    psi = sweep_poses(S, n_dwells, rng, 0.7)
+    q = np.array([cable_displacement(p, nominal) for p in psi])
+    q = np.round(q / Q_RESOLUTION_MM) * Q_RESOLUTION_MM
+    world = ChainWorld(nominal, spec)
+    per = round(dwell_s / period_s)
+    run_dir = Path(out_dir) / name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cols = ["t_s"]
+    cols += [c for i in range(1, S + 1) for c in (f"seg{i}_theta_cmd_rad", f"seg{i}_phi_cmd_rad")]
+    cols += [f"cable{k + 1}_q_{c}_mm" for c in ("nominal", "cmd", "act") for k in range(K)]
+    cols += ["tip_x_mm", "tip_y_mm", "tip_z_mm"]
+    with (run_dir / "samples.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for d in range(n_dwells):
+            tip = world.step(q[d])
+            pose = [f"{v:.6f}" for v in psi[d].ravel()]
+            for j in range(per):
+                obs = world.observe(tip, rng)
+                t = (d * per + j) * period_s
+                qs = [f"{v:.5f}" for v in q[d]] * 3
+                w.writerow([f"{t:.4f}", *pose, *qs, *(f"{v:.4f}" for v in obs)])
+    meta = {"format": "cdcr-ctl-runlog/1", "name": name, "rows": n_dwells * per}
+    meta["source"] = "cdcr_ctl.sim.keypoint_world (independent chain world, dwell log)"
+    (run_dir / "run.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
+    return run_dir
+
+
 def hard_world(seed: int, n_cables: int = 9) -> WorldSpec:
     """The hardest world of the benchmarks and tests: every departure at once. The config is a
     guess far off the built arm, as a lab's is (EI x0.6-1.5 per segment, EA x0.5, holes drilled

@@ -77,3 +77,18 @@ def test_hidden_kinematic_effect_is_named(worlds, effect, tmp_path, capsys):
     shrink = {c["name"]: c["shrink_percent"] for c in res["candidates"]}
     assert shrink[effect] >= 50.0
     assert (out / "candidates.png").is_file()
+
+
+def test_gravity_candidate_sets_the_disk_masses_and_the_tip_mass(nominal):
+    """The ``gravity`` candidate's two parameters reach the robot: every disk mass scaled by
+    one factor (the config's spread kept) and the tip mass (``tip_mass_g``, the payload)."""
+    from cdcr_ctl.discrepancy.keypoint_effects import problem_of, replay_candidates
+    from cdcr_ctl.model.params import Effects
+
+    fps = replay_candidates(nominal, "gravity")
+    prob = problem_of(nominal, Effects(), [], 1.0)
+    m0 = nominal.segments[0].disk_mass_g
+    p = prob.params_of(fps, [fps[0].to_var(3 * m0), fps[1].to_var(12.5)])
+    for s0, s1 in zip(nominal.segments, p.segments, strict=True):
+        assert abs(s1.disk_mass_g - 3 * s0.disk_mass_g) < 1e-9 * s0.disk_mass_g
+    assert abs(p.tip_mass_g - (nominal.tip_mass_g + 12.5)) < 1e-12
