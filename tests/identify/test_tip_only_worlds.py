@@ -114,7 +114,7 @@ def hard_log(nominal, tmp_path_factory):
 # one process (--jobs 1); the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
-    """``identify`` with its defaults but a small CPU budget (the full-size run with the
+    """``identify`` with its defaults but 30 rows and 4 evaluations (the full-size run with the
     defaults is ``benchmarks/bench_keypoint_identify.py worlds``) on a tip-only keypoint log of
     the hard world: rows chosen and their spread printed, the gate from the data, every
     interval finite within its bounds, every warning printed and written; an overlay only when
@@ -122,7 +122,7 @@ def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
     noise."""
     out = tmp_path / "ident"
     args = ["-c", str(CONFIG), "identify", "--from-run", str(hard_log), "--out", str(out)]
-    code = main([*args, "--budget-s", "3", "--jobs", "1"])
+    code = main([*args, "--max-points", "30", "--max-nfev", "4", "--jobs", "1"])
     err = capsys.readouterr().err
     rep = json.loads((out / "identification.json").read_text())
     kp = rep["keypoint_fit"]
@@ -153,8 +153,8 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
     """Keypoint, tip (dwell) and pull logs of worlds the model cannot represent (a 9 mm
     registration error; two drives of one segment swapped): the gate sees the residual far
     above the noise read from the log, and no overlay is written without saying so. (Load-cell
-    logs: tests/identify/test_misfit_gate.py.) Small CPU budgets: fewer evaluations can only
-    leave the residual larger, so the misfit does not depend on them."""
+    logs: tests/identify/test_misfit_gate.py.) At most 30 rows and 4 evaluations: fewer
+    evaluations can only leave the residual larger, so the misfit does not depend on them."""
     reg = WorldSpec(
         registration_rotvec_rad=(0.0, 0.0, 0.0),
         registration_mm=(6.0, -5.0, 4.0),
@@ -169,7 +169,7 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
     for kind, run in logs.items():
         out = tmp_path / f"o-{kind}"
         args = ["-c", str(CONFIG), "identify", "--from-run", str(run), "--out", str(out)]
-        code = main([*args, "--budget-s", "3", "--max-nfev", "6", "--jobs", "1"])
+        code = main([*args, "--max-points", "30", "--max-nfev", "4", "--jobs", "1"])
         err = capsys.readouterr().err
         assert f"log kind: {kind}" in err
         rep = json.loads((out / "identification.json").read_text())["keypoint_fit"]
