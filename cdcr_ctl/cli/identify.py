@@ -99,7 +99,7 @@ __all__ = [
     default=40.0,
     show_default=True,
     help="CPU seconds the keypoint fit's replays may take (rows chosen to fit it, the cost of "
-    "a row measured on the config's replay; the same rows on a loaded machine, which takes "
+    "a row measured on the config's replay; about the same rows on a loaded machine, which takes "
     "longer; the two whole-log replays of the held-out check come on top).",
 )
 @click.option(

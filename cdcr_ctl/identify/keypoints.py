@@ -20,7 +20,7 @@ Steps (:func:`identify_keypoint_runs`):
    chosen to span the actuator space and the friction states (:mod:`.rowselect`,
    farthest-point), each replayed after the row before it. The budget is CPU time of the
    replays (the config's replay measures a row's cost), not wall time: a loaded machine fits
-   the same rows with the same steps, and takes longer;
+   about the same rows (a row's CPU cost varies ~20 % with the load) and takes longer;
 4. observability at the config's values (:mod:`.observability`): the replay's weighted
    sensitivity to every candidate, its singular values, a 95 % half-width per candidate; the
    ones not identifiable stay at the config, with the reason;

@@ -154,7 +154,7 @@ def rows_for_budget(cpu_budget_s: float, cpu_per_row: float, n_params: int, n_it
     """How many chosen rows a fit of ``n_iter`` Jacobians (``n_params`` + 1 replays each) can
     replay within ``cpu_budget_s`` seconds of CPU time when a row of the log's own path costs
     ``cpu_per_row`` of it (a chosen row costs :data:`CHOSEN_ROW_COST` such rows); at least
-    :data:`MIN_FIT_ROWS`. CPU time, not wall time: the same rows on a
-    loaded machine as on an idle one (the loaded one takes longer)."""
+    :data:`MIN_FIT_ROWS`. CPU time, not wall time: about the same rows on a loaded machine as
+    on an idle one (the loaded one takes longer)."""
     per_iter = (n_params + 1) * CHOSEN_ROW_COST * cpu_per_row
     return max(MIN_FIT_ROWS, int(cpu_budget_s / max(per_iter * n_iter, 1e-9)))
