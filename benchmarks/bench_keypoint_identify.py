@@ -16,13 +16,15 @@
         world (cdcr_ctl.sim.keypoint_world.hard_world: chain of rigid links, curvature not
         constant, routing offsets, per-segment friction and play, gravity sag, registration
         error, 1 mm tracker noise) per seed, then ``cdcr-ctl identify --from-run`` with its
-        defaults as a lab types it: wall time, rows chosen and their spread, held-out tip RMSE
-        config -> fitted, gate, intervals; prints the machine's load average.
+        defaults as a lab types it: wall and CPU time, rows chosen and their spread, held-out
+        tip RMSE config -> fitted, gate, intervals; prints the machine's load average.
     .venv/bin/python benchmarks/bench_keypoint_identify.py make-log --world hard --rows 1600 \
         --seed 1 --out runs/hard1
-        writes one such log (``--world hard`` or a hidden-effect name) for the commands above.
+        writes one such log (``--world hard``, a hidden-effect name or ``gravity-sideways``:
+        the gravity world on the sideways mount) for the commands above.
     .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy-worlds --rows 1600
-        acceptance 3: one keypoint log per hidden-effect world (hidden_effect_worlds), then
+        acceptance 3: one keypoint log per hidden-effect world (hidden_effect_worlds; the
+        gravity world also as ``gravity-sideways``, against tip_only_side_rig.yaml), then
         ``cdcr-ctl discrepancy`` with its defaults: the effect named and its held-out shrink.
     .venv/bin/python benchmarks/bench_keypoint_identify.py discrepancy --rows 2000
         acceptance 5: ``cdcr-ctl discrepancy`` on a 2000-row keypoint log of a world with the
@@ -262,7 +264,7 @@ def make_log(world: str, rows: int, seed: int, out: Path) -> None:
     if world == "hard":
         spec, rig = hard_world(seed), CONFIG
     else:
-        spec, rig = hidden_effect_worlds(seed)[world], ROOT / "tests/discrepancy/tip_only_rig.yaml"
+        spec, rig = hidden_effect_worlds(seed)[world.split("-")[0]], hidden_rig(world)
     m = build_model(load_rig_config(rig))
     t0 = time.perf_counter()
     run = make_world_log(m.params, spec, out.parent, rows, name=out.name)
@@ -270,6 +272,14 @@ def make_log(world: str, rows: int, seed: int, out: Path) -> None:
         f"{run}: {rows} keypoint rows of the {world} world (seed {seed}), tip only, "
         f"{time.perf_counter() - t0:.0f} s; controller config: {rig.relative_to(ROOT)}"
     )
+
+
+def hidden_rig(effect: str) -> Path:
+    """The controller config of a hidden-effect world: the tip-only robot without friction,
+    upright (gravity along -z), or mounted sideways for ``gravity-sideways`` (gravity along
+    -x: a heavier arm droops at every pose instead of bending further where it is bent)."""
+    name = "tip_only_side_rig.yaml" if effect == "gravity-sideways" else "tip_only_rig.yaml"
+    return ROOT / "tests" / "discrepancy" / name
 
 
 def worlds(rows: int, seeds: list[int]) -> None:
@@ -308,10 +318,11 @@ def discrepancy_worlds(rows: int, seed: int, effects: list[str] | None) -> None:
 
     from cdcr_ctl.sim.keypoint_world import hidden_effect_worlds, make_world_log
 
-    rig = ROOT / "tests" / "discrepancy" / "tip_only_rig.yaml"
-    m = build_model(load_rig_config(rig))
     specs = hidden_effect_worlds(seed)
+    specs["gravity-sideways"] = specs["gravity"]
     for name in effects or list(specs):
+        rig = hidden_rig(name)
+        m = build_model(load_rig_config(rig))
         with tempfile.TemporaryDirectory() as tmp:
             run = make_world_log(m.params, specs[name], Path(tmp), rows, name=name)
             out, dt, cpu = _cli(["--json", "-c", str(rig), "discrepancy", "--no-plots", str(run)])
@@ -322,9 +333,11 @@ def discrepancy_worlds(rows: int, seed: int, effects: list[str] | None) -> None:
             continue
         named = res["effect"]["name"] if res["effect"] else None
         shrink = {c["name"]: c["shrink_percent"] for c in res["candidates"]}
+        effect = name.split("-")[0]
         print(
-            f"hidden {name}: named {named} ({'right' if named == name else 'WRONG'}); held-out "
-            f"shrink of the hidden effect {shrink.get(name, float('nan')):.1f} %; all: "
+            f"hidden {name} ({rig.name}): named {named} "
+            f"({'right' if named == effect else 'WRONG'}); held-out "
+            f"shrink of the hidden effect {shrink.get(effect, float('nan')):.1f} %; all: "
             + ", ".join(f"{k} {v:.0f} %" for k, v in sorted(shrink.items(), key=lambda x: -x[1]))
             + f"; {dt:.0f} s wall, {cpu:.0f} s CPU, load {os.getloadavg()[0]:.1f}"
         )

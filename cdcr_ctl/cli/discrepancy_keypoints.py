@@ -5,7 +5,8 @@ option of the command is honoured or refused with a message, the report is writt
 
 The named effect goes into the overlay under the rig config's own keys: ``routing`` as the
 cables' ``hole_angle_rad`` and ``routing_radius_mm``, ``hysteresis`` as the cables'
-``backlash_mm``, ``gravity`` as the segments' disk ``mass_g``. ``curvature`` (the cc_disk model
+``backlash_mm``, ``gravity`` as the segments' disk ``mass_g`` and the tip mass as
+``tip_load.payload_kg``. ``curvature`` (the cc_disk model
 is constant curvature per segment) and ``registration`` (a tracker alignment, which belongs in
 ``sensors.tracker.base_from_tracker`` of the rig with the tracker) have no key the model reads:
 ``--apply`` refuses them with exit status 1 and the values to use.
@@ -139,7 +140,11 @@ def _overlay(cfg, res) -> tuple[str | None, str]:
 
     kinds = {"routing": {"hole_offset", "routing_radius"}, "hysteresis": {"backlash"}}
     head = [f"Fitted by `cdcr-ctl discrepancy` on keypoint logs: {res.verdict}"]
-    return overlay_from_params(cfg, e.params, kinds.get(e.name, {e.name}), head), ""
+    text = overlay_from_params(cfg, e.params, kinds.get(e.name, {e.name}), head)
+    if e.name == "gravity":  # the tip mass goes in as the payload (kg)
+        kg = round(e.params.tip_mass_g / 1000.0, 6)
+        text += f"  tip_load:\n    payload_kg: {kg}\n"
+    return text, ""
 
 
 def _plot(res, path: Path) -> Path:

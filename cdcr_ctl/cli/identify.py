@@ -96,10 +96,11 @@ __all__ = [
 @click.option(
     "--budget-s",
     type=click.FloatRange(1.0, 36_000.0),
-    default=30.0,
+    default=40.0,
     show_default=True,
-    help="Wall time of the keypoint fit (rows chosen to fit it; the two whole-log replays "
-    "of the held-out check come on top).",
+    help="CPU seconds the keypoint fit's replays may take (rows chosen to fit it, the cost of "
+    "a row measured on the config's replay; about the same rows on a loaded machine, which takes "
+    "longer; the two whole-log replays of the held-out check come on top).",
 )
 @click.option(
     "--max-nfev",

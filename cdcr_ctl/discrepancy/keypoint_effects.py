@@ -20,7 +20,12 @@ recurring ways; each is a candidate here, with the parameters that describe it:
 * ``hysteresis`` -- **hysteresis per segment**: a lost motion (play, mm) per segment shared by
   its cables (Yang et al. 2022 eq. 13-17), fitted through the replay.
 * ``gravity`` -- **gravity sag of the whole arm**: one scale on every disk mass (the arm is
-  heavier than the config says: cables, glue, a tool at the tip), fitted through the replay.
+  heavier along its length than the config says: cables, glue) and a mass at the tip (a
+  marker, a tool: the config's ``robot.tip_load.payload_kg``, whose weight acts at the tip,
+  Qi et al. 2023 eq. 7-9 external load), fitted through the replay. The tip mass loads every
+  segment with a moment that grows with the distance from it to the tip, the disk masses each
+  segment with its own and the distal ones: a sag whose share between the segments no
+  routing change makes.
 
 Every candidate is fitted on the rows before the hold-out cut and scored by the held-out tip
 RMSE (the shrink 1 - RMSE_effect / RMSE_config); the held-out rows never enter a fit.
@@ -28,6 +33,7 @@ RMSE (the shrink 1 - RMSE_effect / RMSE_config); the held-out rows never enter a
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -59,7 +65,9 @@ _GL_X, _GL_W = np.polynomial.legendre.leggauss(12)
 
 @dataclass
 class EffectFit:
-    """One candidate's fit: parameter names, values, held-out tip RMSE (mm) and shrink."""
+    """One candidate's fit: parameter names, values, held-out tip RMSE (mm) and shrink;
+    ``err2_heldout``: the squared tip error (mm^2) of every held-out row in time order (NaN
+    where no solution), for paired comparisons between candidates."""
 
     name: str
     names: list[str]
@@ -68,6 +76,7 @@ class EffectFit:
     shrink: float
     seconds: float
     params: RobotParams | None = None  # for replay effects: the fitted parameters
+    err2_heldout: np.ndarray | None = None
 
     @property
     def title(self) -> str:
@@ -124,7 +133,7 @@ def kinematic_fits(
     tips ``tip_model``) against the measured ``tip``; ``fit``/``held``: boolean row masks."""
     out: list[EffectFit] = []
     ok = np.all(np.isfinite(tip_model), axis=1)
-    f, h = fit & ok, held & ok
+    f = fit & ok
     t0 = time.monotonic()
     S = len(lengths)
 
@@ -132,7 +141,9 @@ def kinematic_fits(
         return (segment_tip(x[f], lengths, c) - tip[f]).ravel()
 
     sol = least_squares(res, np.zeros(S), bounds=(-0.9, 0.9), max_nfev=50)
-    rm = _rmse(segment_tip(x[h], lengths, sol.x) - tip[h])
+    d_c = segment_tip(np.where(ok[:, None], x, 0.0)[held], lengths, sol.x) - tip[held]
+    d_c[~ok[held]] = np.nan
+    rm = _rmse(d_c)
     out.append(
         EffectFit(
             "curvature",
@@ -141,11 +152,13 @@ def kinematic_fits(
             rm,
             1 - rm / base_rmse,
             time.monotonic() - t0,
+            err2_heldout=np.sum(d_c * d_c, axis=1),
         )
     )
     t0 = time.monotonic()
     R, t = kabsch(tip_model[f], tip[f])
-    rm = _rmse(tip_model[h] @ R.T + t - tip[h])
+    d_r = tip_model[held] @ R.T + t - tip[held]
+    rm = _rmse(d_r)
     ang = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2)))
     out.append(
         EffectFit(
@@ -155,6 +168,7 @@ def kinematic_fits(
             rm,
             1 - rm / base_rmse,
             time.monotonic() - t0,
+            err2_heldout=np.sum(d_r * d_r, axis=1),
         )
     )
     return out
@@ -187,10 +201,35 @@ def replay_candidates(params: RobotParams, name: str) -> list[FitParameter]:
         m0 = params.segments[0].disk_mass_g or 1.0
         refs = tuple(ParamRef("segment", i, "disk_mass_g") for i in range(params.n_segments))
         sc = tuple((s.disk_mass_g or m0) / m0 for s in params.segments)
+        t0 = params.tip_mass_g
         return [
-            FitParameter("segments.disk_mass_g", "gravity", -1, refs, sc, m0, m0 / 10, m0 * 500)
+            FitParameter("segments.disk_mass_g", "gravity", -1, refs, sc, m0, m0 / 2, m0 * 200),
+            FitParameter(
+                "tip_load.mass_g", TIP_MASS, -1, (), (), t0, 0.0, t0 + TIP_MASS_MAX_G, log=False
+            ),
         ]
     raise KeyError(name)
+
+
+#: Kind of the tip-mass parameter of the ``gravity`` candidate (set by :class:`EffectProblem`).
+TIP_MASS = "tip_mass"
+#: Largest tip mass (g) the ``gravity`` candidate adds to the config's.
+TIP_MASS_MAX_G = 200.0
+
+
+@dataclass(frozen=True)
+class EffectProblem(ReplayProblem):
+    """:class:`~cdcr_ctl.identify.replay_fit.ReplayProblem` that also sets the robot's tip mass
+    (``RobotParams.tip_mass_g``) from a parameter of kind :data:`TIP_MASS`."""
+
+    def params_of(self, fps: Sequence[FitParameter], x: Sequence[float]) -> RobotParams:
+        pairs = list(zip(fps, x, strict=True))
+        rest = [(fp, v) for fp, v in pairs if fp.kind != TIP_MASS]
+        out = super().params_of([fp for fp, _ in rest], [v for _, v in rest])
+        for fp, v in pairs:
+            if fp.kind == TIP_MASS:
+                out = dataclasses.replace(out, tip_mass_g=max(0.0, float(fp.from_var(v))))
+        return out
 
 
 def replay_fit_effect(
@@ -199,7 +238,7 @@ def replay_fit_effect(
     effects: Effects,
     name: str,
     runs_full: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
-    deadline: float,
+    cpu_budget_s: float,
     base_rmse: float,
     say: Callable[[str], None],
 ) -> EffectFit:
@@ -208,13 +247,14 @@ def replay_fit_effect(
     t0 = time.monotonic()
     fps = replay_candidates(params, name)
     scales = [tolerance(fp, 0.25, math.radians(1.0)) for fp in fps]
-    sol = replay_fit.fit(ev, fps, scales, 20, None, deadline, say)
+    sol = replay_fit.fit(ev, fps, scales, 20, None, progress=say, cpu_budget_s=cpu_budget_s)
     fitted = ev.prob.params_of(fps, sol.x)
     d_all = []
     for q, tip, held in runs_full:
         rep = replay(ForwardStepper(fitted, replay_fit.effects_of(fitted, effects)), q)
         d_all.append((rep.tip_mm - tip)[held])
-    rm = _rmse(np.vstack(d_all))
+    d = np.vstack(d_all)
+    rm = _rmse(d)
     return EffectFit(
         name,
         [fp.name for fp in fps],
@@ -223,10 +263,11 @@ def replay_fit_effect(
         1 - rm / base_rmse,
         time.monotonic() - t0,
         fitted,
+        np.sum(d * d, axis=1),
     )
 
 
 def problem_of(
     params: RobotParams, effects: Effects, rows: Sequence[RunRows], noise_mm: float
-) -> ReplayProblem:
-    return ReplayProblem(params, effects, tuple(rows), (), noise_mm, 0.02)
+) -> EffectProblem:
+    return EffectProblem(params, effects, tuple(rows), (), noise_mm, 0.02)

@@ -15,8 +15,11 @@ neither: every row is settled, so
   alone on top of the config's forward replay from the rows before the hold-out cut (the
   replayed candidates from rows chosen to span the log, :mod:`cdcr_ctl.identify.rowselect`)
   and scored on the held-out end of the run (the last 30 % by time). The best one is *named*
-  when it shrinks the held-out tip RMSE by at least ``NAME_SHRINK`` and by ``TIE_SHRINK``
-  more than the runner-up (otherwise both are reported and none is named).
+  when it shrinks the held-out tip RMSE by at least ``NAME_SHRINK`` and predicts the held-out
+  rows better than the runner-up beyond their noise: the paired drop of the squared tip error
+  runner-up -> best, averaged in blocks of 10 consecutive rows, exceeds ``TIE_SE`` standard
+  errors (:func:`cdcr_ctl.identify.keypoint_gate.heldout_gain`, the test of ``identify``'s
+  gate). Otherwise both are reported and none is named.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from cdcr_ctl.discrepancy.keypoint_effects import (
 )
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify import replay_fit
+from cdcr_ctl.identify.keypoint_gate import heldout_gain
 from cdcr_ctl.identify.keypoints import HOLDOUT_FRACTION, _choose_rows, _load, _noise
 from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind, split_by_time
 from cdcr_ctl.identify.replay_fit import Evaluator
@@ -73,9 +77,11 @@ def reversals_from_path(q_mm: np.ndarray, eps_mm: float = KEYPOINT_DIRECTION_EPS
 
 #: Held-out shrink from which the best candidate is named (and beyond its noise).
 NAME_SHRINK = 0.25
-#: Shrinks closer than this (fraction of the config's RMSE) are a tie: nothing is named.
-TIE_SHRINK = 0.05
-#: Fit budget (s) of each replay-fitted candidate.
+#: Standard errors by which the best candidate's held-out squared error must undercut the
+#: runner-up's to be named (else a tie: nothing is named).
+TIE_SE = 2.0
+#: Budget of each replay-fitted candidate: CPU seconds of its replays (the same fit on a
+#: loaded machine as on an idle one).
 EFFECT_BUDGET_S = 20.0
 
 
@@ -183,7 +189,7 @@ def analyse_keypoints(
     held_keys = {(p.run, p.index) for p in held_pts}
     # the config's replay of every row: baseline, poses for the kinematic candidates
     full, xs, tm, tips, fmask, hmask = [], [], [], [], [], []
-    t_rep = time.monotonic()
+    c_rep = time.process_time()
     for r in runs:
         rep = replay(ForwardStepper(params, replay_fit.effects_of(params, eff)), r.q_path)
         rows = np.asarray(r.rows, dtype=int)
@@ -199,11 +205,14 @@ def analyse_keypoints(
         held_full[rows[hmask[-1]]] = True
         full.append((r.q_path, tip_full, held_full))
     n_rows_all = sum(len(r.q_path) for r in runs)
-    s_row = (time.monotonic() - t_rep) / max(n_rows_all, 1)
+    s_row = (time.process_time() - c_rep) / max(n_rows_all, 1)
     X, TM, TIP = np.vstack(xs), np.vstack(tm), np.vstack(tips)
     F, H = np.concatenate(fmask), np.concatenate(hmask)
     base = _rmse_rows(TM[H] - TIP[H])
-    say(f"config replay: {n_rows_all} rows, {s_row * 1e3:.2g} ms/row; held-out RMSE {base:.4g} mm")
+    say(
+        f"config replay: {n_rows_all} rows, {s_row * 1e3:.2g} ms CPU per row; held-out RMSE "
+        f"{base:.4g} mm"
+    )
     fits: list[EffectFit] = []
     kin = [e for e in effects if e in ("curvature", "registration")]
     if kin:
@@ -216,7 +225,7 @@ def analyse_keypoints(
     spreads: list[str] = []
     if rep_effects:
         nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
-        n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6, nj)
+        n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6)
         rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
         spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
         n_fit = sum(len(r.rows) for r in rr)
@@ -224,21 +233,23 @@ def analyse_keypoints(
         with Evaluator(problem_of(params, eff, rr, noise), nj) as ev:
             for name in rep_effects:
                 say(f"candidate {name}: fitting {n_fit} rows")
-                dl = math.inf if max_points else time.monotonic() + EFFECT_BUDGET_S
-                fits.append(replay_fit_effect(ev, params, eff, name, full, dl, base, say))
+                cpu = math.inf if max_points else EFFECT_BUDGET_S
+                fits.append(replay_fit_effect(ev, params, eff, name, full, cpu, base, say))
     ranked = sorted(fits, key=lambda f: f.rmse_heldout)
     best = ranked[0] if ranked else None
     named = best if best is not None and best.shrink >= NAME_SHRINK else None
-    tie = (
-        ranked[1]
-        if named is not None and len(ranked) > 1 and best.shrink - ranked[1].shrink < TIE_SHRINK
-        else None
-    )
+    tie = None
+    if named is not None and len(ranked) > 1:
+        gain, se = _paired_gain(ranked[1], best)
+        if not gain > TIE_SE * se:
+            tie = ranked[1]
     if named is not None and tie is not None:
         verdict = (
             f"TWO EFFECTS EXPLAIN IT ALIKE, NONE NAMED: {best.title} ({best.name}, "
             f"{100 * best.shrink:.1f} % shrink) and {tie.title} ({tie.name}, "
-            f"{100 * tie.shrink:.1f} %); a log that tells them apart is needed"
+            f"{100 * tie.shrink:.1f} %): the held-out squared tip error differs by "
+            f"{gain:.3g} mm^2, less than {TIE_SE:g} standard errors ({se:.2g} mm^2); a log "
+            "that tells them apart is needed"
         )
         named = None
     elif named is not None:
@@ -269,6 +280,14 @@ def analyse_keypoints(
         spreads,
         warnings,
     )
+
+
+def _paired_gain(worse: EffectFit, better: EffectFit) -> tuple[float, float]:
+    """(mean drop of the held-out squared tip error ``worse`` -> ``better`` (mm^2), its standard
+    error from blocks of rows); (nan, nan) when a candidate kept no per-row errors."""
+    if worse.err2_heldout is None or better.err2_heldout is None:
+        return math.nan, math.nan
+    return heldout_gain(worse.err2_heldout, better.err2_heldout)
 
 
 def _rmse_rows(d: np.ndarray) -> float:

@@ -6,6 +6,7 @@ its squared tip error per point, and the RMSE over the held-out and the other ro
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -59,14 +60,20 @@ def _rms(e: np.ndarray) -> float:
     return math.sqrt(float(e.mean())) if e.size else math.nan
 
 
-def _errors_task(args: tuple) -> tuple[list[np.ndarray], list[str]]:
-    return heldout_errors(*args)
+def _errors_task(args: tuple) -> tuple[tuple[list[np.ndarray], list[str]], float]:
+    c0 = time.process_time()
+    out = heldout_errors(*args)
+    return out, time.process_time() - c0
 
 
 def _errors_both(ev: Evaluator, plist, effects, runs) -> list:
-    """:func:`heldout_errors` for each parameter set, in the evaluator's workers."""
+    """:func:`heldout_errors` for each parameter set, in the evaluator's workers; the CPU
+    time of the replays is added to ``ev.cpu_s``."""
     tasks = [(p, effects, runs) for p in plist]
     ev.n_replays += len(tasks)
     if ev.pool is None:
-        return [_errors_task(t) for t in tasks]
-    return list(ev.pool.map(_errors_task, tasks))
+        outs = [_errors_task(t) for t in tasks]
+    else:
+        outs = list(ev.pool.map(_errors_task, tasks))
+    ev.cpu_s += sum(c for _, c in outs)
+    return [o for o, _ in outs]

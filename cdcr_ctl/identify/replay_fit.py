@@ -121,19 +121,26 @@ def effects_of(params: RobotParams, effects: Effects) -> Effects:
 # --- the Jacobian, one replay per column, in worker processes ------------------------------
 
 
-def _replay_with(args: tuple[ReplayProblem, RobotParams]) -> np.ndarray:
-    return args[0].residuals_of(args[1])[0]
+def _replay_with(args: tuple[ReplayProblem, RobotParams]) -> tuple[np.ndarray, float]:
+    """Weighted residuals of one parameter set and the CPU time (s) its replay took."""
+    c0 = time.process_time()
+    res = args[0].residuals_of(args[1])[0]
+    return res, time.process_time() - c0
 
 
 class Evaluator:
     """Residuals and forward-difference Jacobians of a :class:`ReplayProblem`, the columns
-    computed in ``jobs`` worker processes (1: in this process). Use as a context manager."""
+    computed in ``jobs`` worker processes (1: in this process). Use as a context manager.
+
+    ``cpu_s`` sums the CPU time of every replay it ran (in whichever process): a measure of
+    the work done that does not grow with the machine's load, as a wall clock does."""
 
     def __init__(self, prob: ReplayProblem, jobs: int | None = None) -> None:
         self.prob = prob
         self.jobs = max(1, min(jobs or (os.cpu_count() or 1), 8))
         self.pool: Executor | None = None
         self.n_replays = 0
+        self.cpu_s = 0.0
 
     def __enter__(self) -> Evaluator:
         if self.jobs > 1:
@@ -151,10 +158,14 @@ class Evaluator:
     def map_params(self, plist: Sequence[RobotParams]) -> list[np.ndarray]:
         """Weighted residuals for each parameter set (in parallel)."""
         self.n_replays += len(plist)
+        tasks = [(self.prob, p) for p in plist]
         if self.pool is None:
-            return [self.prob.residuals_of(p)[0] for p in plist]
-        # the problem travels with every task (a few hundred kB against a replay of seconds)
-        return list(self.pool.map(_replay_with, [(self.prob, p) for p in plist]))
+            outs = [_replay_with(t) for t in tasks]
+        else:
+            # the problem travels with every task (a few hundred kB against a replay of seconds)
+            outs = list(self.pool.map(_replay_with, tasks))
+        self.cpu_s += sum(c for _, c in outs)
+        return [r for r, _ in outs]
 
     def jacobian(
         self, fps: Sequence[FitParameter], x: np.ndarray, f0: np.ndarray, hi: np.ndarray
@@ -198,6 +209,7 @@ def fit(
     first: tuple[np.ndarray, np.ndarray] | None = None,
     deadline: float = math.inf,
     progress: Callable[[str], None] | None = None,
+    cpu_budget_s: float = math.inf,
 ) -> ReplayFit:
     """Least squares over ``fps`` from their nominal values (module docstring); ``scales``
     their tolerances in the fit variables (``x_scale``); ``first``: (residuals, Jacobian) at
@@ -206,7 +218,9 @@ def fit(
     ``deadline`` (time.monotonic()): no new evaluation starts after it once
     :data:`MIN_EVALUATIONS` have run (a machine too slow for the budget still takes a few
     steps from the nominal values); the best point seen is kept and the intervals come from
-    one more Jacobian there. ``progress``: called with a line
+    one more Jacobian there. ``cpu_budget_s``: the same limit on the CPU time of the fit's
+    replays (:attr:`Evaluator.cpu_s`, counted from the call): the fit then takes the same
+    steps on a loaded machine as on an idle one. ``progress``: called with a line
     after every evaluation. Intervals are computed in the fit variables and clipped to the
     parameter's bounds (:attr:`Estimate.ci_at_bound` says when: the log does not bound it)."""
     prob = ev.prob
@@ -225,13 +239,18 @@ def fit(
         jac0 = first[1]
     best: dict[str, object] = {"cost": math.inf, "x": x0, "f": None}
     t_start = time.monotonic()
+    cpu_start = ev.cpu_s
 
     n_eval = [0]
+
+    def spent() -> bool:
+        over = time.monotonic() > deadline or ev.cpu_s - cpu_start > cpu_budget_s
+        return n_eval[0] >= MIN_EVALUATIONS and over
 
     def fun(x: np.ndarray) -> np.ndarray:
         key = np.asarray(x, float).tobytes()
         if key not in cache:
-            if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
+            if spent():
                 raise _OutOfTime
             n_eval[0] += 1
             cache.clear() if len(cache) > 8 else None
@@ -243,14 +262,14 @@ def fit(
         if progress is not None:
             progress(
                 f"  fit: {ev.n_replays} replays, chi^2 sum {c:.4g} (best {best['cost']:.4g}), "
-                f"{time.monotonic() - t_start:.0f} s"
+                f"{time.monotonic() - t_start:.0f} s, replays' CPU {ev.cpu_s - cpu_start:.0f} s"
             )
         return f
 
     def jac(x: np.ndarray) -> np.ndarray:
         if jac0 is not None and np.array_equal(x, x0):
             return jac0
-        if n_eval[0] >= MIN_EVALUATIONS and time.monotonic() > deadline:
+        if spent():
             raise _OutOfTime
         return ev.jacobian(fps, np.asarray(x, float), fun(x), hi)
 

@@ -32,7 +32,8 @@ radii, EI, EA, pretension, masses):
   gradient is analytic (joint axes: dl/da_j = u . (R_{j-1} e_x x r), dl/db_j with the axis
   R_{j-1} Rx e_y); scipy's L-BFGS-B minimises it from the previous row's pose.
 * **Gravity**: every link carries ``link_mass_g`` at its middle, the tip ``tip_mass_g``: the
-  whole arm sags.
+  whole arm sags along the nominal robot's gravity vector (``gravity_mm_s2``, base frame: an
+  upright, hanging or sideways mount).
 * **Tracker**: p_logged = R_reg p_tip + t_reg + noise (``registration``: a base/registration
   error; ``tip_noise_mm`` per axis, at least 1 mm in the hard worlds).
 
@@ -59,7 +60,6 @@ from cdcr_ctl.model.cc_disk.routing import cable_displacement
 from cdcr_ctl.sim.keypoint_log import sweep_poses
 
 Q_RESOLUTION_MM = 1.0 / 1238.6
-G_MM_S2 = np.array([0.0, 0.0, -9810.0])
 
 
 @dataclass(frozen=True)
@@ -169,8 +169,9 @@ class ChainWorld:
         half = 0.5 * spec.gap_mm
         self._v = np.moveaxis(self.holes[:, 1:, :] + np.array([0.0, 0.0, half]), -1, 0)
         self._w = np.moveaxis(self.holes[:, :-1, :] - np.array([0.0, 0.0, half]), -1, 0)
-        self._F = self.m_kg[:, None] * G_MM_S2 * 1e-3  # N: kg * mm/s^2 = 1e-3 N
-        self._F_tip = self.tip_kg * G_MM_S2 * 1e-3
+        g = np.asarray(nominal.gravity_mm_s2, float)  # the mount: gravity in the base frame
+        self._F = self.m_kg[:, None] * g * 1e-3  # N: kg * mm/s^2 = 1e-3 N
+        self._F_tip = self.tip_kg * g * 1e-3
         self._gravity = bool(self.m_kg.any() or self.tip_kg)
         self.l0 = self._crossings(np.zeros(2 * J))[0]
         self.R_reg = _rotvec(np.asarray(spec.registration_rotvec_rad, float))
@@ -254,15 +255,12 @@ class ChainWorld:
         return E, grad
 
     def _cum_cross(self, c: np.ndarray, o: np.ndarray) -> np.ndarray:
+        """Torque (J, 3) about every joint o_j of the weights distal to it:
+        sum_{i>=j} c_i x F_i + o_tip x F_tip - o_j x (sum_{i>=j} F_i + F_tip)."""
         F, Ft = self._F, self._F_tip
-        # F is along z only (gravity -z in the base frame): (p x F) = (p_y F_z, -p_x F_z, 0)
-        mx = np.cumsum((c[:, 1] * F[:, 2])[::-1])[::-1] + o[-1, 1] * Ft[2]
-        my = np.cumsum((-c[:, 0] * F[:, 2])[::-1])[::-1] - o[-1, 0] * Ft[2]
-        Fz = np.cumsum(F[::-1, 2])[::-1] + Ft[2]
-        tau = np.zeros((self.J, 3))
-        tau[:, 0] = mx - o[:-1, 1] * Fz
-        tau[:, 1] = my + o[:-1, 0] * Fz
-        return tau
+        M = np.cumsum(np.cross(c, F)[::-1], axis=0)[::-1] + np.cross(o[-1], Ft)
+        Fs = np.cumsum(F[::-1], axis=0)[::-1] + Ft
+        return M - np.cross(o[:-1], Fs)
 
     def step(self, q_act: np.ndarray) -> np.ndarray:
         """Settle at actuator positions ``q_act`` (K,) mm; returns the true tip (base frame)."""
@@ -359,6 +357,49 @@ def make_world_log(
     doc["rows"] = int(N)
     (Path(out_dir) / f"{name}.world.json").write_text(json.dumps(doc, indent=2))
     np.save(Path(out_dir) / f"{name}.true_tip.npy", true_tip)
+    return run_dir
+
+
+def make_world_dwell_log(
+    nominal: RobotParams,
+    spec: WorldSpec,
+    out_dir: Path,
+    n_dwells: int,
+    name: str = "dwells",
+    period_s: float = 0.01,
+    dwell_s: float = 0.8,
+) -> Path:
+    """A ``tip``-kind log of the world: commanded poses (out-and-back sweeps) held for
+    ``dwell_s`` each, a row every ``period_s`` with the commanded pose, the drives' positions
+    (the nominal inverse kinematics of the pose, as a controller sends them) and the tracked
+    tip (the world settled at the pose, a fresh tracker noise per row); no load cells."""
+    rng = np.random.default_rng(spec.seed)
+    S, K = nominal.n_segments, nominal.n_cables
+    psi = sweep_poses(S, n_dwells, rng, 0.7)
+    q = np.array([cable_displacement(p, nominal) for p in psi])
+    q = np.round(q / Q_RESOLUTION_MM) * Q_RESOLUTION_MM
+    world = ChainWorld(nominal, spec)
+    per = round(dwell_s / period_s)
+    run_dir = Path(out_dir) / name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cols = ["t_s"]
+    cols += [c for i in range(1, S + 1) for c in (f"seg{i}_theta_cmd_rad", f"seg{i}_phi_cmd_rad")]
+    cols += [f"cable{k + 1}_q_{c}_mm" for c in ("nominal", "cmd", "act") for k in range(K)]
+    cols += ["tip_x_mm", "tip_y_mm", "tip_z_mm"]
+    with (run_dir / "samples.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for d in range(n_dwells):
+            tip = world.step(q[d])
+            pose = [f"{v:.6f}" for v in psi[d].ravel()]
+            for j in range(per):
+                obs = world.observe(tip, rng)
+                t = (d * per + j) * period_s
+                qs = [f"{v:.5f}" for v in q[d]] * 3
+                w.writerow([f"{t:.4f}", *pose, *qs, *(f"{v:.4f}" for v in obs)])
+    meta = {"format": "cdcr-ctl-runlog/1", "name": name, "rows": n_dwells * per}
+    meta["source"] = "cdcr_ctl.sim.keypoint_world (independent chain world, dwell log)"
+    (run_dir / "run.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     return run_dir
 
 

@@ -77,3 +77,44 @@ def test_hidden_kinematic_effect_is_named(worlds, effect, tmp_path, capsys):
     shrink = {c["name"]: c["shrink_percent"] for c in res["candidates"]}
     assert shrink[effect] >= 50.0
     assert (out / "candidates.png").is_file()
+
+
+def test_gravity_candidate_sets_the_disk_masses_and_the_tip_mass(nominal):
+    """The ``gravity`` candidate's two parameters reach the robot: every disk mass scaled by
+    one factor (the config's spread kept) and the tip mass (``tip_mass_g``, the payload)."""
+    from cdcr_ctl.discrepancy.keypoint_effects import problem_of, replay_candidates
+    from cdcr_ctl.model.params import Effects
+
+    fps = replay_candidates(nominal, "gravity")
+    prob = problem_of(nominal, Effects(), [], 1.0)
+    m0 = nominal.segments[0].disk_mass_g
+    p = prob.params_of(fps, [fps[0].to_var(3 * m0), fps[1].to_var(12.5)])
+    for s0, s1 in zip(nominal.segments, p.segments, strict=True):
+        assert abs(s1.disk_mass_g - 3 * s0.disk_mass_g) < 1e-9 * s0.disk_mass_g
+    assert abs(p.tip_mass_g - (nominal.tip_mass_g + 12.5)) < 1e-12
+
+
+def test_gravity_overlay_carries_the_disk_masses_and_the_payload(nominal, tmp_path):
+    """``--apply`` of a named ``gravity``: the disks' ``mass_g`` and the tip mass as
+    ``tip_load.payload_kg``, an overlay the rig config loads with the fitted values."""
+    import dataclasses
+    import types
+
+    import yaml
+
+    from cdcr_ctl.cli.discrepancy_keypoints import _overlay
+    from cdcr_ctl.discrepancy.keypoint_effects import EffectFit
+
+    segs = tuple(dataclasses.replace(s, disk_mass_g=2 * s.disk_mass_g) for s in nominal.segments)
+    fitted = dataclasses.replace(nominal, segments=segs, tip_mass_g=12.5)
+    fit = EffectFit("gravity", ["m", "t"], [1.0, 12.5], 1.0, 0.5, 0.1, fitted)
+    text, why = _overlay(load_rig_config(RIG), types.SimpleNamespace(effect=fit, verdict="v"))
+    assert why == "" and text is not None
+    ov = tmp_path / "ov.yaml"
+    ov.write_text(text)
+    probe = tmp_path / "probe.yaml"
+    probe.write_text(yaml.safe_dump({"extends": str(RIG), "overlays": [str(ov)]}))
+    p = build_model(load_rig_config(probe)).params
+    assert abs(p.tip_mass_g - 12.5) < 1e-9
+    for s0, s1 in zip(nominal.segments, p.segments, strict=True):
+        assert abs(s1.disk_mass_g - 2 * s0.disk_mass_g) < 1e-3

@@ -26,6 +26,7 @@ from cdcr_ctl.sim.keypoint_world import (
     WorldSpec,
     hard_world,
     lab_path,
+    make_world_dwell_log,
     make_world_log,
     pull_only_path,
 )
@@ -107,19 +108,21 @@ def test_tracker_noise_from_the_log_and_the_heldout_gain():
 @pytest.fixture(scope="module")
 def hard_log(nominal, tmp_path_factory):
     out = tmp_path_factory.mktemp("hard")
-    return make_world_log(nominal, hard_world(3), out, 360, name="hard3")
+    return make_world_log(nominal, hard_world(3), out, 240, name="hard3")
 
 
 # one process (--jobs 1); the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
-    """``identify`` with its defaults on a tip-only keypoint log of the hard world: rows chosen
-    and their spread printed, the gate from the data, every interval finite within its bounds,
-    every warning printed and written; an overlay only when the held-out rows improved beyond
-    their noise, marked when the residual is far above the noise."""
+    """``identify`` with its defaults but 30 rows and 4 evaluations (the full-size run with the
+    defaults is ``benchmarks/bench_keypoint_identify.py worlds``) on a tip-only keypoint log of
+    the hard world: rows chosen and their spread printed, the gate from the data, every
+    interval finite within its bounds, every warning printed and written; an overlay only when
+    the held-out rows improved beyond their noise, marked when the residual is far above the
+    noise."""
     out = tmp_path / "ident"
     args = ["-c", str(CONFIG), "identify", "--from-run", str(hard_log), "--out", str(out)]
-    code = main([*args, "--budget-s", "8", "--jobs", "1"])
+    code = main([*args, "--max-points", "30", "--max-nfev", "4", "--jobs", "1"])
     err = capsys.readouterr().err
     rep = json.loads((out / "identification.json").read_text())
     kp = rep["keypoint_fit"]
@@ -147,10 +150,11 @@ def test_identify_defaults_on_a_hard_world(hard_log, tmp_path, capsys):
 # the limit guards a hang, not speed
 @pytest.mark.timeout(600)
 def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tmp_path, capsys):
-    """Keypoint and pull logs of worlds the model cannot represent (a 9 mm registration error;
-    two drives of one segment swapped): the gate sees the residual far above the noise read
-    from the log, and no overlay is written without saying so. (Load-cell logs:
-    tests/identify/test_misfit_gate.py.)"""
+    """Keypoint, tip (dwell) and pull logs of worlds the model cannot represent (a 9 mm
+    registration error; two drives of one segment swapped): the gate sees the residual far
+    above the noise read from the log, and no overlay is written without saying so. (Load-cell
+    logs: tests/identify/test_misfit_gate.py.) At most 30 rows and 4 evaluations: fewer
+    evaluations can only leave the residual larger, so the misfit does not depend on them."""
     reg = WorldSpec(
         registration_rotvec_rad=(0.0, 0.0, 0.0),
         registration_mm=(6.0, -5.0, 4.0),
@@ -158,17 +162,23 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
         link_mass_g=0.0,
         seed=4,
     )
-    run = make_world_log(nominal, reg, tmp_path, 200, name="reg")
-    out = tmp_path / "o1"
-    code = main(["-c", str(CONFIG), "identify", "--from-run", str(run), "--out", str(out)])
-    err = capsys.readouterr().err
-    rep = json.loads((out / "identification.json").read_text())["keypoint_fit"]
-    assert rep["gate"]["misfit"] and "MISFIT" in err and "model error, not noise" in err
-    overlay = out / "identified.yaml"
-    if code == 0:
-        assert overlay.read_text().startswith("# MISFIT")
-    else:
-        assert not overlay.exists() and "--accept-misfit" in err
+    logs = {
+        "keypoint": make_world_log(nominal, reg, tmp_path, 150, name="reg"),
+        "tip": make_world_dwell_log(nominal, reg, tmp_path, 30, name="regdw", dwell_s=0.6),
+    }
+    for kind, run in logs.items():
+        out = tmp_path / f"o-{kind}"
+        args = ["-c", str(CONFIG), "identify", "--from-run", str(run), "--out", str(out)]
+        code = main([*args, "--max-points", "30", "--max-nfev", "4", "--jobs", "1"])
+        err = capsys.readouterr().err
+        assert f"log kind: {kind}" in err
+        rep = json.loads((out / "identification.json").read_text())["keypoint_fit"]
+        assert rep["gate"]["misfit"] and "MISFIT" in err and "model error, not noise" in err
+        overlay = out / "identified.yaml"
+        if code == 0:
+            assert overlay.read_text().startswith("# MISFIT")
+        else:
+            assert not overlay.exists() and "--accept-misfit" in err
     # pulls: the drives of c11 and c12 swapped (their tendons' holes trade places, +-120 deg):
     # no one offset of segment 1 explains both
     swap = 2 * math.pi / 3
