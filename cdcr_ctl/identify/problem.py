@@ -32,7 +32,8 @@ _T_MAX = 1e3  # N
 #: start of the run: the play operator forgets its start once the drive's range since then
 #: exceeds the width b (from either end of the gap, a range >= b pushes the cable against the
 #: same side). 1 mm is above any lost motion of a usable rig (issue #17 worlds: 0.2-0.4 mm);
-#: the width used is the larger of this and twice the config's largest backlash_mm.
+#: the width used is the larger of this and twice the largest play assumed (``FitOptions.play_mm``,
+#: else the config's backlash_mm).
 PLAY_SETTLE_MM = 1.0
 
 
@@ -93,7 +94,7 @@ class _Problem:
         used; the mask comes from the logged drive positions only, not from the fitted
         widths, so the rows stay fixed during the fit. Everything is known when the model has
         no play and none is fitted."""
-        widths = [c.backlash_mm for c in self.base.cables]
+        widths = list(self.opt.play_mm or (c.backlash_mm for c in self.base.cables))
         if not any(fp.kind == "backlash" for fp in fps) and not any(w > 0 for w in widths):
             return [[True] * self.K for _ in self.points]
         settle = max(PLAY_SETTLE_MM, 2.0 * max(widths))
