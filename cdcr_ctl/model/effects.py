@@ -47,6 +47,7 @@ from cdcr_ctl.model.effect_terms import (
     SegmentCoupling,
     TrackerFrameOffset,
 )
+from cdcr_ctl.model.effect_tip_load import TipPayload
 from cdcr_ctl.model.transmission_effects import BacklashPlay, TransmissionScale, with_cable_play
 
 __all__ = [
@@ -68,6 +69,7 @@ __all__ = [
     "PulleyLosses",
     "ReversalBacklash",
     "SegmentCoupling",
+    "TipPayload",
     "TrackerFrameOffset",
     "TransmissionScale",
     "_cables",
@@ -88,6 +90,7 @@ CANDIDATES: tuple[EffectTerm, ...] = (
     PulleyLosses(),
     ActuatorScale(),
     TrackerFrameOffset(),
+    TipPayload(),
 )
 
 
