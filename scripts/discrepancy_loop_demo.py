@@ -100,18 +100,27 @@ def run_once(sim: Path, ctl: Path, out: Path, duration_s: float, kind: str, seed
     return Path(run.log_dir)
 
 
-def loop(sim: Path, out: Path, duration_s: float, kind: str, seed: int, rate_hz: float) -> dict:
-    """Run, name, apply, re-run for one world; the measured figures."""
+def loop(
+    sim: Path,
+    out: Path,
+    duration_s: float,
+    kind: str,
+    seed: int,
+    rate_hz: float,
+    analysis: tuple[str, ...] = (),
+) -> dict:
+    """Run, name, apply, re-run for one world; the measured figures. ``analysis``: further
+    options of ``cdcr-ctl discrepancy`` (e.g. ``--effects``, ``--max-points``)."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     ctl = controller_config(sim, out, rate_hz)
     run1 = run_once(sim, ctl, out / "before", duration_s, kind, seed)
     overlay = out / "overlay.yaml"
-    r1 = discrepancy(run1, "--apply", str(overlay))
+    r1 = discrepancy(run1, "--apply", str(overlay), *analysis)
     ctl2 = out / "controller-with-overlay.yaml"
     ctl2.write_text(yaml.safe_dump({"extends": str(ctl), "overlays": [str(overlay)]}))
     run2 = run_once(sim, ctl2, out / "after", duration_s, kind, seed)
-    r2 = discrepancy(run2)
+    r2 = discrepancy(run2, *analysis)
     before, after = r1["tip_rms_before_mm"], r2["tip_rms_before_mm"]
     return {
         "world": sim.stem,
