@@ -136,15 +136,17 @@ def loop(
     seed: int,
     rate_hz: float,
     analysis: tuple[str, ...] = (),
+    compensation: str | None = None,
 ) -> dict:
     """Run, name, apply, re-run for one world; the measured figures. ``analysis``: further
-    options of ``cdcr-ctl discrepancy`` (e.g. ``--effects``, ``--max-points``)."""
+    options of ``cdcr-ctl discrepancy`` (e.g. ``--effects``, ``--max-points``);
+    ``compensation``: the loop's mode of both runs (None: :func:`run_once`'s choice)."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     ctl = controller_config(sim, out, rate_hz)
-    comp = None
+    comp = compensation
     try:
-        run1 = run_once(sim, ctl, out / "before", duration_s, kind, seed)
+        run1 = run_once(sim, ctl, out / "before", duration_s, kind, seed, comp)
     except Tripped as e:
         # the controller without the effect let a cable go slack (the supervisor's tension
         # limit; the three-segment coupling world under the uncoupled model's compensation):
