@@ -3,8 +3,10 @@
 
 A world whose overlay the controller never read before (an actuator scale error: the drives'
 counts_per_mm): the effect is named, its overlay goes into the controller's config, and the
-re-run's gap between the controller's model and the tracker shrinks by >= 70 %. A short run (8 s
-of the rich trajectory, loop at 250 Hz) and three candidates keep this lean; the whole set of
+re-run's gap between the controller's model and the tracker shrinks by >= 70 %. A short run (5 s
+of the rich trajectory, which holds at least its planar legs and a circle, loop at 250 Hz) and
+two candidates keep this lean (45 s at load 3.5-5 on the 2-core machine; 5 or 10 s of the
+random trajectory bend too little: 0.10 mm of gap, 61-64 % shrink); the whole set of
 worlds is the script's default, as the effects page runs it
 (docs/calibration/effects-and-loads.md):
 
