@@ -170,6 +170,8 @@ def discrepancy(
         ),
         "tip_rms_before_mm": res.tip_rms_before_mm,
         "tip_rms_after_mm": res.tip_rms_after_mm,
+        # per run, the tension RMS gap (N) before and after the refit (logs without a tracker)
+        "tension_rms_N": [[o.tension_rms_before_N, o.tension_rms_after_N] for o in res.outcomes],
         "gap_shrink_percent": 100 * res.gap_shrink,
         "tip_gap_above_noise_mm": [b, a],
         "gap_above_noise_shrink_percent": 100 * res.systematic_gap_shrink,

@@ -2,9 +2,9 @@
 
 * The model is the one the run's controller used: built from the run's ``config_effective.yaml``
   (or ``config.yaml``, or a rig config given by the user) as
-  :func:`~cdcr_ctl.config.build_model.build_cc_disk_model` builds it (every effect of
-  :class:`~cdcr_ctl.model.params.Effects` on, ``control.geometry``), with the switches the run
-  records in ``run.yaml`` under ``extra.model_effects`` when it records any.
+  :func:`~cdcr_ctl.config.build_model.build_cc_disk_model` builds it (the switches and coupling
+  gain of ``control.model_effects``, ``control.geometry``), with the switches the run records in
+  ``run.yaml`` under ``extra.model_effects`` when it records any.
 * The input of the simulation is the drive feedback ``q_act`` (the actuator really went there);
   logs without it fall back on the commands ``q_cmd``.
 * Decimation: the quasi-static model is rate independent, so only the path of the inputs matters.
@@ -31,6 +31,7 @@ import yaml
 
 from cdcr_ctl.config.build_model import loadcell_locations, robot_params
 from cdcr_ctl.config.loader import load_rig_config, validate_mapping
+from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.timing import TipTiming, no_timing
 from cdcr_ctl.errors import ConfigError, RigError
@@ -114,11 +115,19 @@ def run_rig_config(run: Run, rig_config: str | Path | None = None) -> tuple[RigC
     raise RigError(f"{run.run_dir}: no {EFFECTIVE_CONFIG_YAML} or {CONFIG_YAML}; give -c/--config")
 
 
-def model_switches(run: Run, override: dict[str, bool] | None = None) -> tuple[dict, str]:
-    """The controller model's effect switches: defaults (all on), then ``run.yaml``
-    ``extra.model_effects``, then ``override``. Returns (switches, where they came from)."""
-    sw = {k: True for k in SWITCHES}
-    src = "defaults (every effect on)"
+def model_switches(
+    run: Run, override: dict[str, bool] | None = None, cfg: RigConfig | None = None
+) -> tuple[dict, str]:
+    """The controller model's effect switches: the rig config's ``control.model_effects`` (all
+    on without ``cfg``), then ``run.yaml`` ``extra.model_effects``, then ``override``. Returns
+    (switches, where they came from)."""
+    if cfg is None:
+        sw = {k: True for k in SWITCHES}
+        src = "defaults (every effect on)"
+    else:
+        me = cfg.control.model_effects
+        sw = {k: bool(getattr(me, k)) for k in SWITCHES}
+        src = "the rig config's control.model_effects"
     extra = run.metadata.get("extra") or {}
     rec = extra.get("model_effects") if isinstance(extra, dict) else None
     if isinstance(rec, dict):
@@ -251,9 +260,12 @@ def align_run(
     run = load_run(run_dir)
     cfg, cfg_src = run_rig_config(run, rig_config)
     notes = [f"controller's rig config: {cfg_src}"]
-    if cfg.design != "cc_disk":
-        raise RigError(f"{run.run_dir}: design {cfg.design}: the discrepancy library is cc_disk")
-    sw, sw_src = model_switches(run, model_effects)
+    if not design_of(cfg.design).identify:
+        raise RigError(
+            f"{run.run_dir}: design {cfg.design}: the discrepancy library needs a design"
+            " registered with identify=True (cc_disk)"
+        )
+    sw, sw_src = model_switches(run, model_effects, cfg)
     off = [k for k, v in sw.items() if not v]
     notes.append(
         f"controller's model switches from {sw_src}: "
@@ -261,7 +273,9 @@ def align_run(
     )
     params = robot_params(cfg.robot)
     # The controller's model as build_model makes it: the cables' lost motion included.
-    spec = ModelSpec(params, with_cable_play(params, Effects(geometry=cfg.control.geometry, **sw)))
+    gain = cfg.control.model_effects.coupling_gain
+    eff = Effects(geometry=cfg.control.geometry, coupling_gain=gain, **sw)
+    spec = ModelSpec(params, with_cable_play(params, eff))
     if run.has("q_act"):
         q = run.q_act()
         q_src = "q_act"

@@ -21,6 +21,7 @@ import numpy as np
 import yaml
 
 from cdcr_ctl.discrepancy.workflow import DiscrepancyResult
+from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.cc_disk.effects import rotation_from_rotvec, rotvec_from_rotation
 
 VERDICT_TEXT = {
@@ -107,7 +108,7 @@ def text_report(res: DiscrepancyResult) -> str:
 def config_fragment(res: DiscrepancyResult) -> str:
     """YAML overlay for the rig config with the fitted effect (see module doc)."""
     if res.refit is None:
-        return "# nothing fitted: no effect was named\n"
+        return "# nothing fitted: no effect was named\n{}\n"
     run = res.runs[0]
     cfg = run.cfg
     doc: dict = {}
@@ -115,59 +116,9 @@ def config_fragment(res: DiscrepancyResult) -> str:
     from cdcr_ctl.discrepancy.selection import split_values
 
     parts = split_values(res.refit.terms, run.spec, res.refit.values)
-    cables = {c.name: c for c in cfg.robot.cables}
     for term, vals in zip(res.refit.terms, parts, strict=True):
         for fv in term.fitted(run.spec, vals):
-            if fv.what == "cable":
-                c = cables[fv.item]
-                entry = {"name": fv.item}
-                if fv.key == "EA_N":
-                    if c.E_MPa is not None:
-                        entry["E_MPa"] = round(
-                            float(fv.value) / (math.pi * c.diameter_mm**2 / 4), 3
-                        )
-                    else:
-                        entry["EA_N"] = round(float(fv.value), 3)
-                else:
-                    entry[fv.key] = round(float(fv.value), 5)
-                _merge_named(doc.setdefault("robot", {}).setdefault("cables", []), entry)
-            elif fv.what == "pulley":
-                _merge_named(
-                    doc.setdefault("robot", {}).setdefault("pulleys", []),
-                    {"name": fv.item, fv.key: round(float(fv.value), 5)},
-                )
-            elif fv.what == "segment":
-                seg = next(s for s in cfg.robot.segments if s.name == fv.item)
-                disks = seg.disks.model_dump()
-                disks[fv.key.replace("disk_", "")] = round(float(fv.value), 4)
-                _merge_named(
-                    doc.setdefault("robot", {}).setdefault("segments", []),
-                    {"name": fv.item, "disks": disks},
-                )
-            elif fv.what == "robot" and fv.key == "gravity_mm_s2":
-                doc.setdefault("robot", {})["gravity_mm_s2"] = list(fv.value)  # type: ignore[arg-type]
-            elif fv.what == "drive_of_cable":
-                d = next(d for d in cfg.drives if d.cable == fv.item)
-                _merge_named(
-                    doc.setdefault("drives", []),
-                    {"name": d.name, "counts_per_mm": round(d.counts_per_mm * float(fv.value), 4)},
-                )
-            elif fv.what == "tracker" and fv.key == "model_to_measured_rotvec_rad":
-                pass
-            elif fv.what == "tracker" and cfg.sensors.tracker is None:
-                fix = _tracker_fix(res, cfg)["base_from_tracker"]
-                comments.append(
-                    f"sensors.tracker.base_from_tracker = {fix} (the rig config has no tracker"
-                    " section: the logged tips were in the base frame; put it with the tracker)"
-                )
-            elif fv.what == "tracker":
-                doc.setdefault("sensors", {})["tracker"] = _tracker_fix(res, cfg)
-            else:
-                comments.append(
-                    f"{fv.what}.{fv.key} = {fv.value}"
-                    + (f" ({fv.item})" if fv.item else "")
-                    + "  (no rig-config key yet)"
-                )
+            put_fitted(doc, comments, fv, cfg, res)
     head = [
         f"# Fitted by `cdcr-ctl discrepancy` ({res.named}); overlay on {cfg.name}'s rig config.",
     ]
@@ -179,8 +130,71 @@ def config_fragment(res: DiscrepancyResult) -> str:
             )
         ]
     head += [f"# {c}" for c in comments]
-    body = yaml.safe_dump(doc, sort_keys=False) if doc else ""
+    # an overlay is a mapping even when every value went into comments
+    body = yaml.safe_dump(doc, sort_keys=False)
     return "\n".join(head) + "\n" + body
+
+
+def put_fitted(doc: dict, comments: list[str], fv, cfg, res: DiscrepancyResult | None) -> None:
+    """Write one fitted value into the overlay ``doc`` under the rig-config key the controller's
+    model reads (``res``: the result, for the tracker alignment only). Raises
+    :class:`RigError` for a value with no key (a term that could be named but not applied)."""
+    cables = {c.name: c for c in cfg.robot.cables}
+    if fv.what == "cable":
+        c = cables[fv.item]
+        entry = {"name": fv.item}
+        if fv.key == "EA_N":
+            if c.E_MPa is not None:
+                entry["E_MPa"] = round(float(fv.value) / (math.pi * c.diameter_mm**2 / 4), 3)
+            else:
+                entry["EA_N"] = round(float(fv.value), 3)
+        else:
+            entry[fv.key] = round(float(fv.value), 5)
+        _merge_named(doc.setdefault("robot", {}).setdefault("cables", []), entry)
+    elif fv.what == "pulley":
+        _merge_named(
+            doc.setdefault("robot", {}).setdefault("pulleys", []),
+            {"name": fv.item, fv.key: round(float(fv.value), 5)},
+        )
+    elif fv.what == "segment":
+        seg = next(s for s in cfg.robot.segments if s.name == fv.item)
+        disks = seg.disks.model_dump()
+        disks[fv.key.replace("disk_", "")] = round(float(fv.value), 4)
+        _merge_named(
+            doc.setdefault("robot", {}).setdefault("segments", []),
+            {"name": fv.item, "disks": disks},
+        )
+    elif fv.what == "robot" and fv.key == "gravity_mm_s2":
+        doc.setdefault("robot", {})["gravity_mm_s2"] = list(fv.value)  # type: ignore[arg-type]
+    elif fv.what == "drive_of_cable":
+        d = next(d for d in cfg.drives if d.cable == fv.item)
+        _merge_named(
+            doc.setdefault("drives", []),
+            {"name": d.name, "counts_per_mm": round(d.counts_per_mm * float(fv.value), 4)},
+        )
+    elif fv.what == "tracker" and fv.key == "model_to_measured_rotvec_rad":
+        pass
+    elif fv.what == "tracker" and cfg.sensors.tracker is None:
+        fix = _tracker_fix(res, cfg)["base_from_tracker"]
+        comments.append(
+            f"sensors.tracker.base_from_tracker = {fix} (the rig config has no tracker"
+            " section: the logged tips were in the base frame; put it with the tracker)"
+        )
+    elif fv.what == "tracker":
+        doc.setdefault("sensors", {})["tracker"] = _tracker_fix(res, cfg)
+    elif fv.what == "model_effects":
+        # the controller's model reads its switches and coupling gain here
+        v = fv.value if isinstance(fv.value, bool) else round(float(fv.value), 4)
+        me = doc.setdefault("control", {}).setdefault("model_effects", {})
+        me[fv.key] = v
+    elif fv.what == "robot" and fv.key in ("tip_payload_kg", "tip_force_N"):
+        tl = doc.setdefault("robot", {}).setdefault("tip_load", {})
+        if fv.key == "tip_payload_kg":
+            tl["payload_kg"] = round(float(fv.value), 6)
+        else:
+            tl["force_N"] = [round(float(v), 5) for v in fv.value]  # type: ignore[union-attr]
+    else:
+        raise RigError(f"discrepancy: no rig-config key for {fv.what}.{fv.key}")
 
 
 def _tracker_fix(res: DiscrepancyResult, cfg) -> dict:

@@ -1,6 +1,6 @@
-"""Forward simulation of a logged run with a :class:`~cdcr_ctl.model.effects.ModelSpec`.
+"""Forward simulation of a logged run with a :class:`~cdcr_ctl.model.cc_disk.effects.ModelSpec`.
 
-The spec's :class:`~cdcr_ctl.model.forward.ForwardStepper` (friction memory, transmission
+The spec's :class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper` (friction memory, transmission
 effects) is stepped through the decimated input path of the run (``AlignedRun.sim_idx``); the
 predictions are then interpolated to every row along the input path (:func:`path_weights`); the
 tip as the run's rigid-cable kinematic tip (``AlignedRun.shape_tip_mm``, every row) plus the

@@ -9,7 +9,7 @@
    evaluated at those instants) and the tracker noise, and localise the disagreement
    (:mod:`~cdcr_ctl.discrepancy.localise`);
 3. one forward simulation per parameter of every applicable candidate term
-   (:data:`~cdcr_ctl.model.effects.CANDIDATES`), the linearised fits of every term and pair,
+   (:data:`~cdcr_ctl.model.cc_disk.effects.CANDIDATES`), the linearised fits of every term and pair,
    blocked cross-validation, AIC/BIC and the significance rule
    (:mod:`~cdcr_ctl.discrepancy.selection`);
 4. the nonlinear refit of the winner, the tracker's common delay re-estimated with the refitted

@@ -8,19 +8,25 @@ The standard error of each mean is the sample standard deviation over the square
 number of *distinct* readings (the loop logs a sensor's latest value every cycle, so a 120 Hz
 tracker read by a 250 Hz loop repeats values; repeats carry no new information).
 
-Friction state (Qi et al. 2023 eq. 17-19 with memory, :mod:`cdcr_ctl.model.friction`): the
+Friction state (Qi et al. 2023 eq. 17-19 with memory, :mod:`cdcr_ctl.model.shared.friction`): the
 mobilised fraction s_k of cable k is +1 while it is pulled in and -1 while it is paid out. The
 direction is taken from the change of the commanded ideal displacement q_nominal_k since the
 previous dwell (the material crossing the base hole moves the same way for an uncompensated or
-compensated sweep: the stretch only lags the geometry). A point's state is *known* when the cable
-kept its direction since the previous dwell; it is *unknown* (the fit estimates s in [-1, 1]) at
-the first dwell of a run (history unknown) and at the first dwell after a reversal (the cable may
-still be inside its dead zone, partly stuck).
+compensated sweep: the stretch only lags the geometry). A point's state is *unknown* (the fit
+estimates s in [-1, 1]) at the first dwell of a run (history unknown) and after a reversal until
+the cable has certainly turned; it is *known* when the cable kept its direction since the previous
+dwell and, at that previous dwell, the drive had already come back from the reversal by at least
+the cable's play b_k (lost motion between drive and cable, :mod:`cdcr_ctl.model.shared.deadzone`):
+the drive crosses the gap of width b_k before it moves the cable, so only from there on does the
+cable slide the new way over a whole step between dwells. With b_k = 0 this is "from the second
+dwell after a reversal"; with a play wider than the sweep's step several dwells stay unknown. The
+drive travel is the logged drive position (``q_act``; the command where the log has no feedback).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -182,22 +188,58 @@ def extract_dwells(
 
 
 def assign_friction_states(
-    points: list[DwellPoint], eps_mm: float = DIRECTION_EPS_MM
+    points: list[DwellPoint],
+    eps_mm: float = DIRECTION_EPS_MM,
+    play_mm: Sequence[float] | None = None,
 ) -> list[DwellPoint]:
-    """Fill ``s`` and ``s_known`` of consecutive points of one run (module docstring)."""
+    """Fill ``s`` and ``s_known`` of consecutive points of one run (module docstring).
+
+    ``play_mm``: per cable, the play b_k (mm) the drive crosses after a reversal before the
+    cable turns (None: no play)."""
     out: list[DwellPoint] = []
     K = points[0].n_cables
+    play = [0.0] * K if play_mm is None else [max(float(b), 0.0) for b in play_mm]
     direction = [0.0] * K
     known = [False] * K
+    turned = [0.0] * K  # drive position at the last reversal, per cable
     prev = None
     for p in points:
+        px_all = _drive_mm(prev) if prev is not None else None
         for k in range(K):
             dq = 0.0 if prev is None else float(p.q_nominal_mm[k] - prev.q_nominal_mm[k])
             if not math.isfinite(dq) or abs(dq) <= eps_mm:
                 continue  # no motion: the state (and its certainty) is kept
             new = 1.0 if dq > 0 else -1.0
-            known[k] = new == direction[k]
+            px = float(px_all[k]) if px_all is not None else math.nan
+            if new != direction[k]:
+                turned[k] = px  # the previous dwell is the reversal's extreme
+                known[k] = False
+            else:
+                # past the gap at the previous dwell: the cable slid the new way since then
+                travel = new * (px - turned[k])
+                known[k] = not (travel < play[k]) if play[k] > 0 else True
             direction[k] = new
         out.append(replace(p, s=tuple(direction), s_known=tuple(known)))
         prev = p
+    return out
+
+
+def _drive_mm(p: DwellPoint) -> np.ndarray:
+    """The drive position of a point (mm): feedback, else the command, else q_nominal."""
+    x = np.where(np.isfinite(p.q_act_mm), p.q_act_mm, p.q_cmd_mm)
+    return np.where(np.isfinite(x), x, p.q_nominal_mm)
+
+
+def with_play(points: Sequence[DwellPoint], play_mm: Sequence[float]) -> list[DwellPoint]:
+    """``points`` (one or more runs, each in time order) with their friction states assigned
+    for the cables' play ``play_mm`` (:func:`assign_friction_states`, run by run)."""
+    out: list[DwellPoint] = []
+    i = 0
+    pts = list(points)
+    while i < len(pts):
+        j = i
+        while j < len(pts) and pts[j].run == pts[i].run:
+            j += 1
+        out += assign_friction_states(pts[i:j], play_mm=play_mm)
+        i = j
     return out

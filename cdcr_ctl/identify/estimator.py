@@ -21,9 +21,9 @@ residuals per dwell, each divided by its standard deviation:
 * moment:  Σ_k T_jk F̄_k(s, μ) a_k(x_j) - m_req(x_j; EI, gravity) (eq. 8-15; 2S rows, N mm)
 * compat:  q_geom(x_j) + δ_in + δ_out + d_jk b_k/2 - q_act        (eq. 4, 33-37; mm)
   (b_k the cable's lost motion, d_jk = ±1 the direction of its last motion: the drive stands
-  half the play ahead of the cable, Yang et al. 2022 eq. 13-17, :mod:`cdcr_ctl.model.deadzone`)
-  dropped for a cable whose measured tension is below ``slack_N`` (a slack cable is longer
-  than its path)
+  half the play ahead of the cable, Yang et al. 2022 eq. 13-17,
+  :mod:`cdcr_ctl.model.shared.deadzone`) dropped for a cable whose measured tension is below
+  ``slack_N`` (a slack cable is longer than its path)
 
 The standard deviations come from the spread of each dwell's samples (:mod:`.dwell`) with floors
 (:class:`FitOptions`); the moment equations are the model's own and get the tension noise times
@@ -46,12 +46,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 from scipy.stats import t as student_t
 
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.identify.dwell import DwellPoint
+from cdcr_ctl.identify.dwell import DwellPoint, with_play
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, Estimate, FitOptions, Identification
 from cdcr_ctl.identify.parameters import FORCE_KINDS, TILT_CI_DEG, FitParameter, NotIdentified
 from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance
@@ -85,11 +86,45 @@ def identify(
     ``params`` are the controller's nominal parameters (the start and the values of everything
     not fitted); ``effects`` the controller's model effects; ``locations`` the load-cell
     location per cable. Raises :class:`RigError` when there is nothing to fit from.
+
+    The friction states of the points are assigned for the configured play of each cable
+    (:func:`.dwell.with_play`); when the fitted play changes them (a play wider than the
+    sweep's step between dwells keeps the cable in its gap for more than one dwell after a
+    reversal), the fit runs once more with the states of the fitted play.
     """
     opt = FitOptions() if options is None else options
-    pts = list(points)
-    if not pts:
+    if not points:
         raise RigError("identification: no dwell points")
+    widths = opt.play_mm or tuple(c.backlash_mm for c in params.cables)
+    pts = with_play(points, widths) if any(b > 0 for b in widths) else list(points)
+    res = _identify(params, effects, pts, locations, fit_params, fixed, opt)
+    fitted = tuple(c.backlash_mm for c in res.fitted.cables)
+    if opt.play_mm is None and any(b > 0 for b in fitted):
+        again = with_play(pts, fitted)
+        if any((a.s, a.s_known) != (b.s, b.s_known) for a, b in zip(again, pts, strict=True)):
+            res2 = _identify(
+                params, effects, again, locations, fit_params, fixed, replace(opt, play_mm=fitted)
+            )
+            res2.stages.insert(
+                0,
+                "friction states re-assigned for the fitted play "
+                + ", ".join(f"{b:.3g}" for b in fitted)
+                + f" mm (first fit: reduced chi^2 {res.chi2_reduced:.3g})",
+            )
+            return res2
+    return res
+
+
+def _identify(
+    params: RobotParams,
+    effects: Effects,
+    pts: list[DwellPoint],
+    locations: Sequence[Location],
+    fit_params: Sequence[FitParameter],
+    fixed: Sequence[NotIdentified],
+    opt: FitOptions,
+) -> Identification:
+    """One fit of :func:`identify` with the points' friction states as they are."""
     fps = list(fit_params)
     fixed = list(fixed)
     warnings: list[str] = []

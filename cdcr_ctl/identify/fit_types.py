@@ -28,7 +28,10 @@ class FitOptions:
     slack is not measured). ``max_nfev``: function
     evaluations per stage. ``max_rel_ci``: a parameter whose 95 % half-interval exceeds this
     fraction of its value is reported as poorly identified (and, for pulleys with cells at the
-    robot base, put back to nominal and the fit repeated without it).
+    robot base, put back to nominal and the fit repeated without it). ``play_mm``: per cable,
+    the play (mm) the friction states and the play-state mask assume (None: the config's
+    ``backlash_mm``; :func:`~cdcr_ctl.identify.estimator.identify` sets it to the fitted play
+    when it re-assigns the states).
     """
 
     tip_floor_mm: float = 0.005
@@ -39,6 +42,7 @@ class FitOptions:
     max_nfev: int = 60
     max_rel_ci: float = 0.5
     slack_compat: bool = False
+    play_mm: tuple[float, ...] | None = None
 
 
 @dataclass(frozen=True)

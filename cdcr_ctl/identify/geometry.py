@@ -1,7 +1,7 @@
 """Hole-angle offsets per segment from tendon-pull runs (one cable pulled at a time).
 
-Geometry (Qi et al. 2023 eq. 1-4, constant curvature; :mod:`cdcr_ctl.model.params`): every disk
-frame carries no net twist, so a cable keeps one hole angle gamma_k in every disk it passes.
+Geometry (Qi et al. 2023 eq. 1-4, constant curvature; :mod:`cdcr_ctl.model.cc_disk.params`): every
+disk frame carries no net twist, so a cable keeps one hole angle gamma_k in every disk it passes.
 Pulling cable k alone (the others held) bends every segment it crosses in the plane of its hole,
 phi = gamma_k: the moment T_k r_k (cos gamma_k, sin gamma_k) is the only one out of symmetry,
 and the held cables of each segment (a pattern turned with the same offset) answer in the same

@@ -1,6 +1,6 @@
 """Held-out check of a keypoint fit: the forward replay of every row of a run with given
-parameters (:func:`cdcr_ctl.model.forward.replay`, friction memory kept from the run's start),
-its squared tip error per point, and the RMSE over the held-out and the other rows.
+parameters (:func:`cdcr_ctl.model.cc_disk.forward.replay`, friction memory kept from the run's
+start), its squared tip error per point, and the RMSE over the held-out and the other rows.
 """
 
 from __future__ import annotations

@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from cdcr_ctl.config.build_model import build_model, loadcell_locations
+from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.identify import replay_fit
@@ -241,9 +242,12 @@ def identify_keypoint_runs(
 ) -> KeypointIdentification:
     """Observability, fit and held-out check of a tip-only or keypoint log (module docstring)."""
     opt = KeypointOptions() if options is None else options
-    if cfg.design != "cc_disk":
+    if not design_of(cfg.design).identify:
         raise ConfigError(
-            "rig config", "design", "identification fits the cc_disk model (Qi 2023)", cfg.design
+            "rig config",
+            "design",
+            "identification fits a design registered with identify=True (cc_disk, Qi 2023)",
+            cfg.design,
         )
     t0 = time.monotonic()
     say = opt.progress or (lambda _line: None)

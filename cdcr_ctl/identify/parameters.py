@@ -1,9 +1,9 @@
 """Which model parameters a logged sweep can identify, and how each is fitted.
 
 A :class:`FitParameter` is one fitted scalar mapped onto one or more
-:class:`~cdcr_ctl.model.identification.ParamRef` (several when tied: identical pulleys in series
-cannot be told apart, so they share one α and one n). :func:`plan_parameters` applies the rules
-below to the data present and returns the parameters to fit and, for the others, why not.
+:class:`~cdcr_ctl.model.cc_disk.identification.ParamRef` (several when tied: identical pulleys in
+series cannot be told apart, so they share one α and one n). :func:`plan_parameters` applies the
+rules below to the data present and returns the parameters to fit and, for the others, why not.
 
 Identifiability (what shows the parameter in the data; derivations in :mod:`.estimator`):
 
@@ -23,7 +23,7 @@ Identifiability (what shows the parameter in the data; derivations in :mod:`.est
   motion directions; it is fitted with or without a load cell.
 * Mount tilt (gravity direction), two angles ``tilt_x``/``tilt_y`` (deg) turning the config's
   gravity vector about the base x and y axes (g = R(rotvec = (tilt_x, tilt_y, 0)) g_cfg, its
-  size kept; the parametrisation of :class:`cdcr_ctl.model.effect_terms.GravityDirection`):
+  size kept; the parametrisation of :class:`cdcr_ctl.model.cc_disk.effect_terms.GravityDirection`):
   the disk weights enter the moment balance (eq. 7-9, external load W_e) along the true
   gravity, so a mount that is not where the config says leaves a moment residual that depends
   on the bending direction. Needs the tip, a load cell (the moment balance) and disks with

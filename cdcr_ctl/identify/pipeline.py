@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from cdcr_ctl.config.build_model import build_model, loadcell_locations
+from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, RigError
 from cdcr_ctl.identify.dwell import DwellPoint, extract_dwells
@@ -58,9 +59,12 @@ def identify_runs(
     :class:`RigError` when the logs hold no usable dwell, :class:`ConfigError` for a design
     other than ``cc_disk``.
     """
-    if cfg.design != "cc_disk":
+    if not design_of(cfg.design).identify:
         raise ConfigError(
-            "rig config", "design", "identification fits the cc_disk model (Qi 2023)", cfg.design
+            "rig config",
+            "design",
+            "identification fits a design registered with identify=True (cc_disk, Qi 2023)",
+            cfg.design,
         )
     model = build_model(cfg)
     locs = loadcell_locations(cfg)

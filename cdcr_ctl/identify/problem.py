@@ -32,7 +32,8 @@ _T_MAX = 1e3  # N
 #: start of the run: the play operator forgets its start once the drive's range since then
 #: exceeds the width b (from either end of the gap, a range >= b pushes the cable against the
 #: same side). 1 mm is above any lost motion of a usable rig (issue #17 worlds: 0.2-0.4 mm);
-#: the width used is the larger of this and twice the config's largest backlash_mm.
+#: the width used is the larger of this and twice the largest play assumed (``FitOptions.play_mm``,
+#: else the config's backlash_mm).
 PLAY_SETTLE_MM = 1.0
 
 
@@ -93,7 +94,7 @@ class _Problem:
         used; the mask comes from the logged drive positions only, not from the fitted
         widths, so the rows stay fixed during the fit. Everything is known when the model has
         no play and none is fitted."""
-        widths = [c.backlash_mm for c in self.base.cables]
+        widths = list(self.opt.play_mm or (c.backlash_mm for c in self.base.cables))
         if not any(fp.kind == "backlash" for fp in fps) and not any(w > 0 for w in widths):
             return [[True] * self.K for _ in self.points]
         settle = max(PLAY_SETTLE_MM, 2.0 * max(widths))
@@ -206,7 +207,7 @@ class _Problem:
                 out.append(mom[a] / self.sig_M[j])
             else:
                 # The drive stands ahead of the cable by what the play leaves
-                # (cdcr_ctl.model.deadzone): +-b/2 once a move exceeded the gap, less at the
+                # (cdcr_ctl.model.shared.deadzone): +-b/2 once a move exceeded the gap, less at the
                 # first dwell after a reversal when the step was shorter than the gap.
                 play = self.play_offsets(ft)[j][a]
                 q_meas = float(p.q_act_mm[a])
@@ -217,7 +218,7 @@ class _Problem:
 
     def play_offsets(self, ft: ForceTransfer) -> list[list[float]]:
         """Per point and cable, drive position minus cable position through the play (mm):
-        the play operator (:func:`cdcr_ctl.model.deadzone.play_forward`) run over each run's
+        the play operator (:func:`cdcr_ctl.model.shared.deadzone.play_forward`) run over each run's
         dwells in order (between two dwells a cable moves one way, so the operator on the dwell
         positions is exact), starting centred at the run's first dwell. Cached per widths."""
         key = tuple(c.backlash_mm for c in ft.params.cables)

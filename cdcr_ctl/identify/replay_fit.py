@@ -1,8 +1,8 @@
 """Output-error fit of keypoint and tip-only logs: the forward replay is the model (issue 18).
 
 A quasi-static keypoint log is an actuator path q(t) and, at each row, the tracked tip (and
-maybe the load cells). The forward model (:func:`cdcr_ctl.model.forward.replay`: Qi et al. 2023
-eq. 9-15 statics, eq. 16-24 disk friction with stick memory, eq. 33-37 cable compatibility)
+maybe the load cells). The forward model (:func:`cdcr_ctl.model.cc_disk.forward.replay`: Qi et al.
+2023 eq. 9-15 statics, eq. 16-24 disk friction with stick memory, eq. 33-37 cable compatibility)
 turns the path into a tip and tensions per row, keeping the friction memory from row to row as
 the rig does. For candidate parameters g (:func:`cdcr_ctl.identify.keypoints.candidates`) the
 residuals are, per fitted row i,

@@ -83,7 +83,7 @@ def test_gravity_candidate_sets_the_disk_masses_and_the_tip_mass(nominal):
     """The ``gravity`` candidate's two parameters reach the robot: every disk mass scaled by
     one factor (the config's spread kept) and the tip mass (``tip_mass_g``, the payload)."""
     from cdcr_ctl.discrepancy.keypoint_effects import problem_of, replay_candidates
-    from cdcr_ctl.model.params import Effects
+    from cdcr_ctl.model.cc_disk.params import Effects
 
     fps = replay_candidates(nominal, "gravity")
     prob = problem_of(nominal, Effects(), [], 1.0)

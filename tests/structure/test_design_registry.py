@@ -23,11 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 PKG = ROOT / "cdcr_ctl"
 #: Branches on a design's name in the two packages being rewritten elsewhere: each to be
 #: replaced by a registry look-up (then removed from here).
-PENDING = {
-    "cdcr_ctl/identify/keypoints.py",
-    "cdcr_ctl/identify/pipeline.py",
-    "cdcr_ctl/discrepancy/alignment.py",
-}
+PENDING: set[str] = set()
 
 
 def _design_branches(path: Path) -> list[int]:

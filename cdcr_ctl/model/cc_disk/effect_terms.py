@@ -206,9 +206,10 @@ class SegmentCoupling(EffectTerm):
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
         lam0 = 1.0 if base.effects.coupling else 0.0
         lam = lam0 + float(values[0])
+        # the controller's model: coupling on with this gain (control.model_effects)
         return [
-            FittedValue("model_effects", "", "coupling", bool(lam >= 0.5)),
-            FittedValue("model", "", "coupling_gain", lam),
+            FittedValue("model_effects", "", "coupling", bool(lam > 0.0)),
+            FittedValue("model_effects", "", "coupling_gain", min(max(lam, 0.0), 2.0)),
         ]
 
 
@@ -319,6 +320,14 @@ class GravityDirection(EffectTerm):
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
         g = [round(float(v), 2) for v in self._gravity(base, values)]
         out = [FittedValue("robot", "", "gravity_mm_s2", g)]
+        if not (base.effects.gravity and any(s.disk_mass_g > 0 for s in base.params.segments)):
+            # the sag was carried by the reference masses (apply): the config needs them too
+            out += [
+                FittedValue(
+                    "segment", s.name, "disk_mass_g", s.disk_mass_g or REFERENCE_DISK_MASS_G
+                )
+                for s in base.params.segments
+            ]
         if not base.effects.gravity:
             out.append(FittedValue("model_effects", "", "gravity", True))
         return out

@@ -47,6 +47,7 @@ from cdcr_ctl.model.cc_disk.effect_terms import (
     SegmentCoupling,
     TrackerFrameOffset,
 )
+from cdcr_ctl.model.cc_disk.effect_tip_load import TipPayload
 from cdcr_ctl.model.cc_disk.transmission_effects import (
     BacklashPlay,
     TransmissionScale,
@@ -72,6 +73,7 @@ __all__ = [
     "PulleyLosses",
     "ReversalBacklash",
     "SegmentCoupling",
+    "TipPayload",
     "TrackerFrameOffset",
     "TransmissionScale",
     "_cables",
@@ -92,6 +94,7 @@ CANDIDATES: tuple[EffectTerm, ...] = (
     PulleyLosses(),
     ActuatorScale(),
     TrackerFrameOffset(),
+    TipPayload(),
 )
 
 
