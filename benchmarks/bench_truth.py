@@ -9,7 +9,7 @@ gravity, chord geometry), replaying the drive counts it saw in lock-step runs of
 
 The counts and the reference outputs (tip mm, base and actuator tensions N, every 10th solve) live
 in tests/model/data/qi_truth_paths.npz; tests/model/test_truth_tolerance.py checks the solver
-against them. The reference there was written by the solver of commit 6abec19 (before issue 22's
+against them. The reference there was written by the solver of commit 6abec19 (before the
 truth speed-up). CPU time (``time.thread_time``) is summed over chunks of 50 solves, each chunk
 the least of ``--repeat`` replays from the start (the machine is shared: the least is the one
 least disturbed by other processes).

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Logged runs of the simulated rig with one effect hidden from the controller's model.
 
-For issue 9 (model-discrepancy workflow). Each run: the truth of a simulator YAML (e.g.
+For the model-discrepancy workflow. Each run: the truth of a simulator YAML (e.g.
 ``config/sim/effects/disk_friction.yaml``) is driven through a trajectory by the controller's
 commands, and the run directory is written with the project's run-log writer in the loop's format
 (``config.yaml``, ``config_effective.yaml``, ``run.yaml``, ``samples.csv``).

@@ -1,4 +1,4 @@
-"""``cdcr-ctl discrepancy RUN_DIR...``: which physical effect the model is missing (issue 9).
+"""``cdcr-ctl discrepancy RUN_DIR...``: which physical effect the model is missing.
 
 Simulates the logged drive positions with the controller's model, compares with the tracked tip
 and the load cells, fits every candidate effect of :data:`cdcr_ctl.model.cc_disk.effects.CANDIDATES`

@@ -1,4 +1,4 @@
-"""Model-discrepancy workflow (issue 9): where model and measurement disagree, which physical
+"""Model-discrepancy workflow: where model and measurement disagree, which physical
 effect the model is missing, how much it explains.
 
 :func:`~cdcr_ctl.discrepancy.workflow.analyse` runs it; :mod:`~cdcr_ctl.discrepancy.report`

@@ -1,6 +1,6 @@
 """What kind of log a run is, and its quasi-static points for each kind.
 
-Three kinds of log reach identification (issue 18):
+Three kinds of log reach identification:
 
 * ``loadcell``: the daemon's calibration sweep: commanded poses held in dwells, load-cell
   tensions, tracker tip, drive feedback. Points are dwell averages (:mod:`.dwell`).

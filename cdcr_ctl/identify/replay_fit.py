@@ -1,4 +1,4 @@
-"""Output-error fit of keypoint and tip-only logs: the forward replay is the model (issue 18).
+"""Output-error fit of keypoint and tip-only logs: the forward replay is the model.
 
 A quasi-static keypoint log is an actuator path q(t) and, at each row, the tracked tip (and
 maybe the load cells). The forward model (:func:`cdcr_ctl.model.cc_disk.forward.replay`: Qi et al.

@@ -1,6 +1,6 @@
 """Simulated lab logs: quasi-static keypoint runs and tendon-pull runs of a cc_disk rig.
 
-What a lab without the daemon records (issue 18): rows about 0.5 s apart, each with the measured
+What a lab without the daemon records: rows about 0.5 s apart, each with the measured
 actuator positions (``cable{k}_q_act_mm``) and one tracked tip marker (``tip_{x,y,z}_mm``),
 optionally the load cells (``cable{k}_tension_N``), and no commanded pose. The world is the
 forward model (:class:`~cdcr_ctl.model.cc_disk.forward.ForwardStepper`, friction memory kept from

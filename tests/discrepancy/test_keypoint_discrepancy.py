@@ -1,4 +1,4 @@
-"""``cdcr-ctl discrepancy`` on a keypoint log (issue 18, acceptance 5), end to end.
+"""``cdcr-ctl discrepancy`` on a keypoint log, end to end.
 
 A small simulated keypoint log of ``config/three_segment_example.yaml`` whose world is the
 config plus, hidden, 0.4 mm of lost motion between every drive and its cable (kept small so

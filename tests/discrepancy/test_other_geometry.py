@@ -1,4 +1,4 @@
-"""The workflow on geometry and a tracker it was not developed on (issue 9 acceptance 1 and 3).
+"""The workflow on geometry and a tracker it was not developed on.
 
 Level: system. Runs of the second rig ``config/sim/effects-b`` (four cables at 90 deg, 8 disks,
 120 mm, thinner cable, the robot tilted 30 deg, a 150 Hz tracker) and of the three-segment

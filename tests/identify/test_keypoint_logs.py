@@ -1,4 +1,4 @@
-"""Identification from the logs labs have (issue 18): kinds, observability, pulls, CLI.
+"""Identification from the logs labs have: kinds, observability, pulls, CLI.
 
 Small simulated logs of ``config/three_segment_example.yaml`` (``cdcr_ctl.sim.keypoint_log``:
 the world is the forward model with EI, EA, pretension off nominal by 20-50 % and hole offsets

@@ -1,4 +1,4 @@
-"""The forward solve answers on every keypoint row (issue 18, acceptance 4).
+"""The forward solve answers on every keypoint row.
 
 The lab case: a 3-segment, 9-cable robot with ``free_length_mm: 0`` and disk friction on, fed
 the measured actuator positions of quasi-static keypoints far apart. Before the fix the active

@@ -1,4 +1,4 @@
-"""The truth's statics solve against the solver before issue 22's speed-up (commit 6abec19), on the
+"""The truth's statics solve against the solver before its speed-up (commit 6abec19), on the
 Qi world (config/sim/qi2023-truth.yaml) replaying the drive counts of lock-step runs of the planar
 bend and the spatial circle (tests/model/data/qi_truth_paths.npz, written by
 ``benchmarks/bench_truth.py --record`` and, at 6abec19, ``--write-reference``).

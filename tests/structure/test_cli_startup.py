@@ -1,4 +1,4 @@
-"""The CLI imports what the command it runs needs (issue 22: every ``cdcr-ctl`` process the tests
+"""The CLI imports what the command it runs needs (every ``cdcr-ctl`` process the tests
 and the demo start pays its imports).
 
 The command group (:data:`cdcr_ctl.cli.main.cli`) imports a command's module when the command is

@@ -1,7 +1,7 @@
 """System: `cdcr-ctl demo --lockstep` runs the simulated rig and the daemon end to end, on
 simulated time (one process: the production daemon, drive layer, Modbus reader and NatNet parser
 over the lock-step rig). The subject is the demo's results, not its timing: lock-step keeps this
-test independent of the machine's load (issue 22). The real-time processes path is exercised by
+test independent of the machine's load. The real-time processes path is exercised by
 test_lockstep_vs_realtime, test_daemon_stops and test_fault_matrix."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """System: `cdcr-ctl demo --design ujoint --quick --lockstep` - the simulated universal-joint rig
 (six simulated EPOS nodes, the tracker) and the daemon in lock-step (one process, simulated time;
-the subject is the results, not the timing: issue 22), Yang et al. 2022's go-and-return without
+the subject is the results, not the timing), Yang et al. 2022's go-and-return without
 and with section 3's compensation."""
 
 from __future__ import annotations

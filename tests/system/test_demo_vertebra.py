@@ -1,6 +1,6 @@
 """System: `cdcr-ctl demo --design vertebra --quick --lockstep` - the simulated vertebra rig (nine
 EPOS nodes, the attitude sensors through the WitMotion parser, the tracker) and the daemon in
-lock-step (one process, simulated time; the subject is the results, not the timing: issue 22),
+lock-step (one process, simulated time; the subject is the results, not the timing),
 the joystick end-following session (planned offline, run as a timed trajectory) without and
 with the sag compensation."""
 

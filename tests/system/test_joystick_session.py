@@ -4,7 +4,7 @@ Fig. 12 stick session (bend moves halved: ``scale: 0.5``) as ``struct input_even
 
 The session test runs in lock-step (`cdcr-ctl sim --lockstep`: the production daemon, drive
 layer, WitMotion and NatNet parsers and network-joystick reader on simulated time, the stick
-script played on that clock; its subject is what the session does, not its timing: issue 22).
+script played on that clock; its subject is what the session does, not its timing).
 The unplug test runs as the lab does: `cdcr-ctl sim` (EPOS nodes behind an slcan pty, attitude
 sensors on ptys, tracker and the network joystick on loopback) and `cdcr-ctl daemon` as
 processes; its subject includes the arm held still on the wall clock after the trip (in

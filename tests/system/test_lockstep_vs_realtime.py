@@ -3,7 +3,7 @@ slcan pty, Modbus pty, NatNet on loopback) and in lock-step (`cdcr-ctl sim --loc
 process on simulated time) gives the same tip errors.
 
 Tolerance: 5 % of the real-time value, for the mean and the max tip error, compensation off and
-model (issue 22's acceptance). The two differ only in timing: in real time the physics thread
+model. The two differ only in timing: in real time the physics thread
 solves the truth at 200 Hz on the wall clock and every message crosses a process boundary; in
 lock-step the truth is solved right after each SYNC that moved a drive. A real-time run is a
 reference only if it kept its 250 Hz: when the machine is too busy for that (the loop skipped
