@@ -109,6 +109,14 @@ def check_run(run_dir: str) -> tuple[int, int, int]:
     return expected, len(run), gaps
 
 
+def read_text(log_dir: str) -> str:
+    """The run's ``run.yaml`` ('' before it exists)."""
+    try:
+        return (Path(log_dir) / "run.yaml").read_text()
+    except OSError:
+        return ""
+
+
 def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list[SoakRun], bool]:
     """Run the soak; (counts, the record of its runs, whether a recovery had no run after it)."""
     rng = random.Random(seed)
@@ -236,7 +244,10 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
                     SoakRun(name, done["state"], fault, done["end_reason"], after_recovery)
                 )
                 after_recovery = False
-                time.sleep(0.3)  # the writer closes the log
+                try:  # the writer closes the log (run.yaml's ``ended``) before it is checked
+                    wait_for(lambda d=log_dir: "\nended:" in read_text(d), 15, "log closed")
+                except AssertionError:
+                    out["log_gaps"] += 1
                 expected, logged, gaps = check_run(res["log_dir"])
                 out["samples_expected"] += expected
                 out["samples_logged"] += logged
