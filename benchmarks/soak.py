@@ -63,6 +63,7 @@ from soakverdict import SoakRun, verdict  # noqa: E402
 
 from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket  # noqa: E402
 from cdcr_ctl.control import trajectory as tj  # noqa: E402
+from cdcr_ctl.daemon.client import DaemonError  # noqa: E402
 from cdcr_ctl.runlog import load_run  # noqa: E402
 from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
 
@@ -180,14 +181,21 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
                 duration = rng.uniform(4.0, 12.0)
                 traj = tj.random_smooth(1, duration, 1.0, 0.5, seed=rng.randrange(1 << 30))
                 name = f"soak{out['runs']}"
-                res = call(
-                    work,
-                    "trajectory",
-                    name=name,
-                    samples=traj.rows(),
-                    compensation=rng.choice(["off", "model"]),
-                    log=True,
-                )
+                try:
+                    res = call(
+                        work,
+                        "trajectory",
+                        name=name,
+                        samples=traj.rows(),
+                        compensation=rng.choice(["off", "model"]),
+                        log=True,
+                    )
+                except DaemonError as exc:  # a trip between the enable and the run's start
+                    fault_now = status(work)["fault"]
+                    out["recovery_errors"].append(f"trajectory refused: {exc}; trip {fault_now}")
+                    if len(out["recovery_errors"]) > 20:
+                        break
+                    continue
                 out["runs"] += 1
                 log_dir = res["log_dir"]
                 wait_for(

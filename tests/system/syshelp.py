@@ -54,6 +54,27 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
+#: SCHED_FIFO priority of the daemon (``control.realtime_priority``: a lab PC's unit runs it
+#: real-time) and of the simulated rig's threads (stand-in drives and sensors, which have
+#: processors of their own) in tests whose claim needs the rig on time whatever else the machine
+#: runs: at SCHED_OTHER, beside ``stress-ng --cpu 2``, a starved simulator missed its drives'
+#: heartbeats and runs tripped before the test's subject happened.
+RT_PRIORITY = 50
+
+
+def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> None:
+    """The session's daemon at SCHED_FIFO ``rt`` (its rig config, read when it starts) and, given
+    ``sim_pid``, every thread of that running simulator (as ``chrt -a``; threads it starts later
+    inherit it). Where not permitted the simulator stays as it is."""
+    doc = yaml.safe_load(rig.read_text())
+    doc.setdefault("control", {})["realtime_priority"] = rt
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+    if sim_pid is not None:
+        for task in Path(f"/proc/{sim_pid}/task").iterdir():
+            with contextlib.suppress(PermissionError, ProcessLookupError):
+                os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(rt))
+
+
 def client(work: Path) -> ControlClient:
     return ControlClient(work / "control.sock")
 
@@ -90,8 +111,10 @@ def relaunch(rig: Path, work: Path, log: Path) -> None:
 
 
 __all__ = [
+    "RT_PRIORITY",
     "client",
     "os",
+    "realtime",
     "relaunch",
     "session",
     "set_rate",

@@ -14,6 +14,7 @@ from battery import start_run
 from syshelp import (
     client,
     lasting_run,
+    realtime,
     relaunch,
     session,
     start_daemon,
@@ -49,7 +50,13 @@ def _wait_gone(pid: int, timeout_s: float) -> None:
 
 
 def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(tmp_path):
-    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim(sim, tmp_path / "sim.log") as sim_proc,
+    ):
+        # Real-time, as a lab PC runs it: the subject is a run the front's death stops, which a
+        # starved rig would trip first (syshelp.RT_PRIORITY).
+        realtime(rig, sim_proc.pid)
         # The rig process dies (SIGKILL): the front reports it, then exits with its own status.
         with start_daemon(rig, tmp_path / "d1.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
@@ -102,7 +109,11 @@ def _children(pid: int) -> set[int]:
 
 
 def test_a_front_killed_during_its_start_takes_its_rig_process_with_it(tmp_path):
-    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim(sim, tmp_path / "sim.log") as sim_proc,
+    ):
+        realtime(rig, sim_proc.pid)
         with start_daemon(rig, tmp_path / "d1.log") as d:
             # The front has started its rig (and stop) processes, which are still building the
             # daemon: no control socket yet.
