@@ -5,8 +5,10 @@ process on simulated time) gives the same tip errors.
 Tolerance: 5 % of the real-time value, for the mean and the max tip error, compensation off and
 model (issue 22's acceptance). The two differ only in timing: in real time the physics thread
 solves the truth at 200 Hz on the wall clock and every message crosses a process boundary; in
-lock-step the truth is solved right after each SYNC that moved a drive. A real-time run is a
-reference only if it kept its 250 Hz: when the machine is too busy for that (the loop skipped
+lock-step the truth is solved right after each SYNC that moved a drive. The real-time run goes
+as a lab PC runs it: the daemon and the stand-in rig at SCHED_FIFO (``syshelp.realtime``), so
+another job's CPU-bound work does not distort the reference. It is a reference only if it kept
+its 250 Hz: when the machine is too busy for that (the loop skipped
 more than 1 % of its deadlines, or its cycles ran late: a lateness p99 over a quarter period,
 so the real-time run itself is distorted), the comparison is skipped with the figures, not
 loosened; so is a real-time run that trips because its stand-in rig fell silent (a starved

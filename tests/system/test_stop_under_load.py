@@ -1,12 +1,13 @@
 """System: ``stop`` under client load puts the quick-stop frame on the bus within 2 loop cycles
-+ 50 ms of the client's send (the shipped simulated rig, 250 Hz): behind 200 clients flooding
++ 50 ms of the client's send (the shipped simulated rig at 250 Hz; the daemon and the stand-in
+rig at SCHED_FIFO 50, as a lab PC runs the daemon): behind 200 clients flooding
 ``status``, 50 clients sending 16 MB requests, and slow-loris clients on the control and the stop
 socket.
 
 Timed from the client's ``time.monotonic()`` before it sends, to the daemon's own record of the
 quick-stop frame handed to the CAN adapter (its traffic log's stop tap); the simulated drives'
 reaction (the first drive entering QUICK STOP ACTIVE) must be seen too, and is printed: it measures
-the simulator's CPU share beside the flood as much as the daemon. Light: 2 trials per load;
+the simulator's CPU share beside the flood as much as the daemon. Light: 1 trial per load;
 ``benchmarks/bench_stop_load.py`` runs 20 per load at 250 Hz and 1 kHz and reports both.
 """
 
