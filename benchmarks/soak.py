@@ -37,14 +37,12 @@ import contextlib
 import json
 import random
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
@@ -60,6 +58,7 @@ from faulthelp import (  # noqa: E402
     wait_for,
 )
 from soakverdict import SoakRun, verdict  # noqa: E402
+from syshelp import SIM_ABOVE, realtime  # noqa: E402
 
 from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket  # noqa: E402
 from cdcr_ctl.control import trajectory as tj  # noqa: E402
@@ -126,9 +125,7 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
     runs_dir.mkdir()
     rig, sim = make_session(TRUTH, work, runs_dir)
     if rt:
-        doc = yaml.safe_load(rig.read_text())
-        doc.setdefault("control", {})["realtime_priority"] = rt
-        rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+        realtime(rig, None, rt)
     out: dict = {
         "minutes": minutes,
         "runs": 0,
@@ -157,7 +154,8 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
         ):
             if rt:
                 # The stand-in drives and sensors at the daemon's policy (they are hardware).
-                subprocess.run(["chrt", "-a", "-f", "-p", str(rt), str(sim_proc.pid)], check=True)
+                # Above the daemon (syshelp.SIM_ABOVE): the daemon under test never starves them.
+                realtime(rig, sim_proc.pid, rt)
             wait_for_socket(work / "control.sock", d, work / "daemon.log")
             fc = FaultClient(work / "faults.sock")
             rss0 = None
@@ -317,7 +315,8 @@ def main(argv: list[str] | None = None) -> int:
         type=int,
         default=0,
         help="SCHED_FIFO priority for the daemon (control.realtime_priority, as the shipped "
-        "qi2023.yaml and its unit run it) and the simulated rig (chrt, all threads); "
+        "qi2023.yaml and its unit run it) and, SIM_ABOVE higher, the simulated rig (all its "
+        "threads); "
         "0: SCHED_OTHER, the simulated rig config's own",
     )
     args = ap.parse_args(argv)
@@ -329,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
     for failure in failures:
         print("  FAIL", failure)
     ok = not failures
-    policy = f"SCHED_FIFO {args.rt}" if args.rt else "SCHED_OTHER"
+    policy = f"SCHED_FIFO {args.rt}, sim {args.rt + SIM_ABOVE}" if args.rt else "SCHED_OTHER"
     print("SOAK", "PASSED" if ok else "FAILED", f"(seed {args.seed}, {len(record)} runs, {policy})")
     return 0 if ok else 1
 

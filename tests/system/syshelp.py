@@ -60,19 +60,27 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
 #: runs: at SCHED_OTHER, beside ``stress-ng --cpu 2``, a starved simulator missed its drives'
 #: heartbeats and runs tripped before the test's subject happened.
 RT_PRIORITY = 50
+#: How much higher the simulated rig's threads run than the daemon: the stand-in hardware is never
+#: starved by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
+#: its priority: with both at 50, the daemon's command threads held the CPU the stand-in drives
+#: needed, and soaks tripped on drives silent for 0.25-0.3 s while the loop ran on time).
+SIM_ABOVE = 10
 
 
 def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> None:
     """The session's daemon at SCHED_FIFO ``rt`` (its rig config, read when it starts) and, given
-    ``sim_pid``, every thread of that running simulator (as ``chrt -a``; threads it starts later
-    inherit it). Where not permitted the simulator stays as it is."""
+    ``sim_pid``, every thread of that running simulator at ``rt`` + :data:`SIM_ABOVE` (as
+    ``chrt -a``; threads it starts later inherit it). Where not permitted the simulator stays as
+    it is."""
     doc = yaml.safe_load(rig.read_text())
     doc.setdefault("control", {})["realtime_priority"] = rt
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
     if sim_pid is not None:
         for task in Path(f"/proc/{sim_pid}/task").iterdir():
             with contextlib.suppress(PermissionError, ProcessLookupError):
-                os.sched_setscheduler(int(task.name), os.SCHED_FIFO, os.sched_param(rt))
+                os.sched_setscheduler(
+                    int(task.name), os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
+                )
 
 
 def client(work: Path) -> ControlClient:
@@ -112,6 +120,7 @@ def relaunch(rig: Path, work: Path, log: Path) -> None:
 
 __all__ = [
     "RT_PRIORITY",
+    "SIM_ABOVE",
     "client",
     "os",
     "realtime",
