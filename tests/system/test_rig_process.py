@@ -117,7 +117,7 @@ def test_a_front_killed_during_its_start_takes_its_rig_process_with_it(tmp_path)
         with start_daemon(rig, tmp_path / "d1.log") as d:
             # The front has started its rig (and stop) processes, which are still building the
             # daemon: no control socket yet.
-            end = time.monotonic() + 30
+            end = time.monotonic() + 120  # the front imports and builds the model first
             while not (kids := _children(d.pid)):
                 assert time.monotonic() < end and d.poll() is None, "the front started nothing"
                 time.sleep(0.005)
