@@ -76,11 +76,34 @@ def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> No
     doc.setdefault("control", {})["realtime_priority"] = rt
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
     if sim_pid is not None:
-        for task in Path(f"/proc/{sim_pid}/task").iterdir():
-            with contextlib.suppress(PermissionError, ProcessLookupError):
-                os.sched_setscheduler(
-                    int(task.name), os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
-                )
+        for pid in _with_descendants(sim_pid):
+            for task in _tasks(pid):
+                with contextlib.suppress(PermissionError, ProcessLookupError):
+                    os.sched_setscheduler(
+                        task, os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
+                    )
+
+
+def _tasks(pid: int) -> list[int]:
+    """The threads of process ``pid`` (none once it is gone)."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return []
+
+
+def _with_descendants(pid: int) -> list[int]:
+    """``pid`` and every process it started, and theirs (the simulator's physics worker: a
+    process of its own, which a ``chrt -a`` of the simulator alone leaves at SCHED_OTHER, where
+    a loaded machine starved it and with it the stand-in drives and sensors)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in _tasks(p):
+            with contextlib.suppress(OSError), open(f"/proc/{p}/task/{task}/children") as f:
+                todo.extend(int(c) for c in f.read().split())
+    return out
 
 
 def client(work: Path) -> ControlClient:
