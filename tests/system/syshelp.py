@@ -61,9 +61,8 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
 #: heartbeats and runs tripped before the test's subject happened.
 RT_PRIORITY = 50
 #: How much higher the simulated rig's threads run than the daemon: the stand-in hardware is never
-#: starved by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
-#: its priority: with both at 50, the daemon's command threads held the CPU the stand-in drives
-#: needed, and soaks tripped on drives silent for 0.25-0.3 s while the loop ran on time).
+#: held up by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
+#: its priority).
 SIM_ABOVE = 10
 
 
