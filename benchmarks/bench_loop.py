@@ -220,6 +220,8 @@ class RunLogBench:
             spawn_mod.WRITER_NICE = args.writer_nice
         if getattr(args, "writer_policy", None) is not None:
             spawn_mod.WRITER_POLICY = args.writer_policy
+        if getattr(args, "writer_rt_priority", None) is not None:
+            spawn_mod.WRITER_RT_PRIORITY = args.writer_rt_priority
         process = self.writer_kind.startswith("process")
         cls = ProcessRunLogWriter if process else RunLogWriter
         cols = sample_columns(model.n_segments, model.n_cables, LOOP_EXTRA_COLUMNS)
@@ -261,6 +263,11 @@ class RunLogBench:
         self.group.log_traffic(None)
         self.writer.close("benchmark done")
 
+    def writer_policy(self) -> str:
+        """The writer process's scheduling with its run (``spawn.take_realtime``)."""
+        rt = getattr(self.writer, "writer_policy", None)
+        return rt or f"{spawn_mod.WRITER_POLICY}, nice +{spawn_mod.WRITER_NICE}"
+
     def report(self, wall: float) -> list[str]:
         log_us = self.samples[100 : self.n] * 1e6  # past the first cycles with the sink attached
         st = self.writer.stats
@@ -279,7 +286,7 @@ class RunLogBench:
                 f"; ring high-water {self.writer.high_water} rows of {self.writer.max_queued_rows}"
                 f" ({self.writer.high_water / self.rate * 1e3:.0f} ms of rows; at the writer's "
                 f"first drain {self.writer.start_backlog}; writer process "
-                f"{spawn_mod.WRITER_POLICY}, nice +{spawn_mod.WRITER_NICE})"
+                f"{self.writer_policy()})"
                 if self.writer_kind.startswith("process")
                 else ""
             ),
@@ -342,6 +349,14 @@ def main() -> None:
         choices=("SCHED_BATCH", "SCHED_OTHER"),
         default=None,
         help="with --writer process: its scheduling policy (default: the daemon's)",
+    )
+    ap.add_argument(
+        "--writer-rt-priority",
+        type=int,
+        default=None,
+        help="with --writer process and --rt-priority: the writer process's SCHED_FIFO "
+        "priority with its run (default: the daemon's, WRITER_RT_PRIORITY; 0: it stays off "
+        "real time, at --writer-policy)",
     )
     ap.add_argument(
         "--writer",

@@ -4,7 +4,7 @@ clients sending 16 MB requests, and slow-loris clients (100 on the control socke
 stop socket), at the loop rates given (default 250 Hz and 1 kHz); TRIALS stops per load and rate.
 
 Run: ``.venv/bin/python benchmarks/bench_stop_load.py [--trials 20] [--rates 250 1000]``
-(18 minutes for the defaults with --rt 50 on the 2-core VM at load average 24-35).
+(about 18 minutes for the defaults on the 2-core VM at load average 24-35).
 
 How measured (``tests/system/stopload.py``): ``cdcr-ctl sim`` with its fault channel and
 ``cdcr-ctl daemon`` as processes, on a session's rig config whose loop rate and SYNC period are set
@@ -14,10 +14,11 @@ to the stop socket). Start: ``time.monotonic()`` just before the client sends th
 connection. End: the first drive's
 change to QUICK STOP ACTIVE as the simulator stamped it (``time.monotonic()``, one clock for every
 process on Linux), read over the fault channel; SYNCs: the SYNC frames that drive saw in between.
-The simulated rig runs at SCHED_FIFO ``--sim-rt`` (50; it stands in for drives with processors of
-their own), the daemon under test at the simulated rig config's SCHED_OTHER (its front at nice
-+10, the stop process at nice -10). Beside it, the daemon's own record of the frame (its CAN
-traffic log's stop tap: when the adapter took the frame), from the send's wall clock.
+The simulated rig runs at SCHED_FIFO ``--sim-rt`` (60; it stands in for drives with processors of
+their own), the daemon under test at SCHED_FIFO ``--rt`` (50: ``control.realtime_priority``, as
+a lab PC's unit runs it; its front at nice +10). The acceptance's measure is the daemon's own
+record of the frame (its CAN traffic log's stop tap: when the adapter took the frame), from the
+send's wall clock; the drive's reaction is printed beside it.
 Budget per trial: 2 loop periods + 50 ms. Prints per load and rate: trials within the budget,
 latency median / p95 / max (ms), the worst in periods, the most SYNCs, the load's answers (or
 connections) per second, the machine's load average.
@@ -45,8 +46,9 @@ from syshelp import session, set_rate, start_daemon, wait_for_socket  # noqa: E4
 from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
 
 #: SCHED_FIFO priority of the simulated rig (all its threads), the independent listener: it stands
-#: in for drives with processors of their own, which a loaded PC does not delay.
-SIM_RT = 50
+#: in for drives with processors of their own, which a loaded PC does not delay. Above the
+#: daemon's (``--rt``, 50; syshelp.SIM_ABOVE): the daemon under test never starves it.
+SIM_RT = 60
 
 LOADS = [("status", 200), ("big", 50), ("slowloris", 100)]
 
@@ -87,6 +89,8 @@ def summary(rate_hz: float, kind: str, n: int, got: list[dict], per_s: float) ->
         "rate_hz": rate_hz,
         "load": f"{n} {kind}",
         "holds": sum(g["holds"] for g in got),
+        # The acceptance: the quick-stop frame on the bus (the daemon's tap) within the budget.
+        "bus_holds": sum(g.get("daemon_bus_ms", float("inf")) <= g["budget_ms"] for g in got),
         "trials": len(got),
         "median_ms": float(np.median(lat)) if len(lat) else float("nan"),
         "p95_ms": float(np.percentile(lat, 95)) if len(lat) else float("nan"),
@@ -104,8 +108,10 @@ def summary(rate_hz: float, kind: str, n: int, got: list[dict], per_s: float) ->
 
 def print_row(r: dict) -> None:
     print(
-        f"{r['rate_hz']:6.0f} Hz  {r['load']:14s} {r['holds']:2d}/{r['trials']:<2d} within"
-        f" {r['budget_ms']:.0f} ms   latency ms median {r['median_ms']:6.2f} p95 {r['p95_ms']:6.2f}"
+        f"{r['rate_hz']:6.0f} Hz  {r['load']:14s} frame on the bus {r['bus_holds']:2d}/"
+        f"{r['trials']:<2d} (at the drive {r['holds']:2d}/{r['trials']:<2d}) within"
+        f" {r['budget_ms']:.0f} ms   drive latency ms median {r['median_ms']:6.2f}"
+        f" p95 {r['p95_ms']:6.2f}"
         f" max {r['max_ms']:6.2f} ({r['max_periods']:.2f} periods, <= {r['max_syncs']} SYNCs)"
         f"   daemon's tap max {r['daemon_bus_max_ms']:6.1f} ms"
         f"   reply max {r['reply_max_ms']:6.1f} ms"
@@ -124,16 +130,15 @@ def main() -> None:
     ap.add_argument(
         "--rt",
         type=int,
-        default=0,
+        default=50,
         help="control.realtime_priority of the daemon under test (its rig process and stop "
-        "process at SCHED_FIFO, as the shipped qi2023.yaml runs them); 0: SCHED_OTHER",
+        "process at SCHED_FIFO, as a lab PC's unit runs them); 0: SCHED_OTHER",
     )
     ap.add_argument(
         "--sim-rt",
         type=int,
         default=SIM_RT,
-        help="SCHED_FIFO priority of the simulated rig (0: its own nice level); the daemon "
-        "under test keeps the simulated rig config's SCHED_OTHER",
+        help="SCHED_FIFO priority of the simulated rig (0: its own nice level)",
     )
     a = ap.parse_args()
     print(
@@ -144,9 +149,13 @@ def main() -> None:
     rows = []
     for rate in a.rates:
         rows += one_rate(rate, a.trials, a.sim_rt, a.rt)
-    held = sum(r["holds"] for r in rows)
+    held = sum(r["bus_holds"] for r in rows)
+    at_drive = sum(r["holds"] for r in rows)
     total = sum(r["trials"] for r in rows)
-    print(f"stop within 2 cycles + 50 ms of the client's send: {held}/{total} trials")
+    print(
+        f"quick-stop frame on the bus within 2 cycles + 50 ms of the client's send: {held}/"
+        f"{total} trials (the simulated drive in QUICK STOP ACTIVE within it: {at_drive}/{total})"
+    )
     print("ACCEPTANCE 1", "HOLDS" if held == total else "NOT MET")
 
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import queue
 import sys
 import threading
@@ -57,6 +58,7 @@ from cdcr_ctl.daemon.outcome import outcome
 from cdcr_ctl.daemon.planner import Planner
 from cdcr_ctl.daemon.rigshare import HEARTBEAT, SHARED_SLOTS, stop_reaction
 from cdcr_ctl.daemon.service import Daemon
+from cdcr_ctl.daemon.workers import watch_process
 from cdcr_ctl.runlog.writer.factory import RunLogFactory
 
 log = logging.getLogger(__name__)
@@ -196,6 +198,13 @@ class RigCommandServer:
         self._slow.put(None)
 
 
+def _tell(conn: Any, message: tuple[Any, ...]) -> None:
+    """Send the front a start-up message; a front already gone (its end closed) is not an error
+    here (:func:`rig_main` watches its process)."""
+    with contextlib.suppress(OSError, ValueError):
+        conn.send((0, message))
+
+
 def build_daemon(config_path: str, socket_path: str | None, intake_dir: str) -> Daemon:
     """What the one-process ``cdcr-ctl daemon`` builds, with the front's intake directory and
     no systemd notifications (the front is systemd's main process)."""
@@ -251,20 +260,28 @@ def rig_main(
         format="%(asctime)s %(levelname)s %(name)s[rig]: %(message)s",
         stream=sys.stderr,
     )
+    front_gone = watch_process(os.getppid())
     try:
         d = build_daemon(config_path, socket_path, intake_dir)
     except BaseException as exc:
-        conn.send((0, ("failed", f"{type(exc).__name__}: {exc}")))
+        _tell(conn, ("failed", f"{type(exc).__name__}: {exc}"))
         raise SystemExit(2) from exc
     d.loop.stop_flag.store = shared  # the front raises it directly
     try:
         d.start(serve_socket=False)
     except BaseException as exc:
         d.shutdown("start-up failed")
-        conn.send((0, ("failed", f"{type(exc).__name__}: {exc}")))
+        _tell(conn, ("failed", f"{type(exc).__name__}: {exc}"))
         raise SystemExit(2) from exc
     server = RigCommandServer(d, conn, shared, stop_conn).start()
-    conn.send((0, ("ready", {"rig": d.cfg.name, "at": time.time()})))
+    # A front killed during this start-up: its pipe is closed (the reader thread sees EOF too)
+    # and its process is gone; the daemon is stopped in order before it serves anyone.
+    _tell(conn, ("ready", {"rig": d.cfg.name, "at": time.time()}))
+    threading.Thread(
+        target=lambda: front_gone.wait() and d.request_stop("front process exited"),
+        name="rig-front-watch",
+        daemon=True,
+    ).start()
     reason = d.serve()
     server.close(reason)
     log.info("rig process ends: %s", reason)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import select
 import threading
 import time
 from collections.abc import Callable
@@ -33,6 +34,34 @@ def watch_parent(parent_pid: int) -> None:
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
 
 
+def watch_process(pid: int) -> threading.Event:
+    """An event set once process ``pid`` (this process's parent) has ended. Waits on a pidfd
+    (Linux 5.3+), which wakes as the process ends, whichever of its threads started this one;
+    without pidfds, looks at the parent every :data:`PARENT_CHECK_S`."""
+    gone = threading.Event()
+    try:
+        fd = os.pidfd_open(pid)
+    except (AttributeError, OSError):
+        fd = None
+    if os.getppid() != pid:  # ended before the pidfd was opened (or ``pid`` is not the parent)
+        gone.set()
+
+    def wait() -> None:
+        if fd is not None:
+            select.select([fd], [], [])
+            os.close(fd)
+        else:
+            while os.getppid() == pid:
+                time.sleep(PARENT_CHECK_S)
+        gone.set()
+
+    if not gone.is_set():
+        threading.Thread(target=wait, name="parent-watch", daemon=True).start()
+    elif fd is not None:
+        os.close(fd)
+    return gone
+
+
 def nice_and_watch_parent(increment: int, parent_pid: int) -> None:
     """(a pool initializer) ``os.nice(increment)``, then :func:`watch_parent`."""
     os.nice(increment)
@@ -52,4 +81,10 @@ def one_worker_pool(
     )
 
 
-__all__ = ["PARENT_CHECK_S", "nice_and_watch_parent", "one_worker_pool", "watch_parent"]
+__all__ = [
+    "PARENT_CHECK_S",
+    "nice_and_watch_parent",
+    "one_worker_pool",
+    "watch_parent",
+    "watch_process",
+]

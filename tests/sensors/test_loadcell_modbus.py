@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 
 import pytest
 import serial
@@ -326,6 +327,11 @@ def test_disconnect_while_sampling_fails_the_sampler_naming_the_port(open_serial
             assert info.value.port == sim.path
             assert cells.failure is info.value
             assert all(s.stale for s in cells.latest())  # fresh age, but the port is gone
+            # The sampler's thread ends: it published the failure (which woke this thread)
+            # as its last act, and on a loaded machine it may not have returned yet.
+            end = time.monotonic() + 5.0
+            while cells.running and time.monotonic() < end:
+                time.sleep(0.001)
             assert not cells.running
 
 

@@ -54,6 +54,57 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
+#: SCHED_FIFO priority of the daemon (``control.realtime_priority``: a lab PC's unit runs it
+#: real-time) and of the simulated rig's threads (stand-in drives and sensors, which have
+#: processors of their own) in tests whose claim needs the rig on time whatever else the machine
+#: runs: at SCHED_OTHER, beside ``stress-ng --cpu 2``, a starved simulator missed its drives'
+#: heartbeats and runs tripped before the test's subject happened.
+RT_PRIORITY = 50
+#: How much higher the simulated rig's threads run than the daemon: the stand-in hardware is never
+#: held up by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
+#: its priority).
+SIM_ABOVE = 10
+
+
+def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> None:
+    """The session's daemon at SCHED_FIFO ``rt`` (its rig config, read when it starts) and, given
+    ``sim_pid``, every thread of that running simulator at ``rt`` + :data:`SIM_ABOVE` (as
+    ``chrt -a``; threads it starts later inherit it). Where not permitted the simulator stays as
+    it is."""
+    doc = yaml.safe_load(rig.read_text())
+    doc.setdefault("control", {})["realtime_priority"] = rt
+    rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+    if sim_pid is not None:
+        for pid in _with_descendants(sim_pid):
+            for task in _tasks(pid):
+                with contextlib.suppress(PermissionError, ProcessLookupError):
+                    os.sched_setscheduler(
+                        task, os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
+                    )
+
+
+def _tasks(pid: int) -> list[int]:
+    """The threads of process ``pid`` (none once it is gone)."""
+    try:
+        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+    except OSError:
+        return []
+
+
+def _with_descendants(pid: int) -> list[int]:
+    """``pid`` and every process it started, and theirs (the simulator's physics worker: a
+    process of its own, which a ``chrt -a`` of the simulator alone leaves at SCHED_OTHER, where
+    a loaded machine starved it and with it the stand-in drives and sensors)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        for task in _tasks(p):
+            with contextlib.suppress(OSError), open(f"/proc/{p}/task/{task}/children") as f:
+                todo.extend(int(c) for c in f.read().split())
+    return out
+
+
 def client(work: Path) -> ControlClient:
     return ControlClient(work / "control.sock")
 
@@ -90,8 +141,11 @@ def relaunch(rig: Path, work: Path, log: Path) -> None:
 
 
 __all__ = [
+    "RT_PRIORITY",
+    "SIM_ABOVE",
     "client",
     "os",
+    "realtime",
     "relaunch",
     "session",
     "set_rate",

@@ -14,6 +14,7 @@ from battery import start_run
 from syshelp import (
     client,
     lasting_run,
+    realtime,
     relaunch,
     session,
     start_daemon,
@@ -49,7 +50,13 @@ def _wait_gone(pid: int, timeout_s: float) -> None:
 
 
 def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(tmp_path):
-    with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim(sim, tmp_path / "sim.log") as sim_proc,
+    ):
+        # Real-time, as a lab PC runs it: the subject is a run the front's death stops, which a
+        # starved rig would trip first (syshelp.RT_PRIORITY).
+        realtime(rig, sim_proc.pid)
         # The rig process dies (SIGKILL): the front reports it, then exits with its own status.
         with start_daemon(rig, tmp_path / "d1.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
@@ -87,3 +94,40 @@ def test_a_dead_rig_process_is_reported_and_a_dead_front_stops_the_rig_in_order(
 
         # Nothing left over: the next daemon starts, finds the drives disabled, and runs.
         relaunch(rig, work, tmp_path / "d3.log")
+
+
+def _children(pid: int) -> set[int]:
+    """The processes ``pid`` started (any of its threads) that still run."""
+    kids: set[int] = set()
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                kids.update(int(k) for k in f.read().split())
+        except OSError:
+            continue
+    return kids
+
+
+def test_a_front_killed_during_its_start_takes_its_rig_process_with_it(tmp_path):
+    with (
+        session(tmp_path) as (work, rig, sim, _runs),
+        start_sim(sim, tmp_path / "sim.log") as sim_proc,
+    ):
+        realtime(rig, sim_proc.pid)
+        with start_daemon(rig, tmp_path / "d1.log") as d:
+            # The front has started its rig (and stop) processes, which are still building the
+            # daemon: no control socket yet.
+            end = time.monotonic() + 120  # the front imports and builds the model first
+            while not (kids := _children(d.pid)):
+                assert time.monotonic() < end and d.poll() is None, "the front started nothing"
+                time.sleep(0.005)
+            time.sleep(0.2)  # the rig process is importing and building
+            assert not (work / "control.sock").exists(), "the start was already over"
+            kids = _children(d.pid)
+            d.send_signal(signal.SIGKILL)
+            d.wait(10)
+            for pid in kids:
+                _wait_gone(pid, RIG_STOP_TIMEOUT_S + 30)
+        assert "front process" in (tmp_path / "d1.log").read_text()
+        # Its locks (CAN link, control socket) went with it: the next daemon starts and runs.
+        relaunch(rig, work, tmp_path / "d2.log")

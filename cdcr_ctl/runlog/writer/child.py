@@ -183,6 +183,11 @@ def main(run_nice: int | None = None) -> int:
     (n,) = struct.unpack("<Q", head)
     spec = pickle.loads(_read_exact(stdin, n))
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    if spec.get("rt_priority"):  # beside a real-time loop (spawn.hand_over), for every thread
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(spec["rt_priority"]))
+        except OSError as exc:
+            log.warning("run-log writer stays off real time (%s)", exc.strerror or exc)
     if run_nice is not None:
         try:
             os.setpriority(os.PRIO_PROCESS, 0, run_nice)

@@ -3,12 +3,11 @@
 :class:`ProcessRunLogWriter` has the interface of
 :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter`. Its :meth:`~ProcessRunLogWriter.write`
 stores the row's numbers into a slot of a shared-memory ring (:mod:`cdcr_ctl.runlog.writer.ring`)
-and returns; a writer process (:mod:`cdcr_ctl.runlog.writer.child`, SCHED_BATCH) drains the ring
-and runs an ordinary ``RunLogWriter`` there (CSV and MCAP encoding, flushes, fsyncs, vanish
-checks, ``run.yaml``) under its own interpreter lock, which the loop never waits for.
+and returns; a writer process (:mod:`cdcr_ctl.runlog.writer.child`; SCHED_BATCH, or SCHED_FIFO 1
+under a real-time loop: ``spawn.hand_over``) drains the ring into an ordinary ``RunLogWriter``
+(CSV and MCAP encoding, fsyncs, ``run.yaml``) under its own interpreter lock. A write error there
+is published in the shared header; :attr:`failure` reads it (one int64 load when there is none).
 
-- A write error in the writer process is published in the shared header; :attr:`failure` reads
-  it (one int64 load when there is none), so the loop trips as it does on a thread writer's error.
 - The ring is sized by time (``logging.ring_s`` of rows at the loop's rate, see
   :class:`~cdcr_ctl.runlog.writer.factory.RunLogFactory`). When it is full, ``on_full`` decides:
   ``trip`` (real time, the default) refuses the row (``write`` returns False, counted as dropped)
@@ -17,10 +16,9 @@ checks, ``run.yaml``) under its own interpreter lock, which the loop never waits
   overflow); ``wait`` (a loop on simulated time, lock-step) blocks ``write`` until the writer
   process has made room, so no row is lost whatever the load and the files are the same on
   every run; its writer drains it only once half full or at the close (``spawn.defer_fill``).
-- The writer process exiting without closing the run (a crash) is also a failure.
-- If the loop's process dies (SIGKILL), the writer process sees its parent change, drains what is
-  in the ring, and closes the run with outcome ``aborted``: ``samples.csv`` and ``run.mcap`` end
-  complete, ``run.mcap`` with its summary and footer.
+- The writer process exiting without closing the run (a crash) is also a failure. If the loop's
+  process dies (SIGKILL), the writer process sees its parent change, drains the ring and closes
+  the run with outcome ``aborted`` (``run.mcap`` ends with its summary and footer).
 """
 
 from __future__ import annotations
@@ -30,7 +28,6 @@ import contextlib
 import logging
 import os
 import pickle
-import struct
 import subprocess
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -56,7 +53,13 @@ from cdcr_ctl.runlog.writer.ring import (
     writer_counts,
 )
 from cdcr_ctl.runlog.writer.slots import SlotFiller
-from cdcr_ctl.runlog.writer.spawn import RingCanTap, defer_fill, start_writer_process, wait_exit
+from cdcr_ctl.runlog.writer.spawn import (
+    RingCanTap,
+    defer_fill,
+    hand_over,
+    start_writer_process,
+    wait_exit,
+)
 from cdcr_ctl.runlog.writer.thread import (
     CLOSE_TIMEOUT_S,
     DEFAULT_QUEUE_ROWS,
@@ -93,20 +96,16 @@ def _close_open() -> None:
 
 
 class ProcessRunLogWriter(WriterBase):
-    """Writes one run directory through a writer process. Use as a context manager or call
-    :meth:`close`.
-
-    Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter` (``second_sink`` must
-    pickle: the writer process makes the sink). ``process``: a spare writer process from
-    :func:`start_writer_process` (started ahead, its interpreter start and imports under way
-    or done; the factory keeps one ready), else one is started here. ``run_dir`` must be empty
-    or not exist. The constructor makes the run's first files (config copies, ``run.yaml``,
-    ``samples.csv``'s header) as the thread writer does; raises :class:`RigError` naming the path
-    if they cannot be made or the directory is not empty, or the writer process cannot start. It
-    does not wait for the writer process (an error there is a :attr:`failure`, which trips the
-    loop). ``quiet`` (the loop's "between my cycles", with ``on_full="trip"``): rows go through
-    a :class:`~cdcr_ctl.runlog.writer.handoff.RowHandoff`, ``write`` only queues them.
-    """
+    """Writes one run directory through a writer process; a context manager, or call
+    :meth:`close`. Arguments as :class:`~cdcr_ctl.runlog.writer.thread.RunLogWriter`
+    (``second_sink`` must pickle). ``process``: a spare from :func:`start_writer_process`
+    (started ahead; the factory keeps one ready), else one is started here. ``run_dir`` must be
+    empty or not exist. The constructor makes the run's first files (config copies, ``run.yaml``,
+    ``samples.csv``'s header); raises :class:`RigError` naming the path if they cannot be made,
+    the directory is not empty, or the writer process cannot start. It does not wait for the
+    writer process (an error there is a :attr:`failure`, which trips the loop). ``quiet`` (the
+    loop's "between my cycles", with ``on_full="trip"``): rows go through a
+    :class:`~cdcr_ctl.runlog.writer.handoff.RowHandoff`, ``write`` only queues them."""
 
     def __init__(
         self,
@@ -237,8 +236,7 @@ class ProcessRunLogWriter(WriterBase):
         try:
             # The pipe stays open: the close request writes a byte to it to wake the writer
             # process at once (:meth:`_request_close`).
-            proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
-            proc.stdin.flush()
+            self.writer_policy = hand_over(proc, blob, self.on_full)
         except OSError as exc:
             proc.kill()
             proc.wait()

@@ -9,8 +9,11 @@ for ``run.mcap``'s ``/can``.
 
 from __future__ import annotations
 
+import logging
 import os
+import pickle
 import select
+import struct
 import subprocess
 import sys
 import threading
@@ -19,6 +22,8 @@ from collections.abc import Sequence
 import can
 
 from cdcr_ctl.runlog.writer.ring import CAN_DROPPED, SharedRing
+
+log = logging.getLogger(__name__)
 
 #: Nice increment of the writer process: 0, the daemon's own. Measured at 1 kHz with MCAP under
 #: ``stress-ng --cpu 2`` on the 2-core machine (``benchmarks/bench_loop.py --runlog mcap
@@ -34,6 +39,16 @@ WRITER_NICE = 0
 #: waking for its drain never preempts a running loop mid-cycle (a batch task waits for the
 #: next scheduler tick); its CPU share is the same as at SCHED_OTHER.
 WRITER_POLICY = "SCHED_BATCH"
+#: SCHED_FIFO priority a writer process takes with its run when the process handing it the run
+#: is real-time (a loop at ``control.realtime_priority``) and the ring trips when full: the
+#: lowest real-time priority, so every task of a real-time loop (its loop, CAN and stop threads,
+#: the stop line) preempts it and it never preempts them, while no ordinary task (another
+#: job's CPU-bound work, hundreds of status clients) can starve it. Off real time (SCHED_BATCH
+#: at ``WRITER_NICE``) a writer beside a SCHED_FIFO loop at 1 kHz with ``stress-ng --cpu 8``
+#: on the 2-core machine did not drain once in a 5 s run (``benchmarks/bench_loop.py
+#: --rt-priority 60 --runlog mcap --seconds 5 --spare-s 3``: ring high-water 4262 rows, all of
+#: them at its first drain); a longer run overflows the ring and trips ``log_overflow``. 0: never.
+WRITER_RT_PRIORITY = 1
 #: Nice increment of a writer whose loop waits for it when its ring is full (``on_full="wait"``:
 #: a loop on simulated time, the lock-step rig), kept once it has its run. There is no real-time
 #: loop to protect there, but the lock-step truth worker is on the critical path: at nice 0 the
@@ -97,6 +112,38 @@ def writer_nice(on_full: str) -> int:
     """The writer process's nice increment (once it has its run) for a ring whose ``on_full``
     is this."""
     return WAITING_WRITER_NICE if on_full == "wait" else WRITER_NICE
+
+
+def take_realtime(proc: subprocess.Popen, on_full: str) -> str | None:
+    """Before handing ``proc`` (a writer process) its run: SCHED_FIFO at
+    :data:`WRITER_RT_PRIORITY` when the calling thread is real-time (SCHED_FIFO/RR) and the ring
+    trips when full (a loop on the wall clock). Set on the process's main thread before it reads
+    its settings, so the threads it starts for the run inherit it. Returns the policy it runs
+    at, or None when it stays off real time (not asked, or not permitted: logged)."""
+    if not WRITER_RT_PRIORITY or on_full == "wait":
+        return None
+    if os.sched_getscheduler(0) not in (os.SCHED_FIFO, os.SCHED_RR):
+        return None
+    try:
+        os.sched_setscheduler(proc.pid, os.SCHED_FIFO, os.sched_param(WRITER_RT_PRIORITY))
+    except OSError as exc:  # no CAP_SYS_NICE / RLIMIT_RTPRIO for it: it stays SCHED_BATCH
+        log.warning("run-log writer stays off real time (%s)", exc.strerror or exc)
+        return None
+    return f"SCHED_FIFO {WRITER_RT_PRIORITY}"
+
+
+def hand_over(proc: subprocess.Popen, blob: bytes, on_full: str) -> str | None:
+    """Give ``proc`` (from :func:`start_writer_process`) its run: the settings ``blob`` (a
+    pickled dict) on its stdin, after :func:`take_realtime`. A real-time writer is also told
+    to take the policy itself once it reads them, before it starts the run's threads: a process
+    just started may run its boot line (SCHED_BATCH) after this call. Returns
+    :func:`take_realtime`'s answer; raises OSError when ``proc``'s stdin is closed."""
+    policy = take_realtime(proc, on_full)
+    if policy is not None:
+        blob = pickle.dumps({**pickle.loads(blob), "rt_priority": WRITER_RT_PRIORITY})
+    proc.stdin.write(struct.pack("<Q", len(blob)) + blob)
+    proc.stdin.flush()
+    return policy
 
 
 def start_writer_process(ring_fd: int | None = None, on_full: str = "trip") -> subprocess.Popen:
