@@ -1,13 +1,13 @@
 """Fixtures and collection rules for every test directory.
 
 ``--unit``: ``wallclock`` or ``rest`` runs one part of the suite (``scripts/test`` runs all in
-one process; README "CI time" has what splitting it gave).
+one process).
 
 - ``wallclock``: tests marked ``realtime`` (the simulated rig and the daemon as processes on
   the wall clock: stand-in hardware, heartbeats, stop latency, kills) and the drive-layer files
   whose simulated nodes run in the test's process on the wall clock (:data:`WALLCLOCK_FILES`).
-  Beside a second worker under ``stress-ng --cpu 2`` they tripped (session 9: five real-time
-  tests, "heartbeat lost"; session 12: beside the rest at autogroup nice +10, three), serially
+  Beside a second worker under ``stress-ng --cpu 2`` they tripped (five real-time
+  tests, "heartbeat lost"; beside the rest at autogroup nice +10, three), serially
   they pass: they need the machine to themselves;
 - ``rest``: everything else, whose outcome does not hang on the wall clock.
 
@@ -55,7 +55,7 @@ RIG_GROUP = "rig"
 #: The test files holding them (paths from the project root, as in pytest's node ids), and the
 #: drive-layer files whose simulated nodes run in the test's process on the wall clock
 #: (heartbeats every 50 ms, feedback watched against ``feedback_timeout_s``): beside a rig test
-#: under ``stress-ng --cpu 2`` three of them tripped "heartbeat lost" (session 9), so they run in
+#: under ``stress-ng --cpu 2`` three of them tripped "heartbeat lost", so they run in
 #: the unit too, one after the other, as they did before the suite had two workers.
 RIG_FILES = frozenset(
     {

@@ -1,4 +1,4 @@
-"""The package's rooms and the way its imports point (README "Layout").
+"""The package's rooms and the way its imports point (docs/architecture.md "Layers").
 
 Walks every module of ``cdcr_ctl`` with :mod:`ast` (every import counts: one inside a function,
 as a lazy import that dodges a cycle is still a cycle, and one under ``if TYPE_CHECKING:``, as a

@@ -1,4 +1,4 @@
-"""Modules stay small: one job each, 500 lines at most (README "Layout").
+"""Modules stay small: one job each, 500 lines at most (docs/architecture.md "Layers").
 
 A module that reaches the limit has grown a second job: split it by job rather than squeeze it."""
 

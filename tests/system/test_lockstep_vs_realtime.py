@@ -12,7 +12,7 @@ its 250 Hz: when the machine is too busy for that (the loop skipped
 more than 1 % of its deadlines, or its cycles ran late: a lateness p99 over a quarter period,
 so the real-time run itself is distorted), the comparison is skipped with the figures, not
 loosened; so is a real-time run that trips because its stand-in rig fell silent (a starved
-machine: ``faulthelp.STARVED_CAUSES``). Measured on fresh clones (session 12): idle, the
+machine: ``faulthelp.STARVED_CAUSES``). Measured on fresh clones: idle, the
 real-time runs' lateness p99 was 199-426 us and the max tip errors within 2.5 %; beside
 ``stress-ng --cpu 2`` it was 1374-1381 us (26-34 cycles over 1 ms) and the compensated max
 7.7 % over lock-step's, and one real-time run tripped (no TPDO for 0.25 s).

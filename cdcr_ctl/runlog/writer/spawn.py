@@ -27,7 +27,8 @@ log = logging.getLogger(__name__)
 
 #: Nice increment of the writer process: 0, the daemon's own. Measured at 1 kHz with MCAP under
 #: ``stress-ng --cpu 2`` on the 2-core machine (``benchmarks/bench_loop.py --runlog mcap
-#: --seconds 15 --spare-s 3 --writer-nice N``, two runs each, README "Run logs"): at nice +10
+#: --seconds 15 --spare-s 3 --writer-nice N``, two runs each, docs/performance/figures.md): at
+#: nice +10
 #: the writer got about a tenth of a nice-0 task's share, less than its ~20-30 % of a core, and
 #: fell 6 s behind (one run never drained before its close, another was not done 30 s after
 #: it): a longer run would have overflowed any ring. At nice +5 it started 1.6-1.7 s behind; at
@@ -57,7 +58,7 @@ WRITER_RT_PRIORITY = 1
 #: lock-step benchmark, four alternating pairs over the bend's cycles: 6.4-7.9x at nice 0,
 #: 8.2-10.9x at SCHED_IDLE), but beside a CPU-bound neighbour (``stress-ng --cpu 2``) an idle
 #: task gets almost nothing and lock-step runs crawled (three tests timed out); at nice 10 it
-#: keeps a tenth of a nice-0 task's share. README "Lock-step simulation".
+#: keeps a tenth of a nice-0 task's share. docs/performance/figures.md.
 WAITING_WRITER_NICE = 10
 #: Nice increment of a writer process while it starts (its interpreter and imports, ~0.3 s of
 #: CPU idle, more under load) and waits as a spare: the factory starts the next run's spare as
@@ -92,8 +93,8 @@ _BOOT = (
 #: this full (rows or CAN frames, a fraction of its size), or when the run closes or the loop's
 #: process is gone; a ring that trips is drained every drain interval. Lock-step runs as fast
 #: as the two cores allow, and a writer draining meanwhile takes its CPU from the loop thread or
-#: the truth worker: on the planar bend (``benchmarks/bench_lockstep.py``, README "Lock-step
-#: simulation", session 12) the cycles took 566-684 us each with the writer draining beside them
+#: the truth worker: on the planar bend (``benchmarks/bench_lockstep.py``, docs/performance/
+#: figures.md) the cycles took 566-684 us each with the writer draining beside them
 #: at nice 10, 462-536 us deferred. Deferred, the writer does the same work after the run's last
 #: cycle, on CPUs the run no longer needs (the whole run is no faster: a serial tail). Rows
 #: wait in shared memory, which the writer process holds too: a loop process killed meanwhile

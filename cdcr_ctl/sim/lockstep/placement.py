@@ -5,7 +5,7 @@ A lock-step run keeps the loop thread busy all the time (the controller's cycle,
 drives and sensors) and the truth worker most of the time (the statics solve of the period,
 :mod:`.truthproc`), one period behind. Left to the scheduler on a 2-CPU machine, a semaphore
 wake-up often puts the worker on the loop thread's own CPU (measured with ``perf sched``: 76-100 %
-of its wake-ups, README "Lock-step simulation"), so the two take turns instead of overlapping,
+of its wake-ups, docs/performance/figures.md), so the two take turns instead of overlapping,
 and each preemption costs the loop thread its caches. Pinned apart, they overlap.
 
 :class:`Placement` names the two CPUs (or none). ``auto`` takes the first two CPUs this process
@@ -56,7 +56,7 @@ class Placement:
 
     @classmethod
     def parse(cls, text: str, source: str = "--cpus") -> Placement:
-        """``auto`` (:meth:`rotated` of session 0), ``none``, ``LOOP,WORKER`` (CPU numbers) or
+        """``auto`` (:meth:`rotated` of run 0), ``none``, ``LOOP,WORKER`` (CPU numbers) or
         ``job:I`` (:meth:`rotated` of session I); a bad value raises :class:`ConfigError` naming
         ``source`` and the text."""
         t = text.strip().lower()

@@ -50,7 +50,7 @@ ALIVE_CHECK_S = 1.0
 #: five (physics at 200 Hz, loop at 250 Hz): a loop cycle is ~0.4-0.6 ms of wall, so 2 ms
 #: covers the gaps of a run and lets both sides sleep when it ends or stalls (a worker
 #: descheduled by a busy machine is not waited for on the CPU for longer). Measured on the
-#: lock-step benchmark (README "Lock-step simulation"): the loop thread's sleep over a
+#: lock-step benchmark (docs/performance/figures.md): the loop thread's sleep over a
 #: 3215-cycle bend 0.2-0.33 s -> 0.01 s, the worker's CPU per cycle ~290 -> ~215 us.
 LOCKSTEP_SPIN_S = 0.002
 #: Longest wall time one solve may take before the worker counts as stuck (s).
