@@ -4,9 +4,10 @@
 sums, to rounding), ``_along`` assembling ``cable``'s values, the chord geometry against the
 segment shortening and its gradient written from :func:`~cdcr_ctl.model.cc_disk.kinematics.s1` and
 ``d1``, the pulley table's inverse against its per-piece formula. The two kept pairs, the disk
-weight sums against :func:`~cdcr_ctl.model.cc_disk.transfer._ratios` and the pulley's fused
-``to_actuator_stretch`` against its two calls, are held to the same floats: their measurement is
-printed by ``benchmarks/bench_hot_paths.py`` (docs/performance/figures.md).
+weight sums against the kinematics ratios (:func:`~cdcr_ctl.model.cc_disk.kinematics.s1`,
+``c2``, ``d1``, ``d2``; to rounding) and the pulley's fused ``to_actuator_stretch`` against its
+two calls (the same floats): their measurement is printed by ``benchmarks/bench_hot_paths.py``
+(docs/performance/figures.md).
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ import numpy as np
 import pytest
 from cc_robots import make_robot, qi_params, three_params
 
-from cdcr_ctl.model.cc_disk.kinematics import d1, s1
+from cdcr_ctl.model.cc_disk.kinematics import c2, d1, d2, s1
 from cdcr_ctl.model.cc_disk.params import Effects
-from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, _disk_sums, _ratios
+from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, _disk_sums
 from cdcr_ctl.model.shared import capstan as cap
 
 ROBOTS = [qi_params, three_params, lambda: make_robot(2, thickness_mm=1.5)]
@@ -63,22 +64,32 @@ def test_cable_and_along_equal_outside_and_inside(robot, geometry):
             assert (res.delta_in[k], res.delta_out[k]) == (wk - P.q_geom[k], qk - wk)
 
 
-def test_disk_sums_equal_the_ratios():
+def test_disk_sums_equal_the_kinematics_ratios():
     disks = [(m / 5, 0.8 + 0.1 * m) for m in range(1, 6)]
     factors = [
         (sig, m * sig * sig, m * sig * sig * sig, m * sig * sig * sig * sig, m * sig)
         for sig, m in disks
     ]
+    # Both evaluate the same series (|t| < 0.1) or closed forms with a different grouping (a
+    # product by 1/t^k against a division by t^k, Horner against powers): each ratio within a
+    # few roundings (~10 operations, 2**-53 each: < 2e-15 relative). The terms of each sum have
+    # one sign for |sig t| < 4.49 (c2, s1 > 0; d1, d2 < 0), so no cancellation: 1e-14 relative.
     for t in (0.0, 1e-9, 0.03, 0.0999, 0.1, 0.2, 0.49, 0.5, 0.51, 1.3, 3.0, -0.7):
         A = B = C = D = 0.0
         for sig, m in disks:
-            ss1, cc2, dd1, dd2, _ = _ratios(sig * t)
+            st = sig * t
             ms2 = m * sig * sig
-            A += ms2 * cc2
-            B += ms2 * sig * sig * dd2
-            C += ms2 * sig * dd1
-            D += m * sig * ss1
-        assert _disk_sums(factors, t) == (A, B, C, D)
+            A += ms2 * c2(st)
+            B += ms2 * sig * sig * d2(st)
+            C += ms2 * sig * d1(st)
+            D += m * sig * s1(st)
+        assert _disk_sums(factors, t) == pytest.approx((A, B, C, D), rel=1e-14, abs=0.0)
+    # at the straight pose, the series' constant terms: sum m sig^2 / 2, -m sig^4 / 12, ...
+    A, B, C, D = _disk_sums(factors, 0.0)
+    assert A == pytest.approx(sum(f[1] for f in factors) / 2.0, rel=1e-15)
+    assert B == pytest.approx(-sum(f[3] for f in factors) / 12.0, rel=1e-15)
+    assert C == pytest.approx(-sum(f[2] for f in factors) / 3.0, rel=1e-15)
+    assert D == pytest.approx(sum(f[4] for f in factors), rel=1e-15)
 
 
 @pytest.mark.parametrize("thickness", [0.0, 2.0])

@@ -1,7 +1,7 @@
 """The simulated sensors' feeds computed on Python floats and noise drawn in blocks, bit for bit
-against the numpy formulas and per-call draws they replace: the load cells' tension noise
-(``TensionFeed``), the transmitter's cached-request entry, the tracker's body pose
-(``TruthSampler.sample_floats``)."""
+against the per-call draws they replace: the load cells' tension noise (``TensionFeed``), the
+transmitter's cached-request entry; the tracker's body pose (``TruthSampler``) against
+hand-worked transforms."""
 
 from __future__ import annotations
 
@@ -64,47 +64,38 @@ def test_cached_request_entry_answers_as_the_parsing_loop() -> None:
             s.stop()
 
 
-def _pose(k: int):
-    R = rotation_from_rotvec([0.1 + 0.01 * k, -0.2, 0.05 * k])
-    if k % 5 == 2:
-        R[1, 0] = 0.0  # a zero entry: the numpy path
-    return R, np.array([10.0 + k, -3.0 * k + 0.5, 88.0])
+def test_sample_is_the_body_pose_of_hand_worked_transforms() -> None:
+    # Tracker frame: the body pose as given, the position in tracker units (1000 mm per unit).
+    R = rotation_from_rotvec([0.1, -0.2, 0.05])
+    s = TruthSampler(lambda: (R, np.array([10.0, -3.0, 88.0])), TrackerTransform.identity(1000.0),
+                     "tracker", 0.0, np.random.default_rng(2))  # fmt: skip
+    p, rows = s.sample_floats()
+    assert p == pytest.approx([0.010, -0.003, 0.088], rel=1e-15)
+    assert np.asarray(rows).tobytes() == R.tobytes()
+    # Base frame: tracker turned +90 deg about z, at (5, 0, -2) mm; the tip 12 mm along the
+    # body's z. Tip at (10, 20, 30) mm, unrotated: the body is Rz(-90 deg) in the tracker, at
+    # Rz(-90 deg) ((10, 20, 30) - (5, 0, -2)) - (0, 0, 12) = (20, -5, 32) - (0, 0, 12).
+    tf = TrackerTransform(rotation_from_rotvec([0.0, 0.0, np.pi / 2]), np.array([5.0, 0.0, -2.0]),
+                          np.eye(3), np.array([0.0, 0.0, 12.0]), 1.0)  # fmt: skip
+    s = TruthSampler(lambda: (np.eye(3), np.array([10.0, 20.0, 30.0])), tf, "base", 0.0,
+                     np.random.default_rng(2))  # fmt: skip
+    p, rows = s.sample_floats()
+    # cos(pi/2) is 6e-17, not 0: the entries within a few ulp of 30 mm of the exact ones
+    assert p == pytest.approx([20.0, -5.0, 20.0], abs=1e-13)
+    assert np.asarray(rows) == pytest.approx(
+        np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]]), abs=1e-15
+    )
+    p_arr, R_arr = s.sample()  # the same pose as arrays
+    assert p_arr.tolist() == p and R_arr.tolist() == rows
 
 
-def _numpy_sample(s: TruthSampler, R, p):
-    if s.truth_frame == "base":
-        tf = s.transform
-        R_tb = tf.R_base_tracker.T @ R @ tf.R_body_tip.T
-        p_tr = tf.R_base_tracker.T @ (p - tf.t_base_tracker_mm)
-        p_units = (p_tr - R_tb @ tf.t_body_tip_mm) / tf.mm_per_unit
-    else:
-        p_units, R_tb = p / s.transform.mm_per_unit, R
-    if s.noise_mm > 0:
-        p_units = p_units + s.rng.normal(0.0, s.noise_mm, 3) / s.transform.mm_per_unit
-    return p_units, R_tb
-
-
-@pytest.mark.parametrize("frame", ["base", "tracker"])
-@pytest.mark.parametrize(
-    "tf",
-    [
-        TrackerTransform.identity(1000.0),
-        TrackerTransform(
-            rotation_from_rotvec([0.0, 0.3, 0.1]),
-            np.array([5.0, 0.0, -2.0]),
-            rotation_from_rotvec([0.2, 0.0, 0.0]),
-            np.array([0.0, 0.0, 12.0]),
-            1000.0,
-        ),
-    ],
-)
-def test_sample_floats_is_the_numpy_formula(frame, tf) -> None:
-    poses = iter(range(1000))
-    a = TruthSampler(lambda: _pose(next(poses)), tf, frame, 0.05, np.random.default_rng(2))
-    b = TruthSampler(lambda: None, tf, frame, 0.05, np.random.default_rng(2))
-    for k in range(60):
-        p, rows = a.sample_floats()
-        R, pm = _pose(k)
-        p_ref, R_ref = _numpy_sample(b, R, pm)
-        assert _bits(p) == _bits(p_ref.tolist())
-        assert _bits([v for r in rows for v in r]) == _bits(np.asarray(R_ref).ravel().tolist())
+def test_sample_noise_is_the_generators_normal_in_tracker_units() -> None:
+    s = TruthSampler(lambda: np.array([10.0, -3.0, 88.0]), TrackerTransform.identity(1000.0),
+                     "tracker", 0.05, np.random.default_rng(2))  # fmt: skip
+    ref = np.random.default_rng(2)
+    for _ in range(20):
+        p, rows = s.sample_floats()
+        noise = ref.normal(0.0, 0.05, 3)
+        assert p == pytest.approx([10.0e-3 + noise[0] / 1000.0, -3.0e-3 + noise[1] / 1000.0,
+                                   88.0e-3 + noise[2] / 1000.0], rel=1e-15)  # fmt: skip
+        assert rows == np.eye(3).tolist()

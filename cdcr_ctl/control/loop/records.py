@@ -194,25 +194,6 @@ class TipHistory:
         self._tip[i] = (x, y, z)
         self._i += 1
 
-    def _window(self, lo: float, hi: float) -> list[int]:
-        """Indices of the entries with ``lo <= t <= hi``: newest first while the times were
-        added in order (stopping at the first older than ``lo``), else by a full scan."""
-        ts = self._t
-        if not self._ordered:
-            return [k for k, t in enumerate(ts) if lo <= t <= hi]
-        n = len(ts)
-        out = []
-        for j in range(min(self._i, n)):
-            k = (self._i - 1 - j) % n
-            t = ts[k]
-            if t < lo:
-                break
-            if t <= hi:
-                out.append(k)
-        if self._i < n and lo == -math.inf:
-            out.extend(range(self._i, n))  # the entries never written (t = -inf) are in it too
-        return out
-
     def distance(
         self,
         now_s: float,
@@ -222,56 +203,40 @@ class TipHistory:
         period_s: float,
     ) -> float:
         """Smallest distance (mm) from the measured ``tip_mm`` to the model tips commanded in
-        [now - age - lag, now - age + period]; the newest model tip when none is in the window.
-        The Euclidean norm as ``np.linalg.norm(d, axis=1)`` computes it for 3-vectors (the
-        squares summed left to right, then the square root), NaN when any distance is NaN
-        (``tests/control/test_tip_history.py`` compares it with numpy's bit for bit).
+        [now - age - lag, now - age + period]; the newest model tip when none is in the window;
+        NaN when any of those tips is NaN. The squares summed left to right, the least of them
+        taken and one square root of it (the square root is monotonic: the least root).
 
-        Times added in order (the loop's clock) take one pass over the newest entries, the
-        squared distances compared and one square root taken (the square root is monotonic:
-        the same float as the least root); else :meth:`_distance_scan`."""
+        One pass, newest first: while the times were added in order it stops at the first entry
+        older than the window (the loop's clock: a few entries, not the whole history), else it
+        looks at every entry."""
         px, py, pz = tip_mm if type(tip_mm) is list else np.asarray(tip_mm, dtype=float).tolist()
         t_sample = now_s - age_s
         lo, hi = t_sample - lag_s, t_sample + period_s
-        ts, i = self._t, self._i
+        ts, tips, i, ordered = self._t, self._tip, self._i, self._ordered
         n = len(ts)
-        if not self._ordered or (i < n and lo == -math.inf):
-            return self._distance_scan(lo, hi, px, py, pz)
-        tips = self._tip
+        if ordered and i < n and lo == -math.inf:
+            return math.nan  # the entries never written (t = -inf, NaN tips) are in the window
         best = math.inf
-        found = False
-        for j in range(min(i, n)):
-            k = (i - 1 - j) % n
-            t = ts[k]
-            if t < lo:
-                break
-            if t <= hi:
-                found = True
-                x, y, z = tips[k]
-                dx, dy, dz = x - px, y - py, z - pz
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 != d2:
-                    return math.nan  # numpy's min propagates a NaN
-                if d2 < best:
-                    best = d2
-        if not found:
-            return self._distance_scan(lo, hi, px, py, pz)
-        return math.sqrt(best)
-
-    def _distance_scan(self, lo: float, hi: float, px: float, py: float, pz: float) -> float:
-        """:meth:`distance` by :meth:`_window` and a root per entry (the general way)."""
-        ts = self._t
-        sel = self._window(lo, hi)
-        if not sel:
-            newest = max(ts)
-            sel = [k for k, t in enumerate(ts) if t == newest]
-        best = math.inf
-        for k in sel:
-            x, y, z = self._tip[k]
-            dx, dy, dz = x - px, y - py, z - pz
-            d = math.sqrt(dx * dx + dy * dy + dz * dz)
-            if d != d:
-                return math.nan  # numpy's min propagates a NaN
-            if d < best:
-                best = d
-        return best
+        while True:
+            found = False
+            for j in range(min(i, n) if ordered else n):
+                k = (i - 1 - j) % n
+                t = ts[k]
+                if t < lo:
+                    if ordered:
+                        break
+                    continue
+                if t <= hi:
+                    found = True
+                    x, y, z = tips[k]
+                    dx, dy, dz = x - px, y - py, z - pz
+                    d2 = dx * dx + dy * dy + dz * dz
+                    if d2 != d2:
+                        return math.nan
+                    if d2 < best:
+                        best = d2
+            if found:
+                return math.sqrt(best)
+            lo = hi = max(ts)  # none in the window: the newest tip(s), by a full pass
+            ordered = False

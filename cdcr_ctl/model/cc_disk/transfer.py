@@ -24,42 +24,14 @@ from __future__ import annotations
 
 import math
 
-from cdcr_ctl.model.cc_disk.kinematics import SERIES_BELOW, d1, s1
+from cdcr_ctl.model.cc_disk.kinematics import SERIES_BELOW, c2, d1, d2, e2, s1
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams, cable_radius_mm, is_rigid
 from cdcr_ctl.model.cc_disk.routing import tangent_angle
 from cdcr_ctl.model.cc_disk.statics import G_MM_S2_TO_N, tip_load_force, xs_to_psi
 from cdcr_ctl.model.cc_disk.tension_chain import Pose, TensionChain, Transfer, _min_sum_pair
 from cdcr_ctl.model.shared.capstan import PulleyTransfer
 
-__all__ = ["ForceTransfer", "Pose", "TensionChain", "Transfer", "_min_sum_pair", "_ratios"]
-
-
-def _ratios(t: float) -> tuple[float, float, float, float, float]:
-    """(s1, c2, d1, d2, e2) of :mod:`cdcr_ctl.model.cc_disk.kinematics` from one sin/cos
-    evaluation."""
-    if abs(t) < SERIES_BELOW:
-        t2 = t * t
-        t4 = t2 * t2
-        t6 = t4 * t2
-        return (
-            1.0 - t2 / 6.0 + t4 / 120.0 - t6 / 5040.0 + t4 * t4 / 362880.0,
-            0.5 - t2 / 24.0 + t4 / 720.0 - t6 / 40320.0 + t4 * t4 / 3628800.0,
-            -1.0 / 3.0 + t2 / 30.0 - t4 / 840.0 + t6 / 45360.0,
-            -1.0 / 12.0 + t2 / 180.0 - t4 / 6720.0 + t6 / 453600.0,
-            1.0 / 6.0 - t2 / 120.0 + t4 / 5040.0 - t6 / 362880.0,
-        )
-    c, s = math.cos(t), math.sin(t)
-    h = math.sin(0.5 * t)
-    omc = 2.0 * h * h  # 1 - cos t without cancellation
-    it = 1.0 / t
-    it2 = it * it
-    return (
-        s * it,
-        omc * it2,
-        (t * c - s) * it2 * it,
-        (t * s - 2.0 * omc) * it2 * it2,
-        (t - s) * it2 * it,
-    )
+__all__ = ["ForceTransfer", "Pose", "TensionChain", "Transfer", "_min_sum_pair"]
 
 
 class ForceTransfer(TensionChain):
@@ -266,8 +238,7 @@ class ForceTransfer(TensionChain):
         # (one segment: pass 2 uses only its gravity, the rest of pass 1 would be dead)
         for i in range(S if S > 1 else 0):
             X, Y, t, L = xs[2 * i], xs[2 * i + 1], theta[i], self._l[i]
-            r = _ratios(t)
-            a, b = r[0], r[1]
+            a, b = s1(t), c2(t)
             R = (
                 1.0 - b * X * X, -b * X * Y, a * X,
                 -b * X * Y, 1.0 - b * Y * Y, a * Y,
@@ -276,7 +247,7 @@ class ForceTransfer(TensionChain):
             Rs.append(R)
             ps.append((L * b * X, L * b * Y, L * a))
             gs.append((gx, gy, gz))
-            rat.append(r)
+            rat.append((b, d1(t), d2(t), e2(t)))
             gx, gy, gz = (
                 R[0] * gx + R[3] * gy + R[6] * gz,
                 R[1] * gx + R[4] * gy + R[7] * gz,
@@ -307,7 +278,7 @@ class ForceTransfer(TensionChain):
             Dy = R[3] * Ex + R[4] * Ey + R[5] * Ez
             Dz = R[6] * Ex + R[7] * Ey + R[8] * Ez
             if Md > 0.0:
-                _, cc2, dd1, dd2, ee2 = rat[i]
+                cc2, dd1, dd2, ee2 = rat[i]
                 Fx, Fy, Fz = Md * gx, Md * gy, Md * gz
                 xF = X * Fx + Y * Fy
                 Qx += L * (cc2 * Fx + dd2 * X * xF + dd1 * X * Fz)
@@ -335,8 +306,10 @@ class ForceTransfer(TensionChain):
 def _disk_sums(disks: list[tuple[float, ...]], t: float) -> tuple[float, float, float, float]:
     """(A, B, C, D) = sums over a segment's disks of m sig^2 c2, m sig^4 d2, m sig^3 d1 and
     m sig s1, the ratios at sig t (rad), t the segment's bend; ``disks`` the pose-free factors
-    (sig, m sig^2, m sig^3, m sig^4, m sig) of :attr:`ForceTransfer._disk_w`. :func:`_ratios`
-    but its e2 written out (it runs for every disk of every pose; the same floats, tested)."""
+    (sig, m sig^2, m sig^3, m sig^4, m sig) of :attr:`ForceTransfer._disk_w`. The ratios
+    :func:`~cdcr_ctl.model.cc_disk.kinematics.s1`, ``c2``, ``d1`` and ``d2`` written out per disk
+    from one sine and one cosine (it runs for every disk of every pose; measured by
+    ``benchmarks/bench_hot_paths.py``, held to the kinematics ratios by a test)."""
     A = B = C = D = 0.0
     for sig, ms2, ms3, ms4, ms in disks:
         st = sig * t

@@ -91,9 +91,8 @@ TRANSITIONS_KEPT = 256
 class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
     """One simulated drive on ``network`` (a canopen Network over any python-can bus)."""
 
-    #: Take the exact fast paths of the steady CSP cycle (the target RPDO written without the
-    #: generic checks, the CSP sub-steps on local variables); False: the general paths only
-    #: (the tests compare the two bit for bit).
+    #: Take the exact fast path of the steady CSP cycle's target RPDO (written without the
+    #: generic checks); False: every write through canopen's callbacks and the limits check.
     fast_paths = True
 
     def __init__(

@@ -67,35 +67,85 @@ class Motor:
         self, h: float, x_ref: float, v_ref: float, a_ff: float, powered: bool, tau_ext_Nm: float
     ) -> None:
         """Advance ``h`` seconds towards reference ``x_ref`` (counts), ``v_ref`` (counts/s),
-        ``a_ff`` (counts/s²), with ``tau_ext_Nm`` at the gearbox output."""
+        ``a_ff`` (counts/s²), with ``tau_ext_Nm`` at the gearbox output: one of
+        :meth:`substeps`."""
+        self.substeps(h, 1, x_ref, v_ref, a_ff, powered, tau_ext_Nm)
+
+    def substeps(
+        self,
+        h: float,
+        n: int,
+        x_ref: float,
+        v_ref: float,
+        a_ff: float,
+        powered: bool,
+        tau_ext_Nm: float,
+        segment: tuple[float, float, float, float] | None = None,
+        box: tuple[float, float, float] | None = None,
+    ) -> tuple[int, float, float, float, float, bool]:
+        """Up to ``n`` sub-steps of ``h`` s (the module docstring's equations, semi-implicit
+        Euler), the state in local variables (Python floats) for speed.
+
+        ``segment = (x_from, velocity, period, t)``: after each sub-step the reference moves
+        on along a straight line (the CSP interpolation: segment time ``t = min(t + h,
+        period)``, ``x_ref = x_from + velocity t``, ``v_ref = velocity`` until the period's
+        end, then 0, ``a_ff = 0``); without it the reference stays. ``box = (xmin, xmax,
+        m)``: stop after the first sub-step where the position leaves ``(xmin, xmax)`` or the
+        error ``x_ref - x`` leaves ``[-m, m]`` (the caller supervises that one).
+
+        Returns ``(sub-steps done, x_ref, v_ref, a_ff, t, every one inside the box)``."""
         p = self.p
-        if powered:
-            e, ev = x_ref - self.x, v_ref - self.v
-            a_cmd = a_ff + self._kp * e + self._kd * ev + self._ki * self._integral
-            i = p.inertia_kgm2 * self.k * a_cmd / p.torque_constant_Nm_A
-            if abs(i) >= p.current_limit_A:
-                i = math.copysign(p.current_limit_A, i)
+        k, kp, kd, ki = self.k, self._kp, self._kd, self._ki
+        J, kt, ilim = p.inertia_kgm2, p.torque_constant_Nm_A, p.current_limit_A
+        nilim = -ilim
+        Jk = J * k  # i = J k a_cmd / kt, grouped left first
+        visc = p.viscous_Nm_s_rad
+        tau_gear = tau_ext_Nm / p.gear_ratio
+        stops = p.hard_stops_counts
+        copysign = math.copysign
+        x, v, integral, i = self.x, self.v, self._integral, self.i
+        px, pv, pa = x_ref, v_ref, a_ff
+        c_from, vel, period, t = segment if segment is not None else (0.0, 0.0, 0.0, 0.0)
+        xmin, xmax, m = box if box is not None else (-math.inf, math.inf, math.inf)
+        nm = -m
+        inside = True
+        done = 0
+        while done < n:
+            if powered:
+                # a_cmd = a_ff + kp e + kd ev + ki integral; the integral stops while saturated
+                d = px - x
+                i = Jk * (pa + kp * d + kd * (pv - v) + ki * integral) / kt
+                if i >= ilim or i <= nilim:  # abs(i) >= ilim without the call
+                    i = copysign(ilim, i)
+                else:
+                    integral += d * h
             else:
-                self._integral += e * h
-            self.i = i
-        else:
-            self.i = 0.0
-            self._integral = 0.0
-        omega = self.k * self.v
-        torque = p.torque_constant_Nm_A * self.i + tau_ext_Nm / p.gear_ratio
-        torque -= p.viscous_Nm_s_rad * omega
-        if p.hard_stops_counts is not None:
-            lo, hi = p.hard_stops_counts
-            if self.x > hi:
-                torque -= (
-                    p.stop_stiffness_Nm_rad * self.k * (self.x - hi) + self._stop_damping * omega
-                )
-            elif self.x < lo:
-                torque -= (
-                    p.stop_stiffness_Nm_rad * self.k * (self.x - lo) + self._stop_damping * omega
-                )
-        self.v += torque / p.inertia_kgm2 / self.k * h
-        self.x += self.v * h
+                i = integral = 0.0
+            omega = k * v
+            torque = kt * i + tau_gear - visc * omega
+            if stops is not None:
+                lo, hi = stops
+                if x > hi:
+                    torque -= p.stop_stiffness_Nm_rad * k * (x - hi) + self._stop_damping * omega
+                elif x < lo:
+                    torque -= p.stop_stiffness_Nm_rad * k * (x - lo) + self._stop_damping * omega
+            v += torque / J / k * h
+            x += v * h
+            done += 1
+            if segment is not None:
+                t += h
+                if period < t:  # min(t + h, period)
+                    t = period
+                pa = 0.0
+                px = c_from + vel * t
+                pv = vel if t < period else 0.0
+            if box is not None:
+                d = px - x
+                if not (d <= m and d >= nm and x < xmax and x > xmin):
+                    inside = False
+                    break
+        self.x, self.v, self._integral, self.i = x, v, integral, i
+        return done, px, pv, pa, t, inside
 
     def reset_controller(self) -> None:
         self._integral = 0.0

@@ -48,13 +48,14 @@ class TruthSampler:
         self.rng = rng
 
     def sample(self) -> tuple[np.ndarray, np.ndarray]:
-        """(body position in tracker units, R_tracker_body) now."""
+        """(body position in tracker units, R_tracker_body) now as arrays: :meth:`sample_floats`."""
         p, rows = self.sample_floats()
         return np.array(p), np.array(rows)
 
     def sample_floats(self) -> tuple[list[float], list[list[float]]]:
-        """:meth:`sample` as Python floats (the same doubles: the noise added as numpy adds
-        it, one IEEE division and addition per coordinate): the position and R's three rows."""
+        """(body position in tracker units, R_tracker_body's three rows) now, as Python floats:
+        the truth pose through the true alignment, plus Gaussian noise of ``noise_mm`` per
+        coordinate (divided by the tracker's mm per unit)."""
         got = self.truth()
         if isinstance(got, tuple):
             R, p_mm = np.asarray(got[0], dtype=float), np.asarray(got[1], dtype=float)
