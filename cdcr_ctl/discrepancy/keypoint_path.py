@@ -325,11 +325,14 @@ def _joint_fit(
 
 
 def nested_test(a: EffectFit, b: EffectFit, joint: EffectFit) -> tuple[EffectFit | None, list[str]]:
-    """Which of two tied candidates the log needs, from their joint fit: adding ``b`` to ``a``
-    and adding ``a`` to ``b`` are each judged by the paired held-out test (``TIE_SE``
-    standard errors). When one addition predicts the held-out rows better and the other does
-    not, the candidate whose addition helped is the one named; when both or neither help,
-    nothing separates them (None). Returns the winner and a line per addition."""
+    """Whether the log needs ``a`` (the better alone) rather than ``b``, from their joint fit:
+    adding ``b`` to ``a`` and adding ``a`` to ``b`` are each judged by the paired held-out test
+    (``TIE_SE`` standard errors). ``a`` is named when adding it to ``b`` predicts the held-out
+    rows better and adding ``b`` to ``a`` does not, by a smaller mean drop; else nothing
+    separates them (None). ``b`` is never named: one addition passing the test and the other
+    not, against the ranking alone, says only that their errors scatter differently (the
+    difference of the two drops is the tied single-fit difference). Returns the winner and a
+    line per addition."""
     g_ab, se_ab = _paired_gain(a, joint)  # b added to a
     g_ba, se_ba = _paired_gain(b, joint)  # a added to b
     helps_b = bool(g_ab > TIE_SE * se_ab)
@@ -340,10 +343,8 @@ def nested_test(a: EffectFit, b: EffectFit, joint: EffectFit) -> tuple[EffectFit
         f"{a.name} added to {b.name}: {g_ba:.3g} mm^2 (SE {se_ba:.2g}), "
         + ("helps" if helps_a else "adds nothing beyond the noise"),
     ]
-    if helps_a and not helps_b:
+    if helps_a and not helps_b and g_ab < g_ba:
         return a, lines
-    if helps_b and not helps_a:
-        return b, lines
     return None, lines
 
 
