@@ -1,9 +1,9 @@
 """``cdcr-ctl discrepancy`` on a keypoint log, end to end.
 
 A small simulated keypoint log of ``config/three_segment_example.yaml`` whose world is the
-config plus, hidden, 0.4 mm of lost motion between every drive and its cable (kept small: one
-replay-fitted candidate on 28 rows). The 2000-row log with the parameters also off nominal, and its
-timing, are ``benchmarks/bench_keypoint_identify.py discrepancy``.
+config plus, hidden, 0.4 mm of lost motion between every drive and its cable (kept small:
+one replay-fitted candidate on 28 rows). The 2000-row log with the parameters also off
+nominal, and its timing, are ``benchmarks/bench_keypoint_identify.py discrepancy``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from cdcr_ctl.sim.keypoint_log import Truth, make_keypoint_log
 CONFIG = Path(__file__).resolve().parents[2] / "config" / "three_segment_example.yaml"
 
 
-# ~22 s CPU measured (forward replays in 2 worker processes); the limit guards a hang, not speed
+# 15.5 s wall measured at load ~6 (forward replays in 2 worker processes); the limit guards a
+# hang, not speed
 @pytest.mark.multicore
 @pytest.mark.timeout(400)
 def test_discrepancy_names_a_hidden_lost_motion_on_a_keypoint_log(tmp_path, capsys):
