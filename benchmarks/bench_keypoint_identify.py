@@ -257,9 +257,15 @@ def _cli(args: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
     return out, time.perf_counter() - t0, cpu
 
 
-def make_log(world: str, rows: int, seed: int, out: Path) -> None:
-    """Write one keypoint log of an independent world (``hard`` or a hidden-effect name)."""
-    from cdcr_ctl.sim.keypoint_world import hard_world, hidden_effect_worlds, make_world_log
+def make_log(world: str, rows: int, seed: int, out: Path, bend_max_rad: float = 0.7) -> None:
+    """Write one keypoint log of an independent world (``hard`` or a hidden-effect name) along
+    :func:`~cdcr_ctl.sim.keypoint_world.lab_path` with segment bends up to ``bend_max_rad``."""
+    from cdcr_ctl.sim.keypoint_world import (
+        hard_world,
+        hidden_effect_worlds,
+        lab_path,
+        make_world_log,
+    )
 
     if world == "hard":
         spec, rig = hard_world(seed), CONFIG
@@ -267,9 +273,11 @@ def make_log(world: str, rows: int, seed: int, out: Path) -> None:
         spec, rig = hidden_effect_worlds(seed)[world.split("-")[0]], hidden_rig(world)
     m = build_model(load_rig_config(rig))
     t0 = time.perf_counter()
-    run = make_world_log(m.params, spec, out.parent, rows, name=out.name)
+    path = lab_path(m.params, rows, spec.seed, bend_max_rad=bend_max_rad)
+    run = make_world_log(m.params, spec, out.parent, rows, name=out.name, path=path)
     print(
-        f"{run}: {rows} keypoint rows of the {world} world (seed {seed}), tip only, "
+        f"{run}: {rows} keypoint rows of the {world} world (seed {seed}, bends up to "
+        f"{bend_max_rad:g} rad per segment), tip only, "
         f"{time.perf_counter() - t0:.0f} s; controller config: {rig.relative_to(ROOT)}"
     )
 
@@ -359,6 +367,9 @@ def main() -> None:
     )
     ap.add_argument("--world", default="hard", help="make-log: hard or a hidden-effect name")
     ap.add_argument("--out", type=Path, default=Path("runs/keypoints"), help="make-log: run dir")
+    ap.add_argument(
+        "--bend-max", type=float, default=0.7, help="make-log: largest bend per segment, rad"
+    )
     ap.add_argument("--seed-list", type=int, nargs="*", default=[1], help="worlds: seeds")
     ap.add_argument("--effects", nargs="*", default=None, help="discrepancy-worlds: subset")
     ap.add_argument("--rows", type=int, default=2000)
@@ -375,7 +386,7 @@ def main() -> None:
     elif a.what == "fit":
         fit(a.seeds, a.rows, a.tensions, a.max_points, a.seed)
     elif a.what == "make-log":
-        make_log(a.world, a.rows, a.seed, a.out)
+        make_log(a.world, a.rows, a.seed, a.out, a.bend_max)
     elif a.what == "worlds":
         worlds(a.rows, a.seed_list)
     elif a.what == "discrepancy-worlds":

@@ -80,7 +80,7 @@ class EffectFit:
 
     @property
     def title(self) -> str:
-        return TITLES[self.name]
+        return " + ".join(TITLES[n] for n in self.name.split("+"))
 
 
 def segment_tip(x: np.ndarray, lengths: Sequence[float], c: Sequence[float]) -> np.ndarray:
@@ -243,9 +243,10 @@ def replay_fit_effect(
     say: Callable[[str], None],
 ) -> EffectFit:
     """Fit candidate ``name`` through the replay of the problem in ``ev`` (the chosen rows);
-    score it on the held-out rows of ``runs_full`` ((q_path, tip (N, 3), held mask) per run)."""
+    score it on the held-out rows of ``runs_full`` ((q_path, tip (N, 3), held mask) per run).
+    ``name`` "a+b": the parameters of both replayed candidates fitted together."""
     t0 = time.monotonic()
-    fps = replay_candidates(params, name)
+    fps = [fp for part in name.split("+") for fp in replay_candidates(params, part)]
     scales = [tolerance(fp, 0.25, math.radians(1.0)) for fp in fps]
     sol = replay_fit.fit(ev, fps, scales, 20, None, progress=say, cpu_budget_s=cpu_budget_s)
     fitted = ev.prob.params_of(fps, sol.x)
@@ -271,3 +272,42 @@ def problem_of(
     params: RobotParams, effects: Effects, rows: Sequence[RunRows], noise_mm: float
 ) -> EffectProblem:
     return EffectProblem(params, effects, tuple(rows), (), noise_mm, 0.02)
+
+
+def registered_on(
+    fitted: EffectFit,
+    effects: Effects,
+    runs_full: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    base_rmse: float,
+) -> EffectFit:
+    """The ``registration`` candidate on top of a replayed one: the replay of ``fitted``'s
+    parameters, its tips registered to the logged ones (Kabsch) on the rows before the cut,
+    scored on the held-out rows (the joint fit of the two, "<name>+registration")."""
+    t0 = time.monotonic()
+    assert fitted.params is not None
+    reps, fit_rows = [], []
+    for q, tip, held in runs_full:
+        rep = replay(
+            ForwardStepper(fitted.params, replay_fit.effects_of(fitted.params, effects)), q
+        )
+        reps.append(rep.tip_mm)
+        ok = np.all(np.isfinite(tip), axis=1) & np.all(np.isfinite(rep.tip_mm), axis=1)
+        fit_rows.append(ok & ~held)
+    a = np.vstack([r[f] for r, f in zip(reps, fit_rows, strict=True)])
+    b = np.vstack([t[f] for (_, t, _), f in zip(runs_full, fit_rows, strict=True)])
+    R, t = kabsch(a, b)
+    d = np.vstack(
+        [(r @ R.T + t - tip)[held] for r, (_, tip, held) in zip(reps, runs_full, strict=True)]
+    )
+    rm = _rmse(d)
+    ang = math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2)))
+    return EffectFit(
+        f"{fitted.name}+registration",
+        [*fitted.names, "rotation_deg", "t_x_mm", "t_y_mm", "t_z_mm"],
+        [*fitted.values, math.degrees(ang), *(float(v) for v in t)],
+        rm,
+        1 - rm / base_rmse,
+        fitted.seconds + time.monotonic() - t0,
+        fitted.params,
+        np.sum(d * d, axis=1),
+    )

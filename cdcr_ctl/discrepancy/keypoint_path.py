@@ -24,6 +24,7 @@ neither: every row is settled, so
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -41,6 +42,7 @@ from cdcr_ctl.discrepancy.keypoint_effects import (
     EffectFit,
     kinematic_fits,
     problem_of,
+    registered_on,
     replay_fit_effect,
 )
 from cdcr_ctl.errors import RigError
@@ -220,29 +222,41 @@ def analyse_keypoints(
             f for f in kinematic_fits(X, TM, TIP, F, H, params.lengths_mm, base) if f.name in kin
         ]
     rep_effects = [e for e in effects if e not in ("curvature", "registration")]
-    n_cand = int(F.sum())
-    n_fit = 0
-    spreads: list[str] = []
-    if rep_effects:
-        nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
-        n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6)
-        rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
-        spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
-        n_fit = sum(len(r.rows) for r in rr)
-        noise = max(_noise(runs)[0], 0.01)
-        with Evaluator(problem_of(params, eff, rr, noise), nj) as ev:
+    with contextlib.ExitStack() as stack:
+        ev: Evaluator | None = None
+        n_cand = int(F.sum())
+        n_fit = 0
+        spreads: list[str] = []
+        if rep_effects:
+            nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
+            n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6)
+            rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
+            spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
+            n_fit = sum(len(r.rows) for r in rr)
+            noise = max(_noise(runs)[0], 0.01)
+            ev = stack.enter_context(Evaluator(problem_of(params, eff, rr, noise), nj))
             for name in rep_effects:
                 say(f"candidate {name}: fitting {n_fit} rows")
                 cpu = math.inf if max_points else EFFECT_BUDGET_S
                 fits.append(replay_fit_effect(ev, params, eff, name, full, cpu, base, say))
-    ranked = sorted(fits, key=lambda f: f.rmse_heldout)
-    best = ranked[0] if ranked else None
-    named = best if best is not None and best.shrink >= NAME_SHRINK else None
-    tie = None
-    if named is not None and len(ranked) > 1:
-        gain, se = _paired_gain(ranked[1], best)
-        if not gain > TIE_SE * se:
-            tie = ranked[1]
+        ranked = sorted(fits, key=lambda f: f.rmse_heldout)
+        best = ranked[0] if ranked else None
+        named = best if best is not None and best.shrink >= NAME_SHRINK else None
+        tie = None
+        nested: list[str] = []
+        if named is not None and len(ranked) > 1:
+            gain, se = _paired_gain(ranked[1], best)
+            if not gain > TIE_SE * se:
+                tie = ranked[1]
+                joint = None
+                if ev is not None:
+                    cpu = math.inf if max_points else EFFECT_BUDGET_S
+                    joint = _joint_fit(ev, params, eff, best, tie, full, cpu, base, say)
+                if joint is not None:
+                    fits.append(joint)
+                    winner, nested = nested_test(best, tie, joint)
+                    if winner is not None:
+                        named, best, tie = winner, winner, None
     if named is not None and tie is not None:
         verdict = (
             f"TWO EFFECTS EXPLAIN IT ALIKE, NONE NAMED: {best.title} ({best.name}, "
@@ -251,6 +265,8 @@ def analyse_keypoints(
             f"{gain:.3g} mm^2, less than {TIE_SE:g} standard errors ({se:.2g} mm^2); a log "
             "that tells them apart is needed"
         )
+        if nested:
+            verdict += "; fitted together: " + "; ".join(nested)
         named = None
     elif named is not None:
         vals = ", ".join(f"{n} {v:.4g}" for n, v in zip(named.names, named.values, strict=True))
@@ -258,6 +274,8 @@ def analyse_keypoints(
             f"EFFECT: {named.title} ({named.name}): {vals}; held-out tip RMSE "
             f"{base:.4g} -> {named.rmse_heldout:.4g} mm ({100 * named.shrink:.1f} % shrink)"
         )
+        if nested:
+            verdict += "; alone it tied with the runner-up, fitted together: " + "; ".join(nested)
     elif best is not None:
         verdict = (
             f"NO EFFECT NAMED: the best candidate, {best.title} ({best.name}), shrinks the "
@@ -280,6 +298,54 @@ def analyse_keypoints(
         spreads,
         warnings,
     )
+
+
+def _joint_fit(
+    ev: Evaluator,
+    params,
+    eff,
+    a: EffectFit,
+    b: EffectFit,
+    full,
+    cpu: float,
+    base: float,
+    say: Callable[[str], None],
+) -> EffectFit | None:
+    """Candidates ``a`` and ``b`` fitted together: both replayed ones through the replay, a
+    replayed one with ``registration`` on top of its replay; None for ``curvature`` (its
+    profile is applied to the config's poses only)."""
+    names = {a.name, b.name}
+    if "curvature" in names or names == {"registration"}:
+        return None
+    if "registration" in names:
+        other = a if b.name == "registration" else b
+        return registered_on(other, eff, full, base)
+    say(f"candidates {a.name} and {b.name} tie: fitting them together")
+    return replay_fit_effect(ev, params, eff, f"{a.name}+{b.name}", full, cpu, base, say)
+
+
+def nested_test(a: EffectFit, b: EffectFit, joint: EffectFit) -> tuple[EffectFit | None, list[str]]:
+    """Whether the log needs ``a`` (the better alone) rather than ``b``, from their joint fit:
+    adding ``b`` to ``a`` and adding ``a`` to ``b`` are each judged by the paired held-out test
+    (``TIE_SE`` standard errors). ``a`` is named when adding it to ``b`` predicts the held-out
+    rows better and adding ``b`` to ``a`` does not, by a smaller mean drop; else nothing
+    separates them (None). ``b`` is never named: one addition passing the test and the other
+    not, against the ranking alone, says only that their errors scatter differently (the
+    difference of the two drops is the tied single-fit difference). Returns the winner and a
+    line per addition."""
+    g_ab, se_ab = _paired_gain(a, joint)  # b added to a
+    g_ba, se_ba = _paired_gain(b, joint)  # a added to b
+    helps_b = bool(g_ab > TIE_SE * se_ab)
+    helps_a = bool(g_ba > TIE_SE * se_ba)
+    lines = [
+        f"{b.name} added to {a.name}: {g_ab:.3g} mm^2 (SE {se_ab:.2g}), "
+        + ("helps" if helps_b else "adds nothing beyond the noise"),
+        f"{a.name} added to {b.name}: {g_ba:.3g} mm^2 (SE {se_ba:.2g}), "
+        + ("helps" if helps_a else "adds nothing beyond the noise"),
+    ]
+    if helps_a and not helps_b and g_ab < g_ba:
+        return a, lines
+    return None, lines
 
 
 def _paired_gain(worse: EffectFit, better: EffectFit) -> tuple[float, float]:

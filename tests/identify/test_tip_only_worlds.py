@@ -108,7 +108,7 @@ def test_tracker_noise_from_the_log_and_the_heldout_gain():
 @pytest.fixture(scope="module")
 def hard_log(nominal, tmp_path_factory):
     out = tmp_path_factory.mktemp("hard")
-    return make_world_log(nominal, hard_world(3), out, 240, name="hard3")
+    return make_world_log(nominal, hard_world(3), out, 160, name="hard3")
 
 
 # one process (--jobs 1); the limit guards a hang, not speed
@@ -164,7 +164,7 @@ def test_a_world_the_model_cannot_represent_writes_no_silent_overlay(nominal, tm
     )
     logs = {
         "keypoint": make_world_log(nominal, reg, tmp_path, 150, name="reg"),
-        "tip": make_world_dwell_log(nominal, reg, tmp_path, 30, name="regdw", dwell_s=0.6),
+        "tip": make_world_dwell_log(nominal, reg, tmp_path, 20, name="regdw", dwell_s=0.6),
     }
     for kind, run in logs.items():
         out = tmp_path / f"o-{kind}"
