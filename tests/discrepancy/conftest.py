@@ -7,23 +7,17 @@ Tests may read the truth variants; the workflow under test only sees the run dir
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from scriptload import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 EFFECTS = ROOT / "config" / "sim" / "effects"
 
 
 def _generator():
-    spec = importlib.util.spec_from_file_location(
-        "make_discrepancy_runs", ROOT / "scripts" / "make_discrepancy_runs.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    assert spec.loader is not None
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("make_discrepancy_runs")
 
 
 @pytest.fixture(scope="session")

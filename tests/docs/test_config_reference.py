@@ -6,24 +6,16 @@ regenerating the page fails here, naming the key; so does a key the schema leave
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 from pydantic import Field
+from scriptload import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _generator():
-    spec = importlib.util.spec_from_file_location(
-        "config_reference", ROOT / "scripts/config_reference.py"
-    )
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("config_reference", mod)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("config_reference")
 
 
 def test_page_is_the_schemas():

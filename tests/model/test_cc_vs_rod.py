@@ -3,21 +3,18 @@ cantilever limits of beam theory, and agree with each other without load."""
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scriptload import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def rod():
-    spec = importlib.util.spec_from_file_location("cc_vs_rod", ROOT / "scripts" / "cc_vs_rod.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("cc_vs_rod")
 
 
 def test_small_tip_force_on_a_straight_rod_and_arc(rod):

@@ -12,13 +12,13 @@ reduction that a threaded BLAS may order differently between two calls.
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from scriptload import load_script
 
 from cdcr_ctl.cli.main import main
 from cdcr_ctl.config import load_rig_config
@@ -78,12 +78,7 @@ def assert_same_arrays(a, b) -> None:
 
 
 def _discrepancy_generator():
-    spec = importlib.util.spec_from_file_location(
-        "make_discrepancy_runs", ROOT / "scripts" / "make_discrepancy_runs.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("make_discrepancy_runs")
 
 
 def test_discrepancy_same_on_the_mcap_run_and_its_csv_export(tmp_path):

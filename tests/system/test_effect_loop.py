@@ -15,22 +15,17 @@ worlds is the script's default, as the effects page runs it
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from scriptload import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 EFFECTS = ROOT / "config" / "sim" / "effects"
 
 
 def _demo():
-    spec = importlib.util.spec_from_file_location(
-        "discrepancy_loop_demo", ROOT / "scripts" / "discrepancy_loop_demo.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("discrepancy_loop_demo")
 
 
 @pytest.mark.timeout(900)
