@@ -13,9 +13,6 @@ from typing import Any, Protocol
 
 import numpy as np
 
-# The model's side of the loop lives in the model layer (the config's builder returns one).
-from cdcr_ctl.model.port import RobotModelPort as RobotModelPort
-
 
 @dataclass(frozen=True)
 class DriveState:

@@ -35,17 +35,12 @@ from cdcr_ctl.control.loop.records import (
 from cdcr_ctl.control.loop.rows import CycleRow, RowLayout
 from cdcr_ctl.control.loop.slew import MeasuredSlew
 from cdcr_ctl.control.loop.vectors import actual_mm, added, floats, has_gap, target_counts
-from cdcr_ctl.control.ports import (
-    DrivePort,
-    RobotModelPort,
-    SetpointSource,
-    TensionPort,
-    TipPort,
-)
+from cdcr_ctl.control.ports import DrivePort, SetpointSource, TensionPort, TipPort
 from cdcr_ctl.control.stopflag import StopFlag
 from cdcr_ctl.control.supervisor import Reaction, Supervisor, Trip
 from cdcr_ctl.control.timing import BetweenCycles, Ticker, raise_loop_priority
 from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.port import RobotModelPort
 
 # The logger keeps the name it had when the loop was one module.
 log = logging.getLogger("cdcr_ctl.control.loop")

@@ -23,7 +23,7 @@ Two ways in:
   when the pose holds, so a reversal flips the friction (the inverse of the forward model's dead
   zone).
 
-:class:`CCDiskModel` adapts it to :class:`cdcr_ctl.control.ports.RobotModelPort`.
+:class:`CCDiskModel` adapts it to :class:`cdcr_ctl.model.port.RobotModelPort`.
 Units: psi (S, 2) rows (theta, phi) in rad; q in mm pulled in; tensions in N.
 """
 
