@@ -49,6 +49,7 @@ def test_ujoint_demo_completes_both_runs_and_the_compensation_reduces_the_tip_er
         run = load_run(run_dir)
         assert run.ended["outcome"] == "completed", run.ended["reason"]
         assert {"q_cmd", "q_act", "tip"} <= set(run.groups)
+        assert not (run_dir / "plots").exists()  # --no-plots
         speed = np.abs(np.diff(run.q_cmd(), axis=0)) / np.diff(run.t_s)[:, None]
         assert speed.max() <= rig.limits.cable_velocity_mm_s
     # The tracker and the model share the tip frame: before the first run moves, the tracked tip
