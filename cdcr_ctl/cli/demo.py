@@ -298,6 +298,12 @@ def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
 )
 @click.option("--quick", is_flag=True, help="Shorter experiments (for tests).")
 @click.option(
+    "--plots/--no-plots",
+    default=True,
+    show_default=True,
+    help="Draw each run's PNG plots into its run directory (about 2 s of CPU per run).",
+)
+@click.option(
     "--lockstep",
     is_flag=True,
     help="Run the simulated rig and the daemon in one process on simulated time, as fast as "
@@ -305,7 +311,13 @@ def experiments_for(design: str, rig_cfg: Any, quick: bool) -> dict[str, Any]:
 )
 @click.pass_obj
 def demo(
-    obj: Any, design: str, sim_config: Path | None, out: Path, quick: bool, lockstep: bool
+    obj: Any,
+    design: str,
+    sim_config: Path | None,
+    out: Path,
+    quick: bool,
+    plots: bool,
+    lockstep: bool,
 ) -> None:
     """Simulated rig + daemon: a paper's experiments, without and with compensation."""
     from cdcr_ctl.analysis import tip_errors
@@ -361,7 +373,8 @@ def demo(
     table = format_table(rows)
     (session / "results.md").write_text(table)
     (session / "results.json").write_text(json.dumps(rows, indent=2))
-    _plots(runs)
+    if plots:
+        _plots(runs)
     shutil.rmtree(work, ignore_errors=True)
     click.echo(table)
     click.echo(f"logs, plots and results in {session}")

@@ -17,11 +17,21 @@ from cdcr_ctl.model.vertebra.follow import paper_session
 
 
 def cc_disk(rig_cfg: Any, quick: bool) -> dict[str, Any]:
-    """Qi et al. 2023 section 5: the planar bend and the spatial circle."""
-    theta_max = 1.2 if quick else 1.5708
+    """Qi et al. 2023 section 5: the planar bend and the spatial circle.
+
+    ``quick``: a smaller bend at 0.6 rad/s that returns to straight (5.0 s; the next run then
+    starts without the daemon's lead-in back from the bent pose, at pi/10 rad/s), and the
+    circle's sweep at 1 rad/s with its lead-in and lead-out at 0.6 rad/s (10.4 s)."""
+    if quick:
+        return {
+            "planar_bend": tj.planar_bend(theta_max_rad=1.2, rate_rad_s=0.6, back=True, hold_s=1.0),
+            "circle": tj.spatial_circle(
+                theta_rad=0.7854, phi_rate_rad_s=1.0, lead_in_rate_rad_s=0.6
+            ),
+        }
     return {
-        "planar_bend": tj.planar_bend(theta_max_rad=theta_max, back=False, hold_s=1.0),
-        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.6 if quick else 0.314),
+        "planar_bend": tj.planar_bend(theta_max_rad=1.5708, back=False, hold_s=1.0),
+        "circle": tj.spatial_circle(theta_rad=0.7854, phi_rate_rad_s=0.314),
     }
 
 
@@ -55,9 +65,11 @@ def ujoint(rig_cfg: Any, quick: bool) -> dict[str, Any]:
 
 
 def vertebra(rig_cfg: Any, quick: bool) -> dict[str, Any]:
-    """The fuel-tank paper's joystick end-following session (Fig. 12), planned offline."""
+    """The fuel-tank paper's joystick end-following session (Fig. 12), planned offline;
+    ``quick``: the session at ``scale`` 0.3 (:func:`paper_session`: shorter bend moves and
+    waits; both "forward" follows are still made)."""
 
-    t, psi, planner = plan_follow_offline(rig_cfg, paper_session(scale=0.5 if quick else 1.0))
+    t, psi, planner = plan_follow_offline(rig_cfg, paper_session(scale=0.3 if quick else 1.0))
     # Back to straight in the planner's synchronised steps (within the planned speed), so the
     # next run starts where this one did instead of behind the daemon's lead-in move (whose
     # speed is set in joint space: three joints together drive a distal cable past its

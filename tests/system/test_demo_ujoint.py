@@ -25,7 +25,8 @@ SIM_RIG = Path(__file__).resolve().parents[2] / "config" / "yang2022-sim.yaml"
 @pytest.mark.timeout(300)
 def test_ujoint_demo_completes_both_runs_and_the_compensation_reduces_the_tip_error(tmp_path):
     out = tmp_path / "out"
-    cmd = ["demo", "--design", "ujoint", "--quick", "--lockstep", "--out", str(out)]
+    # No plots: their subject is the runs' results (test_demo checks that the demo draws them).
+    cmd = ["demo", "--design", "ujoint", "--quick", "--lockstep", "--no-plots", "--out", str(out)]
     res = subprocess.run(
         [sys.executable, "-m", "cdcr_ctl", *cmd],
         capture_output=True,
@@ -48,6 +49,7 @@ def test_ujoint_demo_completes_both_runs_and_the_compensation_reduces_the_tip_er
         run = load_run(run_dir)
         assert run.ended["outcome"] == "completed", run.ended["reason"]
         assert {"q_cmd", "q_act", "tip"} <= set(run.groups)
+        assert not (run_dir / "plots").exists()  # --no-plots
         speed = np.abs(np.diff(run.q_cmd(), axis=0)) / np.diff(run.t_s)[:, None]
         assert speed.max() <= rig.limits.cable_velocity_mm_s
     # The tracker and the model share the tip frame: before the first run moves, the tracked tip

@@ -32,6 +32,7 @@ def test_vertebra_demo_completes_both_runs_and_the_sag_compensation_reduces_the_
             "vertebra",
             "--quick",
             "--lockstep",
+            "--no-plots",  # the subject is the runs' results; test_demo checks the plots
             "--out",
             str(out),
         ],
