@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,6 +38,7 @@ class Design:
     cols: list[tuple[EffectTerm, EffectParam]]
     steps: np.ndarray
     nu_names: list[str]
+    lag_notes: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -136,6 +137,7 @@ def build_design(
             steps.append(p.step)
     nu_blocks = []
     nu_names: list[str] = []
+    notes: list[str] = []
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
         r, rows, chans = measurement_vector(run, base)
         y0 = predicted_vector(run, base, rows, chans)
@@ -168,9 +170,14 @@ def build_design(
                 v = np.gradient(base.tip_mm, run.t_s, axis=0)
                 a = np.gradient(v, run.t_s, axis=0)
             tip = chans < 3
+            H = hysteresis_columns(v, base.psi, rows, chans) / run.sigma_tip_mm
             for col_mm, name in ((-v, "tracker lag (s)"), (0.5 * a, "tracker lag^2 (s^2)")):
                 col = np.zeros(len(r))
                 col[tip] = col_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
+                if name == "tracker lag (s)":
+                    col, note = _lag_without_hysteresis(col, H, r, run.name)
+                    if note:
+                        notes.append(note)
                 nu.append(col)
                 names.append(f"{run.name}: {name}")
         for k in range(run.n_cables):
@@ -209,6 +216,69 @@ def build_design(
         cols=cols,
         steps=np.asarray(steps),
         nu_names=nu_names,
+        lag_notes=notes,
+    )
+
+
+#: A tip moves when its speed exceeds this share of its 90th-percentile speed.
+MOVING_SHARE = 0.05
+#: Lag (s) the direction-dependent part of the baseline residual may move before the run's
+#: tracker lag is called suspect: a tenth of a 120 Hz frame.
+SUSPECT_LAG_SHIFT_S = 0.003
+
+
+def hysteresis_columns(
+    v: np.ndarray, psi: np.ndarray, rows: np.ndarray, chans: np.ndarray
+) -> np.ndarray:
+    """(M, 2) columns of a friction hysteresis on the tip entries (``chans`` < 3) of a design:
+    an offset along the tip's last direction of motion u (held through stops, zero before the
+    first motion), of constant size and growing with the mean bend theta: u and theta u.
+
+    A tracker lag shows as -L v: along the same direction while the tip moves at a steady speed,
+    but zero in a hold and scaled by the speed; a hysteresis keeps its offset through the hold
+    and does not scale with the speed. What a lag can explain and these cannot is the timing of
+    the speed changes (starts, stops, speed steps)."""
+    speed = np.linalg.norm(v, axis=1)
+    ref = float(np.percentile(speed, 90)) if speed.size else 0.0
+    u = np.zeros_like(v)
+    last = np.zeros(3)
+    for i in range(len(v)):
+        if ref > 0 and speed[i] > MOVING_SHARE * ref:
+            last = v[i] / speed[i]
+        u[i] = last
+    theta = np.mean(psi[:, :, 0], axis=1) if psi.ndim == 3 else np.zeros(len(v))
+    tip = chans < 3
+    H = np.zeros((len(rows), 2))
+    H[tip, 0] = u[rows[tip], chans[tip]]
+    H[tip, 1] = (theta[:, None] * u)[rows[tip], chans[tip]]
+    return H
+
+
+def _lag_without_hysteresis(
+    col: np.ndarray, H: np.ndarray, r: np.ndarray, run_name: str
+) -> tuple[np.ndarray, str]:
+    """The lag column ``col`` without its part along the hysteresis columns ``H``
+    (:func:`hysteresis_columns`), so that a fitted lag rests on the timing of speed changes and
+    cannot take a friction hysteresis's place; and a "suspect lag" note when the baseline
+    residual ``r`` asks the plain column for a lag that the hysteresis columns explain (the lag
+    fitted with them differs by more than :data:`SUSPECT_LAG_SHIFT_S`)."""
+    if not np.any(H):
+        return col, ""
+    coef, *_ = np.linalg.lstsq(H, col, rcond=None)
+    out = col - H @ coef
+    den = float(col @ col)
+    if den <= 0:
+        return out, ""
+    free = float(col @ r) / den
+    both, *_ = np.linalg.lstsq(np.column_stack((col, H)), r, rcond=None)
+    shift = free - float(both[0])
+    if abs(shift) <= SUSPECT_LAG_SHIFT_S:
+        return out, ""
+    return out, (
+        f"{run_name}: the baseline's residual asks a tracker lag of {1e3 * free:.1f} ms, of"
+        f" which {1e3 * shift:.1f} ms is direction-dependent (kept through holds, flipped at"
+        " reversals: friction hysteresis, not timing); the lag is fitted only from the timing"
+        " of speed changes"
     )
 
 
