@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             s = suspect_lag(run)
             if s:
-                notes.append(f"{w.stem}-{tr}: {s}")
+                notes.append(s)
     for n in notes:
         print(n)
     print(f"named right with >= {args.min_shrink:g} % above the noise: {right} of {total}")

@@ -38,7 +38,7 @@ class Design:
     cols: list[tuple[EffectTerm, EffectParam]]
     steps: np.ndarray
     nu_names: list[str]
-    lag_notes: list[str] = field(default_factory=list)
+    lag_split: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -137,7 +137,7 @@ def build_design(
             steps.append(p.step)
     nu_blocks = []
     nu_names: list[str] = []
-    notes: list[str] = []
+    lag_split: dict[str, tuple[float, float]] = {}
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
         r, rows, chans = measurement_vector(run, base)
         y0 = predicted_vector(run, base, rows, chans)
@@ -175,9 +175,9 @@ def build_design(
                 col = np.zeros(len(r))
                 col[tip] = col_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
                 if name == "tracker lag (s)":
-                    col, note = _lag_without_hysteresis(col, H, r, run.name)
-                    if note:
-                        notes.append(note)
+                    split = lag_without_hysteresis(col, H, r)
+                    if split is not None:
+                        lag_split[run.name] = split
                 nu.append(col)
                 names.append(f"{run.name}: {name}")
         for k in range(run.n_cables):
@@ -216,15 +216,18 @@ def build_design(
         cols=cols,
         steps=np.asarray(steps),
         nu_names=nu_names,
-        lag_notes=notes,
+        lag_split=lag_split,
     )
 
 
 #: A tip moves when its speed exceeds this share of its 90th-percentile speed.
 MOVING_SHARE = 0.05
 #: Lag (s) the direction-dependent part of the baseline residual may move before the run's
-#: tracker lag is called suspect: a tenth of a 120 Hz frame.
+#: tracker lag is called suspect: a third of a 120 Hz frame.
 SUSPECT_LAG_SHIFT_S = 0.003
+#: Share of the lag column's norm that must lie outside the hysteresis columns for a run to
+#: tell a lag from a hysteresis.
+MIN_SEPARATION = 0.2
 
 
 def hysteresis_columns(
@@ -254,31 +257,35 @@ def hysteresis_columns(
     return H
 
 
-def _lag_without_hysteresis(
-    col: np.ndarray, H: np.ndarray, r: np.ndarray, run_name: str
-) -> tuple[np.ndarray, str]:
-    """The lag column ``col`` without its part along the hysteresis columns ``H``
-    (:func:`hysteresis_columns`), so that a fitted lag rests on the timing of speed changes and
-    cannot take a friction hysteresis's place; and a "suspect lag" note when the baseline
-    residual ``r`` asks the plain column for a lag that the hysteresis columns explain (the lag
-    fitted with them differs by more than :data:`SUSPECT_LAG_SHIFT_S`)."""
-    if not np.any(H):
-        return col, ""
+def lag_without_hysteresis(
+    col: np.ndarray, H: np.ndarray, r: np.ndarray
+) -> tuple[float, float] | None:
+    """The lag (s) the baseline residual ``r`` asks of the lag column ``col`` alone, and the lag
+    it asks once the hysteresis columns ``H`` (:func:`hysteresis_columns`) stand beside it: what
+    the timing of the speed changes supports. None when the run cannot tell them apart (less
+    than :data:`MIN_SEPARATION` of the lag column's norm lies outside the hysteresis columns: no
+    holds, one speed)."""
+    den = float(col @ col)
+    if not np.any(H) or den <= 0:
+        return None
     coef, *_ = np.linalg.lstsq(H, col, rcond=None)
     out = col - H @ coef
-    den = float(col @ col)
-    if den <= 0:
-        return out, ""
-    free = float(col @ r) / den
+    if float(out @ out) < MIN_SEPARATION**2 * den:
+        return None
     both, *_ = np.linalg.lstsq(np.column_stack((col, H)), r, rcond=None)
-    shift = free - float(both[0])
-    if abs(shift) <= SUSPECT_LAG_SHIFT_S:
-        return out, ""
-    return out, (
-        f"{run_name}: the baseline's residual asks a tracker lag of {1e3 * free:.1f} ms, of"
-        f" which {1e3 * shift:.1f} ms is direction-dependent (kept through holds, flipped at"
-        " reversals: friction hysteresis, not timing); the lag is fitted only from the timing"
-        " of speed changes"
+    return float(col @ r) / den, float(both[0])
+
+
+def suspect_lag(lag_s: float, split: tuple[float, float] | None) -> str:
+    """Why a run's tracker lag ``lag_s`` (s) is suspect, '' when it is not: it exceeds what the
+    timing of the speed changes supports (``split``, :func:`lag_without_hysteresis`) by more
+    than :data:`SUSPECT_LAG_SHIFT_S`, the rest of it direction-dependent."""
+    if split is None or lag_s - split[1] <= SUSPECT_LAG_SHIFT_S:
+        return ""
+    return (
+        f"a tracker lag of {1e3 * lag_s:.1f} ms where the timing of the speed changes supports"
+        f" {1e3 * split[1]:.1f} ms: {1e3 * (lag_s - split[1]):.1f} ms of it is direction-"
+        "dependent (kept through holds, flipped at reversals: friction hysteresis, not timing)"
     )
 
 

@@ -36,6 +36,7 @@ from cdcr_ctl.discrepancy.alignment import (
     align_run,
     residual_noise_sigma,
 )
+from cdcr_ctl.discrepancy.design import suspect_lag
 from cdcr_ctl.discrepancy.localise import Table, localise
 from cdcr_ctl.discrepancy.selection import (
     Design,
@@ -361,9 +362,9 @@ def _final_timing(
             bound = delay_bound_s(run.t_s, run.tip_mm)
             run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start, bound)
             run.notes.append(run.timing.note)
-            flag = next((n for n in d.lag_notes if n.startswith(f"{run.name}: ")), "")
-            if flag and not run.timing.suspect:
-                run.timing = replace(run.timing, suspect=flag.split(": ", 1)[1])
+            why = suspect_lag(float(np.mean(run.timing.row_delay_s)), d.lag_split.get(run.name))
+            if why and not run.timing.suspect:
+                run.timing = replace(run.timing, suspect=why)
         base = sim(run.spec, ri)
         base_all.append(base)
         nb_all.append(_without_lag(d, run, _nuisance_fit(ri, d, _run_residual(d, run, ri, base))))

@@ -16,7 +16,7 @@ from scriptload import load_script
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import robot_params
-from cdcr_ctl.discrepancy.design import _lag_without_hysteresis, hysteresis_columns
+from cdcr_ctl.discrepancy.design import hysteresis_columns, lag_without_hysteresis, suspect_lag
 from cdcr_ctl.discrepancy.report import put_fitted
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.cc_disk.effects import ModelSpec, OtherFrictionLaw
@@ -69,7 +69,7 @@ def test_the_candidate_law_is_the_capstan_law_at_zero_and_its_power_law_otherwis
     z = P.Zb[0]
     _, ln_ratio = law.factors_k(P, 0, -1.0)
     assert ln_ratio == pytest.approx(-params.cables[0].mu_disk * 1.4 * z**1.5, rel=1e-12)
-    spec = term.apply(base, np.array([0.0, 0.5, 0.2, 0.0]))
+    spec = term.apply(base, np.array([0.0, 0.5, 0.2, 0.0, 0.0]))
     assert spec.friction_law == FrictionLawShape(exponent=1.5, viscous_s_per_mm=0.2)
 
 
@@ -87,7 +87,7 @@ def test_the_candidate_is_named_but_not_applicable_by_the_controller_yet():
     ``--apply`` refuses rather than writing half of the law."""
     cfg, params = _qi()
     base = ModelSpec(params, Effects(geometry="chord"))
-    values = np.array([0.1, 0.5, 0.2, 0.0])
+    values = np.array([0.1, 0.5, 0.2, 0.0, 0.0])
     doc: dict = {}
     comments: list[str] = []
     for fv in OtherFrictionLaw().fitted(base, values):
@@ -113,25 +113,27 @@ def _go_and_return(n_cycles: int = 4, dt: float = 0.02):
     return t, vel, psi
 
 
-def test_a_hysteresis_is_not_taken_for_lag_and_a_real_lag_still_is():
+def test_the_suspect_lag_flag_fires_on_a_hysteresis_and_not_on_a_real_lag():
     t, vel, psi = _go_and_return()
     n = len(t)
     rows = np.repeat(np.arange(n), 3)
     chans = np.tile(np.arange(3), n)
     H = hysteresis_columns(vel, psi, rows, chans)
     col = -vel[rows, chans]
-    # friction hysteresis: 0.05 mm against the last motion, kept through the holds
-    u = H[:, 0]
-    hyst = -0.05 * u
-    out, note = _lag_without_hysteresis(col, H, hyst, "run")
-    assert "friction hysteresis, not timing" in note  # the suspect-lag flag fires
-    assert abs(float(out @ hyst)) < 1e-9 * float(col @ col)  # the lag column cannot fit it
-    # a real lag of 15 ms: found from the speed changes alone, no flag
-    lag = col * 0.015
-    out, note = _lag_without_hysteresis(col, H, lag, "run")
-    assert note == ""
-    fitted = float(out @ lag) / float(out @ out)
-    assert fitted == pytest.approx(0.015, rel=1e-6)
+    # friction hysteresis: 0.05 mm against the last motion, kept through the holds; the plain
+    # lag column would take it for 8 ms of lag
+    hyst = -0.05 * H[:, 0]
+    free, joint = lag_without_hysteresis(col, H, hyst)
+    assert free > 0.004 and abs(joint) < 1e-9  # 5-8 ms asked, none supported by the timing
+    assert "friction hysteresis, not timing" in suspect_lag(free, (free, joint))
+    # a real lag of 15 ms, seen at the starts and stops: supported, no flag
+    free, joint = lag_without_hysteresis(col, H, 0.015 * col)
+    assert joint == pytest.approx(0.015, rel=1e-9)
+    assert suspect_lag(0.015, (free, joint)) == ""
+    # one speed and no holds (a circle): lag and hysteresis cannot be told apart, no verdict
+    steady = np.column_stack((np.full(n, 5.0), np.zeros(n), np.zeros(n)))
+    Hs = hysteresis_columns(steady, psi, rows, chans)
+    assert lag_without_hysteresis(-steady[rows, chans], Hs, -0.05 * Hs[:, 0]) is None
 
 
 def test_other_laws_worlds_are_named_through_the_command(tmp_path, capsys, monkeypatch):

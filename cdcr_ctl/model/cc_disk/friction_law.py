@@ -10,12 +10,13 @@ that thins with speed (Stribeck), a breakaway after a stop. :class:`FrictionLawS
 law by three numbers (all zero or one: the capstan law exactly),
 
     ln(T(z)/T_anchor) = s mu_k m(v_k) W(z),     W(z) = z_ref (z / z_ref)^p,  z_ref = 1 rad,
-    m(v) = 1 + c_v v + b exp(-v / v_b),
+    m(v) = 1 + c_v v + b exp(-(v / v_b)^2),
 
 p the wrap exponent (the friction density grows with the wrap already accumulated, p > 1, or
 falls, p < 1), c_v (s/mm) a viscous part growing with the cable's sliding speed v_k (mm/s), b a
-breakaway excess at rest decaying over v_b (static friction above the Coulomb value: a wider
-stick band after reversals and holds). The speed of a cable is its drive's speed along the
+breakaway excess at rest decaying over the Stribeck speed v_b (static friction above the Coulomb
+value: a wider stick band after reversals and holds; the Gaussian Stribeck curve of
+Armstrong-Helouvry et al. 1994). The speed of a cable is its drive's speed along the
 logged path (:func:`cable_speeds`). The stick capacity of a cable is the law's total ratio;
 everything else (statics, pulleys, stick and slide) is the model's.
 """
@@ -35,6 +36,9 @@ from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose
 Z_REF_RAD = 1.0
 #: Time constant (s) over which a cable's friction follows its speed (:func:`cable_speeds`).
 SPEED_MEMORY_S = 0.05
+#: Reference Stribeck speed (mm/s): a third of the cable speed of Qi et al. 2023's pi/10 rad/s
+#: bend at 4 mm routing radius (1.3 mm/s); a fitted shape scales it.
+BREAKAWAY_MM_S = 0.4
 
 
 @dataclass(frozen=True)
@@ -45,7 +49,7 @@ class FrictionLawShape:
     exponent: float = 1.0
     viscous_s_per_mm: float = 0.0
     breakaway: float = 0.0
-    breakaway_mm_s: float = 0.3
+    breakaway_mm_s: float = BREAKAWAY_MM_S
 
     @property
     def capstan(self) -> bool:
@@ -61,7 +65,7 @@ class FrictionLawShape:
         return (
             1.0
             + self.viscous_s_per_mm * v_mm_s
-            + self.breakaway * math.exp(-v_mm_s / self.breakaway_mm_s)
+            + self.breakaway * math.exp(-((v_mm_s / self.breakaway_mm_s) ** 2))
         )
 
 
