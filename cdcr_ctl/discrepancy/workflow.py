@@ -44,11 +44,12 @@ from cdcr_ctl.discrepancy.selection import (
     Selection,
     active_terms,
     apply_all,
-    build_design,
+    compare,
     entry_vector,
     predicted_vector,
+    refinements,
     refit,
-    select,
+    split_refinements,
 )
 from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
 from cdcr_ctl.discrepancy.timing import delay_bound_s, estimate_timing
@@ -259,20 +260,15 @@ def analyse(
         for r, b in zip(runs, raw, strict=True):
             _estimate_timing(r, b)
         baselines = sim.many([(r.spec, i) for i, r in enumerate(runs)])
-        # every column simulation up front (in parallel when asked), then the design from cache
-        items: list[tuple[ModelSpec, int]] = []
-        for ri, r in enumerate(runs):
-            for t in terms:
-                if t.kind == "measurement":
-                    continue
-                params = t.parameters(r.spec)
-                for j, p in enumerate(params):
-                    v = np.zeros(len(params))
-                    v[j] = p.step
-                    items.append((t.apply(r.spec, v), ri))
-        sim.many(items)
-        design = build_design(runs, terms, baselines, folds, sim)
-        selection = select(design, terms, folds, pairs=pairs)
+        first, later = split_refinements(terms)
+        design, selection = compare(runs, first, baselines, folds, pairs, sim)
+        extra = refinements(later, selection)
+        if extra:  # a refinement of the leading effect: compared again with its columns
+            design, selection = compare(runs, [*first, *extra], baselines, folds, pairs, sim)
+            notes.append(
+                f"refined {', '.join(t.refines for t in extra)}: compared again with"
+                f" {', '.join(t.name for t in extra)}"
+            )
         rf = None
         if selection.chosen is not None:
             rf = refit(design, runs, selection.chosen, sim, max_nfev=refit_evals)

@@ -36,6 +36,7 @@ class OtherFrictionLaw(DiskFriction):
     title = "disk friction of another law (wrap exponent, speed dependence)"
     signature = "hysteresis whose width grows with the bend or the speed unlike the capstan law"
     reference = "Qi et al. 2023 eq. 16-24 generalised (friction_law.py: wrap exponent, Stribeck)"
+    refines = "disk_friction"
 
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (

@@ -104,6 +104,9 @@ class EffectTerm(ABC):
     reference: ClassVar[str]
     kind: ClassVar[str] = "model"
     needs_tensions: ClassVar[bool] = False
+    #: The effect this one refines (contains as a special case): compared only when that one
+    #: leads the first comparison (:func:`cdcr_ctl.discrepancy.selection.refinements`).
+    refines: ClassVar[str | None] = None
 
     def not_applicable(self, base: ModelSpec) -> str | None:
         """Why this term cannot act on ``base`` (None when it can)."""
