@@ -51,7 +51,7 @@ def cdcr_ctl() -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", "cdcr_ctl"]
 
 
-def analyse(run: Path, jobs: int) -> tuple[dict, float]:
+def analyse(run: Path, jobs: int, max_points: int) -> tuple[dict, float]:
     """The discrepancy command's JSON answer for ``run`` and its wall time (s)."""
     cmd = [
         *cdcr_ctl(),
@@ -62,6 +62,8 @@ def analyse(run: Path, jobs: int) -> tuple[dict, float]:
         "--no-progress",
         "--jobs",
         str(jobs),
+        "--max-points",
+        str(max_points),
         "--out",
         str(run / "discrepancy"),
     ]
@@ -99,6 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rate-hz", type=float, default=50.0)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2, help="worker processes of each analysis")
+    ap.add_argument(
+        "--max-points", type=int, default=700, help="simulated samples per run (the command's)"
+    )
     ap.add_argument("--min-shrink", type=float, default=70.0, help="percent, above the noise")
     ap.add_argument("--need", type=int, default=None, help="runs named right to exit 0")
     args = ap.parse_args(argv)
@@ -136,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
                 seed=args.seed,
                 name=f"{w.stem}-{tr}",
             )
-            res, dt = analyse(run, args.jobs)
+            res, dt = analyse(run, args.jobs, args.max_points)
             named = res.get("effect") or "-"
             shrink = res.get("gap_shrink_percent")
             above = res.get("gap_above_noise_shrink_percent")
