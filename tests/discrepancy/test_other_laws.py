@@ -146,7 +146,7 @@ def test_other_laws_worlds_are_named_through_the_command(tmp_path, capsys):
     rc = laws.main(
         [
             "--out",
-            str(tmp_path / "laws"),
+            str(tmp_path / "laws-runs"),
             "--worlds",
             "friction_law-stribeck,gravity_direction-oblique",
             "--trajectories",
