@@ -222,9 +222,11 @@ def build_design(
 
 #: A tip moves when its speed exceeds this share of its 90th-percentile speed.
 MOVING_SHARE = 0.05
-#: Lag (s) the direction-dependent part of the baseline residual may move before the run's
-#: tracker lag is called suspect: a third of a 120 Hz frame.
-SUSPECT_LAG_SHIFT_S = 0.003
+#: Lag (s) by which a run's tracker lag may exceed what the timing of its speed changes supports
+#: before it is called suspect: one frame of a 120 Hz tracker (the hysteresis columns are a
+#: crude shape, so the supported lag is itself uncertain by a few ms: 6 ms on a 30 s planar run
+#: of the wrap_power world whose delay was right).
+SUSPECT_LAG_SHIFT_S = 0.008
 #: Share of the lag column's norm that must lie outside the hysteresis columns for a run to
 #: tell a lag from a hysteresis.
 MIN_SEPARATION = 0.2
