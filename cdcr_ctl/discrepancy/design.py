@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -38,7 +38,6 @@ class Design:
     cols: list[tuple[EffectTerm, EffectParam]]
     steps: np.ndarray
     nu_names: list[str]
-    lag_split: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -137,7 +136,6 @@ def build_design(
             steps.append(p.step)
     nu_blocks = []
     nu_names: list[str] = []
-    lag_split: dict[str, tuple[float, float]] = {}
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
         r, rows, chans = measurement_vector(run, base)
         y0 = predicted_vector(run, base, rows, chans)
@@ -170,14 +168,9 @@ def build_design(
                 v = np.gradient(base.tip_mm, run.t_s, axis=0)
                 a = np.gradient(v, run.t_s, axis=0)
             tip = chans < 3
-            H = hysteresis_columns(v, base.psi, rows, chans) / run.sigma_tip_mm
             for col_mm, name in ((-v, "tracker lag (s)"), (0.5 * a, "tracker lag^2 (s^2)")):
                 col = np.zeros(len(r))
                 col[tip] = col_mm[rows[tip], chans[tip]] / run.sigma_tip_mm
-                if name == "tracker lag (s)":
-                    split = lag_without_hysteresis(col, H, r)
-                    if split is not None:
-                        lag_split[run.name] = split
                 nu.append(col)
                 names.append(f"{run.name}: {name}")
         for k in range(run.n_cables):
@@ -216,7 +209,6 @@ def build_design(
         cols=cols,
         steps=np.asarray(steps),
         nu_names=nu_names,
-        lag_split=lag_split,
     )
 
 
@@ -289,6 +281,20 @@ def suspect_lag(lag_s: float, split: tuple[float, float] | None) -> str:
         f" {1e3 * split[1]:.1f} ms: {1e3 * (lag_s - split[1]):.1f} ms of it is direction-"
         "dependent (kept through holds, flipped at reversals: friction hysteresis, not timing)"
     )
+
+
+def lag_split(run: AlignedRun, tip: np.ndarray, psi: np.ndarray) -> tuple[float, float] | None:
+    """:func:`lag_without_hysteresis` of a model's residual on ``run`` (its tip ``tip`` (N, 3)
+    mm and pose ``psi`` (N, S, 2) rad at the row times, untimed; the run's timing applied): the
+    lag it asks alone and beside a hysteresis. The workflow asks it of the best model, so a
+    hysteresis the named effect explains no longer counts."""
+    ok = np.all(np.isfinite(run.tip_mm), axis=1)
+    n = int(ok.sum())
+    v = np.gradient(tip, run.t_s, axis=0)[ok]
+    rows, chans = np.repeat(np.arange(n), 3), np.tile(np.arange(3), n)
+    H = hysteresis_columns(v, psi[ok], rows, chans)
+    e = (run.tip_mm - run.timing.apply(tip))[ok].ravel()
+    return lag_without_hysteresis(-v.ravel(), H, e)
 
 
 def lag1_autocorrelation(res: np.ndarray, d: Design) -> float:

@@ -36,7 +36,7 @@ from cdcr_ctl.discrepancy.alignment import (
     align_run,
     residual_noise_sigma,
 )
-from cdcr_ctl.discrepancy.design import suspect_lag
+from cdcr_ctl.discrepancy.design import lag_split, suspect_lag
 from cdcr_ctl.discrepancy.localise import Table, localise
 from cdcr_ctl.discrepancy.selection import (
     Design,
@@ -356,9 +356,10 @@ def _final_timing(
             start += float(np.mean(run.timing.row_delay_s))
             model_tip = best.tip_map(sim.raw(best, ri).tip_mm)  # untimed, in the tracker's view
             bound = delay_bound_s(run.t_s, run.tip_mm)
+            split = lag_split(run, model_tip, sim.raw(best, ri).psi)
             run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start, bound)
             run.notes.append(run.timing.note)
-            why = suspect_lag(float(np.mean(run.timing.row_delay_s)), d.lag_split.get(run.name))
+            why = suspect_lag(float(np.mean(run.timing.row_delay_s)), split)
             if why and not run.timing.suspect:
                 run.timing = replace(run.timing, suspect=why)
         base = sim(run.spec, ri)
