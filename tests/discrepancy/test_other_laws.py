@@ -136,7 +136,6 @@ def test_the_suspect_lag_flag_fires_on_a_hysteresis_and_not_on_a_real_lag():
 
 
 @pytest.mark.slow
-@pytest.mark.multicore
 @pytest.mark.timeout(900)
 def test_other_laws_worlds_are_named_through_the_command(tmp_path, capsys):
     """One world of each new law (the stick-band friction, the oblique gravity), circle runs,
@@ -155,6 +154,8 @@ def test_other_laws_worlds_are_named_through_the_command(tmp_path, capsys):
             "20",
             "--max-points",
             "300",
+            "--jobs",
+            "1",
         ]
     )
     out = capsys.readouterr().out
