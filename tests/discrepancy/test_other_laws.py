@@ -151,9 +151,9 @@ def test_other_laws_worlds_are_named_through_the_command(tmp_path, capsys):
             "--trajectories",
             "circle",
             "--duration-s",
-            "20",
+            "12",
             "--max-points",
-            "300",
+            "150",
             "--jobs",
             "1",
         ]
