@@ -78,7 +78,7 @@ HIDDEN = (
     "gravity_direction",  # the truth's mount is tilted against the config's gravity vector
     "friction_law",  # the truth's disk friction follows another law (cdcr_ctl.sim.friction_law)
 )
-TRAJECTORIES = ("rich", "random", "circle")
+TRAJECTORIES = ("rich", "random", "circle", "planar")
 #: Column groups a partial log may lack (``--drop``).
 DROPPABLE = ("tension", "q_act", "tip")
 #: Largest bend (rad, per segment) of a generated trajectory when none is given: Qi et al. 2023
@@ -175,10 +175,32 @@ def circle_trajectory(S: int, duration_s: float, theta_rad: float, rate_rad_s: f
     return Trajectory(np.array(t), psi, f"circle_theta{theta_rad:g}_seed{seed}", "<circle>")
 
 
+def planar_trajectory(S: int, duration_s: float, bend_rad: float, rate_rad_s: float, seed: int):
+    """Qi et al. 2023's planar experiment: every segment bends in one plane (direction phi0,
+    seeded) from straight to ``bend_rad`` and back, with partial reversals (to 45 % and 85 %)
+    and short holds, at ``rate_rad_s`` (x0.6-1.0, seeded), until ``duration_s``."""
+    rng = np.random.default_rng(seed)
+    phi0 = rng.uniform(0, 2 * math.pi)
+    t, th = [0.0], [0.0]
+    while t[-1] < duration_s:
+        for target in (1.0, 0.45, 0.85, 0.0):
+            sp = rate_rad_s * rng.uniform(0.6, 1.0)
+            t.append(t[-1] + abs(target * bend_rad - th[-1]) / sp)
+            th.append(target * bend_rad)
+            t.append(t[-1] + 0.3)
+            th.append(th[-1])
+    th_a = np.array(th)[:, None] * np.ones(S)
+    psi = np.stack((th_a, np.full_like(th_a, phi0)), axis=-1)
+    return Trajectory(np.array(t), psi, f"planar_seed{seed}", "<planar>")
+
+
 def make_trajectory(kind: str, S: int, duration_s: float, bend_rad: float, seed: int):
     """``rich`` (reversals, holds, every direction, a circle, a random tail), ``random`` (seeded
-    random smooth within ``bend_rad``) or ``circle`` (turns back and forth at theta = bend_rad)."""
+    random smooth within ``bend_rad``), ``circle`` (turns back and forth at theta = bend_rad) or
+    ``planar`` (go-and-returns in one plane with partial reversals)."""
     rate = BEND_RATE_RAD_S
+    if kind == "planar":
+        return planar_trajectory(S, duration_s, bend_rad, rate, seed)
     if kind == "rich":
         return rich_trajectory(S, duration_s, bend_rad, rate, seed)
     if kind == "random":
@@ -254,7 +276,9 @@ def compensation_mode(
 
 
 def hidden_of(sim_path: Path, hidden: str | None) -> str:
-    name = hidden or sim_path.stem
+    """``hidden``, else the simulator YAML's stem up to its first ``-`` (``gravity_direction-
+    oblique.yaml`` hides ``gravity_direction``)."""
+    name = hidden or sim_path.stem.split("-")[0]
     if name not in HIDDEN:
         raise SystemExit(f"cannot tell the hidden effect of {sim_path}: pass --hidden ({HIDDEN})")
     return name
@@ -297,6 +321,7 @@ def make_run(
     if bad:
         raise SystemExit(f"cannot drop {sorted(bad)}: choose from {DROPPABLE}")
     truth = TruthModel(loaded)
+    truth.step_period_s = 1.0 / rate_hz  # stepped once per control cycle
     eff = loaded.sim.effects
     switches = {
         "disk_friction": eff.disk_friction,

@@ -185,7 +185,7 @@ def discrepancy(
             raise RigError(
                 f"--apply: no effect was named ({res.selection.verdict}): nothing written"
             )
-        apply_overlay(config_fragment(res), Path(run_dirs[0]), apply_to)
+        apply_overlay(config_fragment(res, for_apply=True), Path(run_dirs[0]), apply_to)
         result["overlay"] = str(apply_to)
         lines.append(
             f"applied: {apply_to} (add it to the rig config's `overlays:` list, then restart the"

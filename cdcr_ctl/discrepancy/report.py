@@ -105,8 +105,9 @@ def text_report(res: DiscrepancyResult) -> str:
     return "\n".join(L)
 
 
-def config_fragment(res: DiscrepancyResult) -> str:
-    """YAML overlay for the rig config with the fitted effect (see module doc)."""
+def config_fragment(res: DiscrepancyResult, for_apply: bool = False) -> str:
+    """YAML overlay for the rig config with the fitted effect (see module doc). ``for_apply``:
+    a fitted value the controller cannot apply is an error, not a comment."""
     if res.refit is None:
         return "# nothing fitted: no effect was named\n{}\n"
     run = res.runs[0]
@@ -118,7 +119,7 @@ def config_fragment(res: DiscrepancyResult) -> str:
     parts = split_values(res.refit.terms, run.spec, res.refit.values)
     for term, vals in zip(res.refit.terms, parts, strict=True):
         for fv in term.fitted(run.spec, vals):
-            put_fitted(doc, comments, fv, cfg, res)
+            put_fitted(doc, comments, fv, cfg, res, for_apply)
     head = [
         f"# Fitted by `cdcr-ctl discrepancy` ({res.named}); overlay on {cfg.name}'s rig config.",
     ]
@@ -135,7 +136,9 @@ def config_fragment(res: DiscrepancyResult) -> str:
     return "\n".join(head) + "\n" + body
 
 
-def put_fitted(doc: dict, comments: list[str], fv, cfg, res: DiscrepancyResult | None) -> None:
+def put_fitted(
+    doc: dict, comments: list[str], fv, cfg, res: DiscrepancyResult | None, for_apply=True
+) -> None:
     """Write one fitted value into the overlay ``doc`` under the rig-config key the controller's
     model reads (``res``: the result, for the tracker alignment only). Raises
     :class:`RigError` for a value with no key (a term that could be named but not applied)."""
@@ -193,6 +196,14 @@ def put_fitted(doc: dict, comments: list[str], fv, cfg, res: DiscrepancyResult |
             tl["payload_kg"] = round(float(fv.value), 6)
         else:
             tl["force_N"] = [round(float(v), 5) for v in fv.value]  # type: ignore[union-attr]
+    elif fv.what == "friction_law":
+        why = (
+            f"friction_law.{fv.key} = {float(fv.value):.4g}: named, not applicable by the"
+            " controller yet (its model has the capstan law; no rig-config key)"
+        )
+        if for_apply:
+            raise RigError(f"discrepancy: {why}")
+        comments.append(why)
     else:
         raise RigError(f"discrepancy: no rig-config key for {fv.what}.{fv.key}")
 

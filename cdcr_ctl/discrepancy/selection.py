@@ -271,3 +271,40 @@ def _residual(d: Design, fit: ModelFit) -> np.ndarray:
     hi = np.r_[[d.cols[c][1].upper for c in cols], np.inf * np.ones(d.Nu.shape[1])]
     p = _Grams.solve(A.T @ A, A.T @ d.r0, lo, hi)
     return d.r0 - A @ p
+
+
+def split_refinements(terms: Sequence[EffectTerm]) -> tuple[list[EffectTerm], list[EffectTerm]]:
+    """``terms`` as (compared first, held back): a term that refines another of ``terms``
+    (``EffectTerm.refines``, e.g. ``friction_law`` of ``disk_friction``) waits for
+    :func:`refinements`; one whose base is not among them is compared with the rest."""
+    names = {t.name for t in terms}
+    later = [t for t in terms if t.refines is not None and t.refines in names]
+    return [t for t in terms if t not in later], later
+
+
+def refinements(later: Sequence[EffectTerm], sel: Selection) -> list[EffectTerm]:
+    """The held-back terms that refine an effect of the best fit of the first comparison, when
+    it found something missing (their columns cost simulations that a run whose gap is
+    elsewhere, or within the noise, does not need)."""
+    if sel.verdict == "nothing_missing":
+        return []
+    lead = {t.name for t in sel.best.terms}
+    return [t for t in later if t.refines in lead]
+
+
+def compare(runs, terms, baselines, folds: int, pairs: bool, sim) -> tuple[Design, Selection]:
+    """Every column simulation of ``terms`` up front (``sim.many``: in parallel when the
+    workflow's simulator has workers; cached), then the design and the model comparison."""
+    items = []
+    for ri, r in enumerate(runs):
+        for t in terms:
+            if t.kind == "measurement":
+                continue
+            params = t.parameters(r.spec)
+            for j, p in enumerate(params):
+                v = np.zeros(len(params))
+                v[j] = p.step
+                items.append((t.apply(r.spec, v), ri))
+    sim.many(items)
+    design = build_design(runs, terms, baselines, folds, sim)
+    return design, select(design, terms, folds, pairs=pairs)

@@ -21,6 +21,7 @@ from cdcr_ctl.discrepancy.alignment import AlignedRun
 from cdcr_ctl.errors import ModelError
 from cdcr_ctl.model.cc_disk.effects import ModelSpec, rotation_from_rotvec
 from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.friction_law import cable_speeds, law_stepper
 
 
 @dataclass(frozen=True)
@@ -66,8 +67,15 @@ def _interp(seg: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 
 def _step_path(spec: ModelSpec, run: AlignedRun) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    stepper = ForwardStepper(spec.params, spec.effects)
+    law = spec.friction_law
     idx = run.sim_idx
+    speeds = None
+    if law is None or law.capstan:
+        stepper = ForwardStepper(spec.params, spec.effects)
+    else:
+        stepper = law_stepper(spec.params, spec.effects, law)
+        if law.speed_dependent:  # every row's drive speed, then the simulated rows'
+            speeds = cable_speeds(run.t_s, run.q_in_mm)[idx]
     K, S = run.n_cables, spec.params.n_segments
     tip = np.empty((len(idx), 3))
     T = np.empty((len(idx), K))
@@ -76,6 +84,9 @@ def _step_path(spec: ModelSpec, run: AlignedRun) -> tuple[np.ndarray, np.ndarray
     last = None
     base = [loc == "robot_base" for loc in run.locations]
     for n, i in enumerate(idx):
+        if speeds is not None:
+            stepper.model.ft.set_speeds(speeds[n])
+            stepper.model.forget_evaluation()
         try:
             last = stepper.step(run.q_in_mm[i])
         except ModelError:

@@ -36,6 +36,7 @@ from cdcr_ctl.discrepancy.alignment import (
     align_run,
     residual_noise_sigma,
 )
+from cdcr_ctl.discrepancy.design import lag_split, suspect_lag
 from cdcr_ctl.discrepancy.localise import Table, localise
 from cdcr_ctl.discrepancy.selection import (
     Design,
@@ -43,11 +44,12 @@ from cdcr_ctl.discrepancy.selection import (
     Selection,
     active_terms,
     apply_all,
-    build_design,
+    compare,
     entry_vector,
     predicted_vector,
+    refinements,
     refit,
-    select,
+    split_refinements,
 )
 from cdcr_ctl.discrepancy.simulate import Prediction, model_part, simulate_model, with_tip_map
 from cdcr_ctl.discrepancy.timing import delay_bound_s, estimate_timing
@@ -258,20 +260,15 @@ def analyse(
         for r, b in zip(runs, raw, strict=True):
             _estimate_timing(r, b)
         baselines = sim.many([(r.spec, i) for i, r in enumerate(runs)])
-        # every column simulation up front (in parallel when asked), then the design from cache
-        items: list[tuple[ModelSpec, int]] = []
-        for ri, r in enumerate(runs):
-            for t in terms:
-                if t.kind == "measurement":
-                    continue
-                params = t.parameters(r.spec)
-                for j, p in enumerate(params):
-                    v = np.zeros(len(params))
-                    v[j] = p.step
-                    items.append((t.apply(r.spec, v), ri))
-        sim.many(items)
-        design = build_design(runs, terms, baselines, folds, sim)
-        selection = select(design, terms, folds, pairs=pairs)
+        first, later = split_refinements(terms)
+        design, selection = compare(runs, first, baselines, folds, pairs, sim)
+        extra = refinements(later, selection)
+        if extra:  # a refinement of the leading effect: compared again with its columns
+            design, selection = compare(runs, [*first, *extra], baselines, folds, pairs, sim)
+            notes.append(
+                f"refined {', '.join(t.refines for t in extra)}: compared again with"
+                f" {', '.join(t.name for t in extra)}"
+            )
         rf = None
         if selection.chosen is not None:
             rf = refit(design, runs, selection.chosen, sim, max_nfev=refit_evals)
@@ -359,8 +356,12 @@ def _final_timing(
             start += float(np.mean(run.timing.row_delay_s))
             model_tip = best.tip_map(sim.raw(best, ri).tip_mm)  # untimed, in the tracker's view
             bound = delay_bound_s(run.t_s, run.tip_mm)
+            split = lag_split(run, model_tip, sim.raw(best, ri).psi)
             run.timing = run.timing.with_common_delay(run.tip_mm, model_tip, start, bound)
             run.notes.append(run.timing.note)
+            why = suspect_lag(float(np.mean(run.timing.row_delay_s)), split)
+            if why and not run.timing.suspect:
+                run.timing = replace(run.timing, suspect=why)
         base = sim(run.spec, ri)
         base_all.append(base)
         nb_all.append(_without_lag(d, run, _nuisance_fit(ri, d, _run_residual(d, run, ri, base))))

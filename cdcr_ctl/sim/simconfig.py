@@ -32,8 +32,11 @@ class TruthEffects(Section):
 
     ``backlash_mm``: when > 0, this lost motion on every cable (else each truth cable's own
     ``backlash_mm``). ``friction_law``: ``capstan`` (the controller's law, Qi et al. 2023 eq.
-    16-24) or ``wrap_power`` (friction density growing with the accumulated wrap, exponent
-    ``friction_exponent``; :mod:`cdcr_ctl.sim.friction_law` states the law).
+    16-24), ``wrap_power`` (friction density growing with the accumulated wrap, exponent
+    ``friction_exponent``) or ``stribeck`` (a speed-dependent coefficient with a stick band:
+    ``friction_static_ratio`` r_s, ``friction_stribeck_mm_s`` v_s, ``friction_viscous_s_per_mm``
+    c_v, the speed followed with a lag of ``friction_memory_s``); :mod:`cdcr_ctl.sim.friction_law`
+    states the laws.
     """
 
     geometry: Literal["chord", "cc"] = "chord"
@@ -45,8 +48,12 @@ class TruthEffects(Section):
     elongation: bool = True
     coupling: bool = True
     tracker_offset: RigidTransformConfig = Field(default_factory=RigidTransformConfig)
-    friction_law: Literal["capstan", "wrap_power"] = "capstan"
+    friction_law: Literal["capstan", "wrap_power", "stribeck"] = "capstan"
     friction_exponent: Annotated[float, Field(gt=0, le=4)] = 1.5
+    friction_static_ratio: Annotated[float, Field(ge=1, le=5)] = 1.8
+    friction_stribeck_mm_s: PositiveFloat = 0.5
+    friction_viscous_s_per_mm: Annotated[float, Field(ge=0, le=10)] = 0.1
+    friction_memory_s: NonNegativeFloat = 0.05
 
 
 class NoiseConfig(Section):

@@ -109,7 +109,19 @@ class TruthModel(SteppedTruth):
         )
         self.effects = with_cable_play(self.params, self.effects)
         self.stepper = ForwardStepper(self.params, self.effects, tol=TRUTH_TOL)
-        use_friction_law(self.stepper, eff.friction_law, eff.friction_exponent)
+        self._speed_law = use_friction_law(
+            self.stepper,
+            eff.friction_law,
+            exponent=eff.friction_exponent,
+            static_ratio=eff.friction_static_ratio,
+            stribeck_mm_s=eff.friction_stribeck_mm_s,
+            viscous_s_per_mm=eff.friction_viscous_s_per_mm,
+            memory_s=eff.friction_memory_s,
+        )
+        #: time between two steps (s), what a speed-dependent friction law's speeds are
+        #: measured over: the physics rate of the simulated rig; a caller that steps the world
+        #: at another rate (once per control cycle) sets it
+        self.step_period_s = 1.0 / loaded.sim.physics_rate_hz
         by_cable = {d.cable: d for d in rig.drives}
         scale = eff.counts_per_mm_scale or [1.0] * len(rig.drives)
         # The truth's transmission: what the drives' counts really mean in cable millimetres.
@@ -136,6 +148,11 @@ class TruthModel(SteppedTruth):
         self._state = self._solve(np.zeros(len(self.counts_per_mm)))
 
     def _solve(self, q_act: np.ndarray) -> TruthState:
+        if self._speed_law is not None:
+            # the cables slide at their drives' speed; the chain's coefficients change, so the
+            # solver's cached evaluation of the last z is stale
+            self._speed_law.observe(q_act.tolist(), self.step_period_s)
+            self.stepper.model.forget_evaluation()
         r = self.stepper.step(q_act)
         R = r.R_tip if r.R_tip is not None else tip_frame_fast(r.x.tolist(), self._lengths)[0]
         return TruthState(

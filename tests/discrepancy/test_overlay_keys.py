@@ -26,7 +26,9 @@ from cdcr_ctl.model.cc_disk.params import Effects
 
 ROOT = Path(__file__).resolve().parents[2]
 SWITCHES = ("disk_friction", "pulley_friction", "elongation", "coupling", "gravity")
-TERMS = [t for t in CANDIDATES if t.name != "tracker_offset"]
+# the tracker alignment needs a fitted result (test_workflow.py); friction_law is named but not
+# applicable by the controller yet (test_other_laws.py)
+TERMS = [t for t in CANDIDATES if t.name not in ("tracker_offset", "friction_law")]
 
 
 def _base(rig: str) -> tuple[RigConfig, ModelSpec]:

@@ -15,6 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,
@@ -50,6 +51,8 @@ class ModelSpec:
     frame, mm). ``coupling_gain``: weight of the distal-cable load on proximal segments (eq.
     11-15); the forward model knows only 0 (``effects.coupling`` off) and 1 (on), so a value in
     between is evaluated as the blend of the two solutions (see :class:`SegmentCoupling`).
+    ``friction_law``: the disk friction's law when it is not the capstan law
+    (:mod:`~cdcr_ctl.model.cc_disk.friction_law`; None: the model's own).
     """
 
     params: RobotParams
@@ -57,6 +60,7 @@ class ModelSpec:
     tip_rotvec_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     tip_translation_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     coupling_gain: float | None = None
+    friction_law: FrictionLawShape | None = None
 
     def tip_map(self, tip_mm: np.ndarray) -> np.ndarray:
         """Model tips (..., 3) -> what the tracker reports in the base frame (mm)."""
@@ -100,6 +104,9 @@ class EffectTerm(ABC):
     reference: ClassVar[str]
     kind: ClassVar[str] = "model"
     needs_tensions: ClassVar[bool] = False
+    #: The effect this one refines (contains as a special case): compared only when that one
+    #: leads the first comparison (:func:`cdcr_ctl.discrepancy.selection.refinements`).
+    refines: ClassVar[str | None] = None
 
     def not_applicable(self, base: ModelSpec) -> str | None:
         """Why this term cannot act on ``base`` (None when it can)."""

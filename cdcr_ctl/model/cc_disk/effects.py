@@ -23,6 +23,7 @@ and one it has with the wrong magnitude. A new effect is one subclass with :meth
 
 from __future__ import annotations
 
+from cdcr_ctl.model.cc_disk.effect_friction_law import OtherFrictionLaw
 from cdcr_ctl.model.cc_disk.effect_spec import (
     REFERENCE_DISK_MASS_G,
     REFERENCE_EA_N,
@@ -70,6 +71,7 @@ __all__ = [
     "GravityDirection",
     "GravitySag",
     "ModelSpec",
+    "OtherFrictionLaw",
     "PulleyLosses",
     "ReversalBacklash",
     "SegmentCoupling",
@@ -87,6 +89,7 @@ __all__ = [
 CANDIDATES: tuple[EffectTerm, ...] = (
     CableElongation(),
     DiskFriction(),
+    OtherFrictionLaw(),
     ReversalBacklash(),
     SegmentCoupling(),
     GravitySag(),

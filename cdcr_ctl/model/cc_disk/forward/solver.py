@@ -207,6 +207,11 @@ class ForwardModel:
                 J[k, 2 * i + 1] = ay
         return J
 
+    def forget_evaluation(self) -> None:
+        """Drop the kept evaluation of :meth:`_raw`: for a caller that changed the force
+        transfer's coefficients in place (a speed-dependent friction law)."""
+        self._raw_z = None
+
     # ------------------------------------------------------------------ elastic cables
     def _raw(self, z: list[float]):
         """Pose, factors and per-cable (Tb, Ta, w, q) at z = [x, T, s].
