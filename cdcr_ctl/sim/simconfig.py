@@ -152,7 +152,10 @@ def sim_owned_keys(
     keys: list[str] = []
     sensors = rig.sensors
     if link_paths:
-        links = [rig.can.channel] if can_interface == "slcan" else []
+        tcp = can_interface == "slcan" and rig.can.channel.startswith("socket://")
+        links = [rig.can.channel] if can_interface == "slcan" and not tcp else []
+        if tcp:
+            keys.append("sim-port:" + rig.can.channel.removeprefix("socket://"))
         if sensors.load_cells is not None:
             links.append(sensors.load_cells.serial.port)
         if sensors.attitude is not None:

@@ -170,7 +170,11 @@ class DocRig:
         """The shared simulator of ``world`` (restarted when a page names another world) and,
         with ``daemon``, the daemon on it."""
         # As the system tests start them (tests/system/syshelp.py): the simulator as stand-in
-        # hardware at SIM_NICE, the daemon as `cdcr-ctl --config RIG daemon`.
+        # hardware (at SIM_NICE until ready, then SCHED_FIFO with every thread and its physics
+        # worker: tests/standin.py), the daemon as `cdcr-ctl --config RIG daemon` at its
+        # config's own priority.
+        from standin import standin_realtime
+
         from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 
         if self.world != world:
@@ -179,7 +183,8 @@ class DocRig:
             self.rig, self.sim = make_session(ROOT / world, self.work, self.runs)
             sim_log = self.tmp / "sim.log"
             cmd = _cli("sim", str(self.sim))
-            self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
+            proc = self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
+            standin_realtime(proc.pid)
             self.world = world
         if daemon and self._daemon is None:
             assert self.rig is not None

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 import tempfile
 import time
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from standin import RT_PRIORITY, SIM_ABOVE, standin_realtime
 
 from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.daemon.client import ControlClient
@@ -23,21 +23,32 @@ TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
 
 @contextlib.contextmanager
-def session(tmp_path: Path):
-    """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars)."""
+def session(tmp_path: Path, can_tcp: bool = True):
+    """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars).
+    ``can_tcp``: the simulated CAN adapter on a free loopback TCP port (False: on a pty linked
+    to ``work/can``). Over a pty, the frames wait for the kernel's tty worker thread, which runs
+    time-shared whatever the simulator's and the daemon's priority: beside ``stress-ng --cpu 2``
+    a FIFO-to-FIFO pty took up to 115 ms, loopback TCP 6.5 ms (``benchmarks/bench_link.py``),
+    and soaks tripped on drives that fell silent for 0.25-0.3 s."""
     work = Path(tempfile.mkdtemp(prefix="cdcr-t-", dir="/tmp"))
     runs = tmp_path / "runs"
     runs.mkdir()
-    rig, sim = make_session(TRUTH, work, runs)
+    rig, sim = make_session(TRUTH, work, runs, can_tcp=can_tcp)
     try:
         yield work, rig, sim, runs
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
 
-def start_sim(sim: Path, log: Path):
-    """The simulated rig as a process at :data:`~cdcr_ctl.cli.demo.SIM_NICE` (stand-in hardware)."""
-    return running(_cli("sim", str(sim)), log, ready='"ready"', nice=SIM_NICE)
+@contextlib.contextmanager
+def start_sim(sim: Path, log: Path, *args: str):
+    """The simulated rig (``cdcr-ctl sim SIM ARGS``) as a process: stand-in hardware, at
+    SCHED_FIFO :data:`standin.STANDIN_PRIORITY` with every thread and child once it is ready
+    (:mod:`standin`; at :data:`~cdcr_ctl.cli.demo.SIM_NICE` until then, and where FIFO is not
+    permitted)."""
+    with running(_cli("sim", str(sim), *args), log, ready='"ready"', nice=SIM_NICE) as proc:
+        standin_realtime(proc.pid)
+        yield proc
 
 
 def start_daemon(rig: Path, log: Path):
@@ -54,55 +65,16 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
-#: SCHED_FIFO priority of the daemon (``control.realtime_priority``: a lab PC's unit runs it
-#: real-time) and of the simulated rig's threads (stand-in drives and sensors, which have
-#: processors of their own) in tests whose claim needs the rig on time whatever else the machine
-#: runs: at SCHED_OTHER, beside ``stress-ng --cpu 2``, a starved simulator missed its drives'
-#: heartbeats and runs tripped before the test's subject happened.
-RT_PRIORITY = 50
-#: How much higher the simulated rig's threads run than the daemon: the stand-in hardware is never
-#: held up by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
-#: its priority).
-SIM_ABOVE = 10
-
-
 def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> None:
     """The session's daemon at SCHED_FIFO ``rt`` (its rig config, read when it starts) and, given
-    ``sim_pid``, every thread of that running simulator at ``rt`` + :data:`SIM_ABOVE` (as
-    ``chrt -a``; threads it starts later inherit it). Where not permitted the simulator stays as
-    it is."""
+    ``sim_pid``, every thread of that running simulator and of its children at ``rt`` +
+    :data:`SIM_ABOVE` (:func:`standin.standin_realtime`). Where not permitted the simulator
+    stays as it is."""
     doc = yaml.safe_load(rig.read_text())
     doc.setdefault("control", {})["realtime_priority"] = rt
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
     if sim_pid is not None:
-        for pid in _with_descendants(sim_pid):
-            for task in _tasks(pid):
-                with contextlib.suppress(PermissionError, ProcessLookupError):
-                    os.sched_setscheduler(
-                        task, os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
-                    )
-
-
-def _tasks(pid: int) -> list[int]:
-    """The threads of process ``pid`` (none once it is gone)."""
-    try:
-        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-    except OSError:
-        return []
-
-
-def _with_descendants(pid: int) -> list[int]:
-    """``pid`` and every process it started, and theirs (the simulator's physics worker: a
-    process of its own, which a ``chrt -a`` of the simulator alone leaves at SCHED_OTHER, where
-    a loaded machine starved it and with it the stand-in drives and sensors)."""
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        out.append(p)
-        for task in _tasks(p):
-            with contextlib.suppress(OSError), open(f"/proc/{p}/task/{task}/children") as f:
-                todo.extend(int(c) for c in f.read().split())
-    return out
+        standin_realtime(sim_pid, rt + SIM_ABOVE)
 
 
 def client(work: Path) -> ControlClient:
@@ -144,7 +116,6 @@ __all__ = [
     "RT_PRIORITY",
     "SIM_ABOVE",
     "client",
-    "os",
     "realtime",
     "relaunch",
     "session",
