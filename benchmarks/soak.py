@@ -125,7 +125,7 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
     runs_dir = work / "runs"
     runs_dir.mkdir()
     # The CAN adapter on loopback TCP: a pty waits for the kernel's tty worker (syshelp.session).
-    rig, sim = make_session(TRUTH, work, runs_dir, can_tcp=True)
+    rig, sim = make_session(TRUTH, work, runs_dir, tcp_links=True)
     if rt:
         realtime(rig, None, rt)
     out: dict = {

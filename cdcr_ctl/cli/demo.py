@@ -49,22 +49,22 @@ def free_port() -> int:
 
 
 def make_session(
-    sim_yaml: Path, work: Path, runs: Path, can_tcp: bool = False
+    sim_yaml: Path, work: Path, runs: Path, tcp_links: bool = False
 ) -> tuple[Path, Path]:
     """Write a rig config and a simulator config for one demo session in ``work``.
 
     The rig config extends the simulator config's rig and moves every connection point into
     ``work`` (pty links, control socket) and onto free loopback ports (tracker, a network
-    joystick), so sessions never collide. ``can_tcp``: the simulated slcan adapter on a free
-    loopback TCP port (``socket://127.0.0.1:PORT``) instead of a pty (its frames then reach the
-    daemon without the kernel's tty worker thread, which a loaded machine delays:
+    joystick), so sessions never collide. ``tcp_links``: the simulated slcan adapter and load
+    cells on free loopback TCP ports (``socket://127.0.0.1:PORT``) instead of ptys (their bytes
+    then reach the daemon without the kernel's tty worker thread, which a loaded machine delays:
     :mod:`cdcr_ctl.sim.slcan_device`).
     Returns (rig config, simulator config).
     """
     sim_doc = yaml.safe_load(sim_yaml.read_text())
     base_rig = (sim_yaml.parent / sim_doc["rig"]).resolve()
     base = yaml.safe_load(base_rig.read_text())
-    channel = f"socket://127.0.0.1:{free_port()}" if can_tcp else str(work / "can")
+    channel = f"socket://127.0.0.1:{free_port()}" if tcp_links else str(work / "can")
     rig_doc: dict[str, Any] = {
         "extends": str(base_rig),
         "can": {"channel": channel},
@@ -73,9 +73,8 @@ def make_session(
     }
     sensors = base.get("sensors") or {}
     if "load_cells" in sensors or "load_cells" in _parent_sensors(base_rig):
-        rig_doc.setdefault("sensors", {})["load_cells"] = {
-            "serial": {"port": str(work / "loadcells")}
-        }
+        port = f"socket://127.0.0.1:{free_port()}" if tcp_links else str(work / "loadcells")
+        rig_doc.setdefault("sensors", {})["load_cells"] = {"serial": {"port": port}}
     rig_doc.setdefault("sensors", {})["tracker"] = {
         "host": "127.0.0.1",
         "port": free_port(),

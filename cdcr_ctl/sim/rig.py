@@ -9,10 +9,11 @@ tip pose to the sensor simulators.
 The connection points are the ones the rig config (``rig:`` of the simulator YAML) names: the slcan
 pty and load-cell pty are symlinked to ``can.channel`` and ``sensors.load_cells.serial.port``, the
 tracker listens on ``sensors.tracker.host``/``command_port``. So the daemon runs against the
-simulator with the rig config unchanged. A ``can.channel`` of ``socket://127.0.0.1:PORT`` puts the
-slcan adapter on that loopback TCP port instead of a pty (a networked adapter; its bytes reach
-the daemon in the simulator's own system call, not through the kernel's tty worker thread, which
-a loaded machine delays: :mod:`cdcr_ctl.sim.slcan_device`).
+simulator with the rig config unchanged. A ``can.channel`` or load-cell ``serial.port`` of
+``socket://127.0.0.1:PORT`` puts the slcan adapter or the transmitters on that loopback TCP port
+instead of a pty (a networked adapter, a serial-to-Ethernet converter; the bytes reach the daemon
+in the simulator's own system call, not through the kernel's tty worker thread, which a loaded
+machine delays: :mod:`cdcr_ctl.sim.slcan_device`).
 
 The truth is the rig's design's (:func:`cdcr_ctl.sim.design_truth.make_truth`): constant-curvature
 disks, universal-joint segments or vertebrae. A rig with ``sensors.attitude`` (the vertebra arm)
@@ -124,7 +125,7 @@ class SimRig:
         if self.rig.sensors.load_cells is not None:
             lc = self.rig.sensors.load_cells
             link = lc.serial.port if self.link_paths else None
-            if link:
+            if link and not link.startswith("socket://"):
                 Path(link).parent.mkdir(parents=True, exist_ok=True)
             self.load_cells = sim_for_config(
                 lc,

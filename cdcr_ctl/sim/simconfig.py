@@ -152,15 +152,18 @@ def sim_owned_keys(
     keys: list[str] = []
     sensors = rig.sensors
     if link_paths:
-        tcp = can_interface == "slcan" and rig.can.channel.startswith("socket://")
-        links = [rig.can.channel] if can_interface == "slcan" and not tcp else []
-        if tcp:
-            keys.append("sim-port:" + rig.can.channel.removeprefix("socket://"))
+        links = [rig.can.channel] if can_interface == "slcan" else []
         if sensors.load_cells is not None:
             links.append(sensors.load_cells.serial.port)
         if sensors.attitude is not None:
             links += [s.port for s in sensors.attitude.sensors]
-        keys += [f"sim:{os.path.abspath(link)}" for link in links]
+        # A link on a loopback TCP port (socket://127.0.0.1:PORT) is that port.
+        keys += [
+            "sim-port:" + link.removeprefix("socket://")
+            if link.startswith("socket://")
+            else f"sim:{os.path.abspath(link)}"
+            for link in links
+        ]
     if sensors.tracker is not None:
         tr = sensors.tracker
         keys.append(f"sim-port:{tr.host}:{tr.command_port if tr.kind == 'natnet' else tr.port}")

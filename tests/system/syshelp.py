@@ -23,17 +23,18 @@ TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
 
 @contextlib.contextmanager
-def session(tmp_path: Path, can_tcp: bool = True):
+def session(tmp_path: Path, tcp_links: bool = True):
     """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars).
-    ``can_tcp``: the simulated CAN adapter on a free loopback TCP port (False: on a pty linked
-    to ``work/can``). Over a pty, the frames wait for the kernel's tty worker thread, which runs
-    time-shared whatever the simulator's and the daemon's priority: beside ``stress-ng --cpu 2``
-    a FIFO-to-FIFO pty took up to 115 ms, loopback TCP 6.5 ms (``benchmarks/bench_link.py``),
-    and soaks tripped on drives that fell silent for 0.25-0.3 s."""
+    ``tcp_links``: the simulated CAN adapter and load cells on free loopback TCP ports (False:
+    on ptys linked to ``work/can`` and ``work/loadcells``). Over a pty, the bytes wait for the
+    kernel's tty worker thread, which runs time-shared whatever the simulator's and the daemon's
+    priority: beside ``stress-ng --cpu 2`` a FIFO-to-FIFO pty took up to 115 ms, loopback TCP
+    6.5 ms (``benchmarks/bench_link.py``), and soaks tripped on drives silent for 0.25-0.3 s
+    and load-cell samples 0.5 s old."""
     work = Path(tempfile.mkdtemp(prefix="cdcr-t-", dir="/tmp"))
     runs = tmp_path / "runs"
     runs.mkdir()
-    rig, sim = make_session(TRUTH, work, runs, can_tcp=can_tcp)
+    rig, sim = make_session(TRUTH, work, runs, tcp_links=tcp_links)
     try:
         yield work, rig, sim, runs
     finally:

@@ -263,7 +263,8 @@ def test_fault_matrix(tmp_path):
                 st2 = wait_for(
                     lambda: (s := status(work))["safety"]["load_cells"]["failure"] and s, 5, "x"
                 )
-                assert "loadcells" in st2["safety"]["load_cells"]["failure"]
+                port = load_rig_config(rig).sensors.load_cells.serial.port
+                assert port in st2["safety"]["load_cells"]["failure"]
                 fc.inject("loadcell_reconnect")
                 record("load-cell disconnect", "HALT (hold)", f"{halt_bound} SYNC", held, st)
 
