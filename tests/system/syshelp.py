@@ -94,6 +94,28 @@ def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
     raise AssertionError(f"status never matched; last: {st}")
 
 
+def wait_progress(
+    work: Path,
+    pred: Callable[[dict], bool],
+    progress: Callable[[dict], float],
+    stall_s: float = 30.0,
+) -> dict:
+    """The daemon's status once ``pred`` holds, waiting as long as ``progress(status)`` (a run's
+    simulated time, say) keeps growing: AssertionError once it has not grown for ``stall_s``
+    (s, wall clock). A deadline from measured progress, not from the machine's speed."""
+    last, since = float("-inf"), time.monotonic()
+    while True:
+        st = wait_status(work, lambda _st: True)
+        if pred(st):
+            return st
+        now, value = time.monotonic(), progress(st)
+        if value > last:
+            last, since = value, now
+        elif now - since > stall_s:
+            raise AssertionError(f"no progress for {stall_s} s (stuck at {last}); last: {st}")
+        time.sleep(0.1)
+
+
 def wait_run_end(work: Path, run_id: str, timeout_s: float) -> tuple[dict, dict]:
     """(the run's entry in ``status["runs"]``, that status) once run ``run_id`` has ended."""
     st = wait_status(work, lambda s: any(r["id"] == run_id for r in s["runs"]), timeout_s)
@@ -124,6 +146,7 @@ __all__ = [
     "start_daemon",
     "start_sim",
     "wait_for_socket",
+    "wait_progress",
     "wait_run_end",
     "wait_status",
 ]
