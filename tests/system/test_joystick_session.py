@@ -7,8 +7,9 @@ layer, WitMotion and NatNet parsers and network-joystick reader on simulated tim
 script played on that clock; its subject is what the session does, not its timing).
 The unplug test runs as the lab does: `cdcr-ctl sim` (EPOS nodes behind an slcan adapter on
 loopback TCP, attitude sensors on ptys, tracker and the network joystick on loopback) and
-`cdcr-ctl daemon` at SCHED_FIFO as processes; its subject includes the arm held still on the wall clock after the trip (in
-lock-step an idle rig's world stands still, which would make that check empty).
+`cdcr-ctl daemon` at SCHED_FIFO as processes; its subject includes the arm held still on the
+wall clock after the trip (in lock-step an idle rig's world stands still, which would make that
+check empty).
 
 What is asserted, from the run's log (samples.csv) and the daemon's status:
 
