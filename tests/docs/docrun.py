@@ -17,8 +17,8 @@ Every other line runs in ``bash -o pipefail`` and must exit 0, with ``cdcr-ctl``
 venv) on ``PATH``, in a scratch directory that shows the repository's files and whose ``runs/``
 is the shared daemon's run-log directory. The rig configs of the simulated rig are swapped for
 the shared rig's: ``config/qi2023-sim.yaml`` for the session's rig config (its control socket,
-pty links and tracker port), ``config/sim/*.yaml`` in a ``cdcr-ctl sim`` line for the session's
-simulator config of that world.
+its CAN adapter's and load cells' loopback TCP ports, its tracker port), ``config/sim/*.yaml``
+in a ``cdcr-ctl sim`` line for the session's simulator config of that world.
 """
 
 from __future__ import annotations
@@ -180,7 +180,9 @@ class DocRig:
         if self.world != world:
             self.close()
             self._stack = contextlib.ExitStack()
-            self.rig, self.sim = make_session(ROOT / world, self.work, self.runs)
+            # The CAN adapter and load cells on loopback TCP, not ptys (syshelp.session: a
+            # pty's bytes wait for the kernel's tty worker, which a loaded machine delays).
+            self.rig, self.sim = make_session(ROOT / world, self.work, self.runs, tcp_links=True)
             sim_log = self.tmp / "sim.log"
             cmd = _cli("sim", str(self.sim))
             proc = self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
