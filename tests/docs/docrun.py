@@ -35,6 +35,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+
 ROOT = Path(__file__).resolve().parents[2]
 VENV_BIN = ROOT / ".venv" / "bin"
 #: The simulated rig's config as the pages name it; swapped for the shared rig's.
@@ -171,9 +173,8 @@ class DocRig:
         with ``daemon``, the daemon on it."""
         # As the system tests start them (tests/system/syshelp.py): the simulator as stand-in
         # hardware (at SIM_NICE until ready, then SCHED_FIFO with every thread and its physics
-        # worker: tests/standin.py), the daemon as `cdcr-ctl --config RIG daemon` at its
-        # config's own priority.
-        from standin import standin_realtime
+        # worker: tests/standin.py), the daemon as `cdcr-ctl --config RIG daemon`.
+        from standin import RT_PRIORITY, standin_realtime
 
         from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 
@@ -183,6 +184,12 @@ class DocRig:
             # The CAN adapter and load cells on loopback TCP, not ptys (syshelp.session: a
             # pty's bytes wait for the kernel's tty worker, which a loaded machine delays).
             self.rig, self.sim = make_session(ROOT / world, self.work, self.runs, tcp_links=True)
+            # The daemon as the unit runs it, at SCHED_FIFO (below the stand-in rig): at the
+            # simulator config's SCHED_OTHER, a loaded machine starved it and its master
+            # heartbeat stopped (the drives' EMCY 0x8130 at load average 22).
+            doc = yaml.safe_load(self.rig.read_text())
+            doc.setdefault("control", {})["realtime_priority"] = RT_PRIORITY
+            self.rig.write_text(yaml.safe_dump(doc, sort_keys=False))
             sim_log = self.tmp / "sim.log"
             cmd = _cli("sim", str(self.sim))
             proc = self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
