@@ -38,6 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
+sys.path.insert(0, str(ROOT / "tests"))  # standin.py, which syshelp imports
 
 from faulthelp import start_sim_with_faults  # noqa: E402
 from stopload import loaded, trials  # noqa: E402

@@ -46,6 +46,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "system"))
+sys.path.insert(0, str(ROOT / "tests"))  # standin.py, which syshelp imports
 
 from faulthelp import (  # noqa: E402
     call,
@@ -123,7 +124,8 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
     work = Path(tempfile.mkdtemp(prefix="cdcr-soak-", dir="/tmp"))
     runs_dir = work / "runs"
     runs_dir.mkdir()
-    rig, sim = make_session(TRUTH, work, runs_dir)
+    # The CAN adapter on loopback TCP: a pty waits for the kernel's tty worker (syshelp.session).
+    rig, sim = make_session(TRUTH, work, runs_dir, tcp_links=True)
     if rt:
         realtime(rig, None, rt)
     out: dict = {

@@ -39,6 +39,8 @@ from cdcr_ctl.errors import CommError, RigError
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
 #: How long to wait for the simulator and the daemon to come up (s).
 START_TIMEOUT_S = 60.0
+#: Past START_TIMEOUT_S, a starting daemon whose processes used no CPU for this long is stuck (s).
+START_STALL_S = 30.0
 
 
 def free_port() -> int:
@@ -48,28 +50,33 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def make_session(sim_yaml: Path, work: Path, runs: Path) -> tuple[Path, Path]:
+def make_session(
+    sim_yaml: Path, work: Path, runs: Path, tcp_links: bool = False
+) -> tuple[Path, Path]:
     """Write a rig config and a simulator config for one demo session in ``work``.
 
     The rig config extends the simulator config's rig and moves every connection point into
     ``work`` (pty links, control socket) and onto free loopback ports (tracker, a network
-    joystick), so sessions never collide.
+    joystick), so sessions never collide. ``tcp_links``: the simulated slcan adapter and load
+    cells on free loopback TCP ports (``socket://127.0.0.1:PORT``) instead of ptys (their bytes
+    then reach the daemon without the kernel's tty worker thread, which a loaded machine delays:
+    :mod:`cdcr_ctl.sim.slcan_device`).
     Returns (rig config, simulator config).
     """
     sim_doc = yaml.safe_load(sim_yaml.read_text())
     base_rig = (sim_yaml.parent / sim_doc["rig"]).resolve()
     base = yaml.safe_load(base_rig.read_text())
+    channel = f"socket://127.0.0.1:{free_port()}" if tcp_links else str(work / "can")
     rig_doc: dict[str, Any] = {
         "extends": str(base_rig),
-        "can": {"channel": str(work / "can")},
+        "can": {"channel": channel},
         "daemon": {"socket_path": str(work / "control.sock")},
         "logging": {"directory": str(runs)},
     }
     sensors = base.get("sensors") or {}
     if "load_cells" in sensors or "load_cells" in _parent_sensors(base_rig):
-        rig_doc.setdefault("sensors", {})["load_cells"] = {
-            "serial": {"port": str(work / "loadcells")}
-        }
+        port = f"socket://127.0.0.1:{free_port()}" if tcp_links else str(work / "loadcells")
+        rig_doc.setdefault("sensors", {})["load_cells"] = {"serial": {"port": port}}
     rig_doc.setdefault("sensors", {})["tracker"] = {
         "host": "127.0.0.1",
         "port": free_port(),
@@ -218,15 +225,42 @@ def rig_running(
 
 
 def wait_for_socket(path: Path, proc: subprocess.Popen, log_path: Path) -> None:
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while time.monotonic() < deadline:
+    """Until the daemon ``proc`` answers ``status`` on ``path``: :data:`START_TIMEOUT_S`, and
+    past it as long as the daemon's processes keep using CPU (a loaded machine slows a start,
+    it does not stop it; on a 2-core VM at load average 26 one took over 60 s), until they have
+    used none for :data:`START_STALL_S` (stuck, not slow). RigError naming ``log_path``."""
+    t0 = last_progress = time.monotonic()
+    cpu = -1.0
+    while True:
         if proc.poll() is not None:
             raise RigError(f"daemon exited with {proc.returncode}; see {log_path}")
         with contextlib.suppress(CommError), ControlClient(path, timeout_s=5) as c:
             c.call("status")
             return
+        now = time.monotonic()
+        if now - t0 > START_TIMEOUT_S:
+            used = tree_cpu_s(proc.pid)
+            if used > cpu:
+                cpu, last_progress = used, now
+            elif now - last_progress > START_STALL_S:
+                raise RigError(f"daemon did not open {path}; see {log_path}")
         time.sleep(0.2)
-    raise RigError(f"daemon did not open {path}; see {log_path}")
+
+
+def tree_cpu_s(pid: int) -> float:
+    """CPU time (user + system, s) used so far by process ``pid`` and its descendants, from
+    ``/proc`` (Linux; 0 elsewhere or once gone)."""
+    tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    total, todo = 0, [pid]
+    while todo:
+        p = todo.pop()
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            fields = Path(f"/proc/{p}/stat").read_bytes().rsplit(b")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])  # utime, stime (proc(5) 14, 15)
+            for task in Path(f"/proc/{p}/task").iterdir():
+                with contextlib.suppress(OSError, ValueError):
+                    todo.extend(int(c) for c in (task / "children").read_text().split())
+    return total / tick
 
 
 def recover(sock: Path, attempts: int = 3) -> None:

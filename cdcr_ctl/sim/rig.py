@@ -9,7 +9,11 @@ tip pose to the sensor simulators.
 The connection points are the ones the rig config (``rig:`` of the simulator YAML) names: the slcan
 pty and load-cell pty are symlinked to ``can.channel`` and ``sensors.load_cells.serial.port``, the
 tracker listens on ``sensors.tracker.host``/``command_port``. So the daemon runs against the
-simulator with the rig config unchanged.
+simulator with the rig config unchanged. A ``can.channel`` or load-cell ``serial.port`` of
+``socket://127.0.0.1:PORT`` puts the slcan adapter or the transmitters on that loopback TCP port
+instead of a pty (a networked adapter, a serial-to-Ethernet converter; the bytes reach the daemon
+in the simulator's own system call, not through the kernel's tty worker thread, which a loaded
+machine delays: :mod:`cdcr_ctl.sim.slcan_device`).
 
 The truth is the rig's design's (:func:`cdcr_ctl.sim.design_truth.make_truth`): constant-curvature
 disks, universal-joint segments or vertebrae. A rig with ``sensors.attitude`` (the vertebra arm)
@@ -121,7 +125,7 @@ class SimRig:
         if self.rig.sensors.load_cells is not None:
             lc = self.rig.sensors.load_cells
             link = lc.serial.port if self.link_paths else None
-            if link:
+            if link and not link.startswith("socket://"):
                 Path(link).parent.mkdir(parents=True, exist_ok=True)
             self.load_cells = sim_for_config(
                 lc,
@@ -142,13 +146,16 @@ class SimRig:
             self.tracker.start()
         if self.rig.sensors.attitude is not None:
             self._start_attitude()
+        tcp_port = adapter_tcp_port(self.rig.can.channel) if self.can_interface == "slcan" else None
         self.drives = SimDriveBus(
             self.rig,
             interface=self.can_interface,
             channel=self.can_channel,
             link=self.rig.can.channel
-            if (self.link_paths and self.can_interface == "slcan")
+            if (self.link_paths and self.can_interface == "slcan" and tcp_port is None)
             else None,
+            tcp=tcp_port is not None,
+            tcp_port=tcp_port or 0,
         )
         self.drives.start()
         if self._truth_proc is not None:
@@ -275,6 +282,20 @@ class SimRig:
                 next_t = time.monotonic()
             else:
                 self._stop.wait(wait)
+
+
+def adapter_tcp_port(channel: str) -> int | None:
+    """The loopback TCP port of an slcan ``can.channel`` of the form ``socket://127.0.0.1:PORT``
+    (the simulated adapter then listens there instead of on a pty: :mod:`.slcan_device` says
+    why), or None for a pty path."""
+    if not channel.startswith("socket://"):
+        return None
+    host, _, port = channel.removeprefix("socket://").rpartition(":")
+    if host not in ("127.0.0.1", "localhost") or not port.isdigit():
+        raise ValueError(
+            f"can.channel {channel!r}: the simulated adapter serves socket://127.0.0.1:PORT only"
+        )
+    return int(port)
 
 
 def stick_script(loaded: LoadedSim) -> list[Any]:

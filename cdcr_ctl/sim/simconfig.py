@@ -164,7 +164,13 @@ def sim_owned_keys(
             links.append(sensors.load_cells.serial.port)
         if sensors.attitude is not None:
             links += [s.port for s in sensors.attitude.sensors]
-        keys += [f"sim:{os.path.abspath(link)}" for link in links]
+        # A link on a loopback TCP port (socket://127.0.0.1:PORT) is that port.
+        keys += [
+            "sim-port:" + link.removeprefix("socket://")
+            if link.startswith("socket://")
+            else f"sim:{os.path.abspath(link)}"
+            for link in links
+        ]
     if sensors.tracker is not None:
         tr = sensors.tracker
         keys.append(f"sim-port:{tr.host}:{tr.command_port if tr.kind == 'natnet' else tr.port}")

@@ -9,7 +9,8 @@ as ser2net or a WiFi CAN bridge offers it): the controller opens ``socket://127.
 (pyserial's URL, which python-can's slcan accepts as channel). Why: bytes written to a pty reach
 the other side through a kernel worker thread (the tty flip buffer), an ordinary time-shared
 thread that a busy machine can leave waiting for tens of milliseconds; loopback TCP hands them
-over in the writer's own system call. One host at a time; when it disconnects the next may.
+over in the writer's own system call. ``tcp_port``: that port (0: one the kernel picks). One
+host at a time; when it disconnects the next may.
 
 Host -> adapter, one command per ``\\r`` (``\\n`` ignored). Answers are ``\\r`` (OK) or ``\\a``
 (BEL, error), as Lawicel's CANUSB does:
@@ -158,6 +159,7 @@ class SlcanDevice:
         *,
         deliver: Callable[[can.Message], None] | None = None,
         tcp: bool = False,
+        tcp_port: int = 0,
     ) -> None:
         if (bus is None) == (deliver is None):
             raise ValueError("give a bus or a deliver function (one of them)")
@@ -173,7 +175,7 @@ class SlcanDevice:
             self.master_fd, self.slave_fd = -1, -1  # -1: no host connected
             listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
             listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            listener.bind(("127.0.0.1", 0))
+            listener.bind(("127.0.0.1", tcp_port))
             listener.listen(1)
             self._listener = listener
             self.pty_path = ""

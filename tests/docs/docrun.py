@@ -17,8 +17,8 @@ Every other line runs in ``bash -o pipefail`` and must exit 0, with ``cdcr-ctl``
 venv) on ``PATH``, in a scratch directory that shows the repository's files and whose ``runs/``
 is the shared daemon's run-log directory. The rig configs of the simulated rig are swapped for
 the shared rig's: ``config/qi2023-sim.yaml`` for the session's rig config (its control socket,
-pty links and tracker port), ``config/sim/*.yaml`` in a ``cdcr-ctl sim`` line for the session's
-simulator config of that world.
+its CAN adapter's and load cells' loopback TCP ports, its tracker port), ``config/sim/*.yaml``
+in a ``cdcr-ctl sim`` line for the session's simulator config of that world.
 """
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 VENV_BIN = ROOT / ".venv" / "bin"
@@ -170,16 +172,28 @@ class DocRig:
         """The shared simulator of ``world`` (restarted when a page names another world) and,
         with ``daemon``, the daemon on it."""
         # As the system tests start them (tests/system/syshelp.py): the simulator as stand-in
-        # hardware at SIM_NICE, the daemon as `cdcr-ctl --config RIG daemon`.
+        # hardware (at SIM_NICE until ready, then SCHED_FIFO with every thread and its physics
+        # worker: tests/standin.py), the daemon as `cdcr-ctl --config RIG daemon`.
+        from standin import RT_PRIORITY, standin_realtime
+
         from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 
         if self.world != world:
             self.close()
             self._stack = contextlib.ExitStack()
-            self.rig, self.sim = make_session(ROOT / world, self.work, self.runs)
+            # The CAN adapter and load cells on loopback TCP, not ptys (syshelp.session: a
+            # pty's bytes wait for the kernel's tty worker, which a loaded machine delays).
+            self.rig, self.sim = make_session(ROOT / world, self.work, self.runs, tcp_links=True)
+            # The daemon as the unit runs it, at SCHED_FIFO (below the stand-in rig): at the
+            # simulator config's SCHED_OTHER, a loaded machine starved it and its master
+            # heartbeat stopped (the drives' EMCY 0x8130 at load average 22).
+            doc = yaml.safe_load(self.rig.read_text())
+            doc.setdefault("control", {})["realtime_priority"] = RT_PRIORITY
+            self.rig.write_text(yaml.safe_dump(doc, sort_keys=False))
             sim_log = self.tmp / "sim.log"
             cmd = _cli("sim", str(self.sim))
-            self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
+            proc = self._stack.enter_context(running(cmd, sim_log, ready='"ready"', nice=SIM_NICE))
+            standin_realtime(proc.pid)
             self.world = world
         if daemon and self._daemon is None:
             assert self.rig is not None

@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from syshelp import start_sim
 
-from cdcr_ctl.cli.demo import SIM_NICE, _cli, running
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.daemon.client import ControlClient, DaemonError
 from cdcr_ctl.runlog import load_run
@@ -31,10 +31,9 @@ HOLD_QUIET_S = 0.3
 
 
 def start_sim_with_faults(sim: Path, faults: Path, log: Path):
-    """``cdcr-ctl sim SIM --faults FAULTS`` as a subprocess (context manager)."""
-    return running(
-        _cli("sim", str(sim), "--faults", str(faults)), log, ready='"ready"', nice=SIM_NICE
-    )
+    """``cdcr-ctl sim SIM --faults FAULTS`` as a subprocess, stand-in hardware
+    (:func:`syshelp.start_sim`; context manager)."""
+    return start_sim(sim, log, "--faults", str(faults))
 
 
 def call(work: Path, cmd: str, **args: Any) -> Any:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import os
 import shutil
 import tempfile
 import time
@@ -12,6 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from standin import RT_PRIORITY, SIM_ABOVE, standin_realtime
 
 from cdcr_ctl.cli.demo import SIM_NICE, _cli, make_session, running, wait_for_socket
 from cdcr_ctl.daemon.client import ControlClient
@@ -23,21 +23,33 @@ TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
 
 @contextlib.contextmanager
-def session(tmp_path: Path):
-    """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars)."""
+def session(tmp_path: Path, tcp_links: bool = True):
+    """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars).
+    ``tcp_links``: the simulated CAN adapter and load cells on free loopback TCP ports (False:
+    on ptys linked to ``work/can`` and ``work/loadcells``). Over a pty, the bytes wait for the
+    kernel's tty worker thread, which runs time-shared whatever the simulator's and the daemon's
+    priority: beside ``stress-ng --cpu 2`` a FIFO-to-FIFO pty took up to 115 ms, loopback TCP
+    6.5 ms (``benchmarks/bench_link.py``), and soaks tripped on drives silent for 0.25-0.3 s
+    and load-cell samples 0.5 s old."""
     work = Path(tempfile.mkdtemp(prefix="cdcr-t-", dir="/tmp"))
     runs = tmp_path / "runs"
     runs.mkdir()
-    rig, sim = make_session(TRUTH, work, runs)
+    rig, sim = make_session(TRUTH, work, runs, tcp_links=tcp_links)
     try:
         yield work, rig, sim, runs
     finally:
         shutil.rmtree(work, ignore_errors=True)
 
 
-def start_sim(sim: Path, log: Path):
-    """The simulated rig as a process at :data:`~cdcr_ctl.cli.demo.SIM_NICE` (stand-in hardware)."""
-    return running(_cli("sim", str(sim)), log, ready='"ready"', nice=SIM_NICE)
+@contextlib.contextmanager
+def start_sim(sim: Path, log: Path, *args: str):
+    """The simulated rig (``cdcr-ctl sim SIM ARGS``) as a process: stand-in hardware, at
+    SCHED_FIFO :data:`standin.STANDIN_PRIORITY` with every thread and child once it is ready
+    (:mod:`standin`; at :data:`~cdcr_ctl.cli.demo.SIM_NICE` until then, and where FIFO is not
+    permitted)."""
+    with running(_cli("sim", str(sim), *args), log, ready='"ready"', nice=SIM_NICE) as proc:
+        standin_realtime(proc.pid)
+        yield proc
 
 
 def start_daemon(rig: Path, log: Path):
@@ -54,55 +66,16 @@ def set_rate(rig: Path, rate_hz: float, rt: int) -> None:
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
-#: SCHED_FIFO priority of the daemon (``control.realtime_priority``: a lab PC's unit runs it
-#: real-time) and of the simulated rig's threads (stand-in drives and sensors, which have
-#: processors of their own) in tests whose claim needs the rig on time whatever else the machine
-#: runs: at SCHED_OTHER, beside ``stress-ng --cpu 2``, a starved simulator missed its drives'
-#: heartbeats and runs tripped before the test's subject happened.
-RT_PRIORITY = 50
-#: How much higher the simulated rig's threads run than the daemon: the stand-in hardware is never
-#: held up by the daemon under test (a SCHED_FIFO task is not time-sliced against another of
-#: its priority).
-SIM_ABOVE = 10
-
-
 def realtime(rig: Path, sim_pid: int | None = None, rt: int = RT_PRIORITY) -> None:
     """The session's daemon at SCHED_FIFO ``rt`` (its rig config, read when it starts) and, given
-    ``sim_pid``, every thread of that running simulator at ``rt`` + :data:`SIM_ABOVE` (as
-    ``chrt -a``; threads it starts later inherit it). Where not permitted the simulator stays as
-    it is."""
+    ``sim_pid``, every thread of that running simulator and of its children at ``rt`` +
+    :data:`SIM_ABOVE` (:func:`standin.standin_realtime`). Where not permitted the simulator
+    stays as it is."""
     doc = yaml.safe_load(rig.read_text())
     doc.setdefault("control", {})["realtime_priority"] = rt
     rig.write_text(yaml.safe_dump(doc, sort_keys=False))
     if sim_pid is not None:
-        for pid in _with_descendants(sim_pid):
-            for task in _tasks(pid):
-                with contextlib.suppress(PermissionError, ProcessLookupError):
-                    os.sched_setscheduler(
-                        task, os.SCHED_FIFO, os.sched_param(min(99, rt + SIM_ABOVE))
-                    )
-
-
-def _tasks(pid: int) -> list[int]:
-    """The threads of process ``pid`` (none once it is gone)."""
-    try:
-        return [int(t) for t in os.listdir(f"/proc/{pid}/task")]
-    except OSError:
-        return []
-
-
-def _with_descendants(pid: int) -> list[int]:
-    """``pid`` and every process it started, and theirs (the simulator's physics worker: a
-    process of its own, which a ``chrt -a`` of the simulator alone leaves at SCHED_OTHER, where
-    a loaded machine starved it and with it the stand-in drives and sensors)."""
-    out, todo = [], [pid]
-    while todo:
-        p = todo.pop()
-        out.append(p)
-        for task in _tasks(p):
-            with contextlib.suppress(OSError), open(f"/proc/{p}/task/{task}/children") as f:
-                todo.extend(int(c) for c in f.read().split())
-    return out
+        standin_realtime(sim_pid, rt + SIM_ABOVE)
 
 
 def client(work: Path) -> ControlClient:
@@ -119,6 +92,28 @@ def wait_status(work: Path, pred, timeout_s: float = 20.0) -> dict:
                 return st
         time.sleep(0.1)
     raise AssertionError(f"status never matched; last: {st}")
+
+
+def wait_progress(
+    work: Path,
+    pred: Callable[[dict], bool],
+    progress: Callable[[dict], float],
+    stall_s: float = 30.0,
+) -> dict:
+    """The daemon's status once ``pred`` holds, waiting as long as ``progress(status)`` (a run's
+    simulated time, say) keeps growing: AssertionError once it has not grown for ``stall_s``
+    (s, wall clock). A deadline from measured progress, not from the machine's speed."""
+    last, since = float("-inf"), time.monotonic()
+    while True:
+        st = wait_status(work, lambda _st: True)
+        if pred(st):
+            return st
+        now, value = time.monotonic(), progress(st)
+        if value > last:
+            last, since = value, now
+        elif now - since > stall_s:
+            raise AssertionError(f"no progress for {stall_s} s (stuck at {last}); last: {st}")
+        time.sleep(0.1)
 
 
 def wait_run_end(work: Path, run_id: str, timeout_s: float) -> tuple[dict, dict]:
@@ -144,7 +139,6 @@ __all__ = [
     "RT_PRIORITY",
     "SIM_ABOVE",
     "client",
-    "os",
     "realtime",
     "relaunch",
     "session",
@@ -152,6 +146,7 @@ __all__ = [
     "start_daemon",
     "start_sim",
     "wait_for_socket",
+    "wait_progress",
     "wait_run_end",
     "wait_status",
 ]

@@ -173,7 +173,7 @@ def test_exec_start_runs_notifies_owns_its_bus_logs_under_the_state_directory_an
     runtime.mkdir(mode=0o750)
     faults = tmp_path / "f.sock"
     with (
-        session(tmp_path) as (work, rig, sim, _runs),
+        session(tmp_path, tcp_links=False) as (work, rig, sim, _runs),
         start_sim_with_faults(sim, faults, tmp_path / "sim.log") as simproc,
     ):
         # The lab's config says nothing about logs: the defaults apply (the state directory).

@@ -17,7 +17,7 @@ pytestmark = [pytest.mark.realtime, pytest.mark.timeout(120)]
 
 
 def test_ready_line_has_serial_settings_and_ports_and_a_second_sim_refuses(tmp_path):
-    with session(tmp_path) as (work, _rig, sim, _runs):
+    with session(tmp_path, tcp_links=False) as (work, _rig, sim, _runs):
         loaded = load_sim_config(sim)
         with SimRig(loaded) as first:
             info = first.connection_info()

@@ -59,7 +59,11 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
     ``bus`` is injected (any python-can bus); the group owns it from here and shuts it down on
     :meth:`close`. Use as a context manager: exit quick-stops and disables the drives, stops the
     master heartbeat and closes the bus, even if start-up failed half way. ``clock`` (default
-    ``time.monotonic``) stamps feedback and measures every timeout. ``file`` names the config file
+    ``time.monotonic``) stamps feedback and measures every timeout. ``watch_clock`` (default:
+    ``clock``) is the time the heartbeats live on: the drives' heartbeats are stamped and their
+    deadlines checked on it, and the master heartbeat is due on it (:meth:`produce_heartbeat`);
+    a caller whose drives run on simulated time (the lock-step rig) passes that time, so a host
+    that stalls while simulated time stands still trips nothing. ``file`` names the config file
     in errors. The cyclic PDO set must fit ``bus_cfg.max_bus_load`` (ConfigError otherwise).
     """
 
@@ -70,11 +74,13 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         drives: Sequence[DriveConfig],
         clock: Callable[[], float] = time.monotonic,
         *,
+        watch_clock: Callable[[], float] | None = None,
         file: str = "",
         react_to_faults: bool = True,
     ) -> None:
         self.bus_cfg = bus_cfg
         self.clock = clock
+        self.watch_clock = clock if watch_clock is None else watch_clock
         self.file = file
         self.react_to_faults = react_to_faults
         try:
@@ -142,6 +148,7 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         self._hb_period_s = bus_cfg.master_heartbeat_ms / 1e3
         self._hb_on = False
         self._hb_next_s = 0.0
+        self._hb_lock = threading.Lock()
 
         self.network = _Network(bus, self._transmit, _RxTap(self._on_frame, self._on_rx_error))
         self._drives: list[_Drive] = []
@@ -175,10 +182,13 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
                 )
             ]
         )
-        # A bus that can hand the cyclic TPDOs over without a Message (SlcanBus) does so.
+        # A bus that can hand frames over without a Message (SlcanBus) does so for the cyclic
+        # TPDOs and the drives' heartbeats, in its receiving thread.
         set_frame_hook = getattr(bus, "set_frame_hook", None)
         if callable(set_frame_hook):
-            set_frame_hook(list(self._by_tpdo), self._on_tpdo_frame)
+            set_frame_hook(
+                [*self._by_tpdo, *(0x700 + d.id for d in self._drives)], self._on_hooked_frame
+            )
         self.network.connect()
         #: How often the watchdog thread wakes (s): master heartbeat, idle heartbeat checks. A
         #: rig whose heartbeat periods are long (the lock-step simulator's) may wake it less

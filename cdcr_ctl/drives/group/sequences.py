@@ -271,7 +271,7 @@ class _Sequences:
                     f"not answering (no TPDO for {now - d.last_tpdo_s:.3f}"
                     " s); cannot clear the fault",
                 )
-        for node, age in self._heartbeats.expired(now):
+        for node, age in self._heartbeats.expired(self.watch_clock()):
             raise DriveFault(node, 0, f"no heartbeat for {age:.3f} s; cannot clear the fault")
         with self._fault_lock:
             self._fault = None

@@ -59,17 +59,17 @@ class _Startup:
         heartbeat, NMT-start every drive and confirm OPERATIONAL from its heartbeat."""
         for d in self._drives:
             self._configure_drive(d)
-        self._hb_next_s = self.clock()
+        self._hb_next_s = self.watch_clock()
         self._hb_on = self._hb_period_s > 0
         now = self.clock()
         for d in self._drives:
             d.last_tpdo_s = now
             d.tpdo_sync = self.sync_count
             d.reset_stream()
-            self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.clock())
+            self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.watch_clock())
             self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
         self._oldest_tpdo_sync = self.sync_count
-        self._heartbeats.arm(now)
+        self._heartbeats.arm(self.watch_clock())
         self._started = True
         self._confirm_operational()
 
@@ -102,7 +102,7 @@ class _Startup:
         now = self.clock()
         d.last_tpdo_s, d.tpdo_sync = now, self.sync_count
         d.reset_stream()
-        self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.clock())
+        self._heartbeats.commanded(d.id, NMT_OPERATIONAL, self.watch_clock())
         self._send(NMT_COB_ID, bytes((NMT_START, d.id)))
         self._confirm_operational([d])
         return (

@@ -51,12 +51,13 @@ class _Supervision:
         d = self._by_node.get(can_id - 0x700)
         if d is None or not data:
             return
+        now = self.watch_clock()
         if data[0] == 0:
             d.booted.set()
             # A boot-up still in flight from before an NMT command is not a reboot.
-            if self._started and not self._heartbeats.settling(d.id, self.clock()):
+            if self._started and not self._heartbeats.settling(d.id, now):
                 d.rebooted = True
-        anomaly = self._heartbeats.beat(d.id, data[0], self.clock())
+        anomaly = self._heartbeats.beat(d.id, data[0], now)
         if anomaly is not None and self._started:
             d.fault_text = anomaly
             self._latch(f"nmt:node{d.id}", d.id, 0, anomaly)
@@ -159,7 +160,8 @@ class _Supervision:
         return count
 
     def _supervise(self, now: float) -> None:
-        """Every SYNC: feedback deadlines, then heartbeat deadlines. O(1) while none passed."""
+        """Every SYNC: feedback deadlines (``now``, the group's clock), then heartbeat deadlines
+        (on the watch clock). O(1) while none passed."""
         if not self._started or self._fault is not None:
             return
         if self.sync_count - self._oldest_tpdo_sync > TPDO_MISSES:
@@ -168,7 +170,7 @@ class _Supervision:
                 self._check_feedback(now)
                 if self._fault is not None:
                     return
-        self._check_heartbeats(now)
+        self._check_heartbeats(now if self.watch_clock is self.clock else self.watch_clock())
 
     def _feedback_due(self, d: _Drive) -> int:
         """SYNCs sent when drive ``d``'s feedback became overdue: it had left
@@ -217,16 +219,24 @@ class _Supervision:
             return
 
     def _check_heartbeats(self, now: float) -> None:
+        """Heartbeat deadlines at ``now`` (s, the watch clock)."""
         for node, age in self._heartbeats.overdue(now):
             d = self._by_node[node]
             d.fault_text = "heartbeat lost"
+            # The SYNC send times are on the group's clock: a deadline on another clock (the
+            # lock-step rig's simulated time) dates the fault at the SYNC that saw it.
+            due = (
+                self.syncs_before(self._heartbeats.deadline_s(node))
+                if self.watch_clock is self.clock
+                else None
+            )
             self._latch(
                 f"heartbeat:node{node}",
                 node,
                 0,
                 f"heartbeat lost (none for {age:.3f} s; producer time "
                 f"{d.cfg.heartbeat_producer_ms} ms)",
-                due_at_sync=self.syncs_before(self._heartbeats.deadline_s(node)),
+                due_at_sync=due,
             )
             return
 
@@ -234,14 +244,24 @@ class _Supervision:
     def _watch(self) -> None:
         """Master heartbeat producer, and heartbeat checks while no cycle runs."""
         while not self._watchdog_stop.wait(self.watchdog_period_s):
-            now = self.clock()
-            if self._hb_on and now >= self._hb_next_s:
-                self._hb_next_s = max(self._hb_next_s + self._hb_period_s, now)
-                with contextlib.suppress(CommError):
-                    self._send(0x700 + self.bus_cfg.master_node_id, bytes((NMT_OPERATIONAL,)))
-            idle = now - self._last_cycle_s > IDLE_PERIODS * self.period_s
+            watch_now = self.watch_clock()
+            self.produce_heartbeat(watch_now)
+            idle = self.clock() - self._last_cycle_s > IDLE_PERIODS * self.period_s
             if idle and self._started and self._fault is None:
-                self._check_heartbeats(now)
+                self._check_heartbeats(watch_now)
+
+    def produce_heartbeat(self, now: float) -> None:
+        """Send the master heartbeat if one is due at ``now`` (s, the watch clock). The watchdog
+        thread calls this every :attr:`watchdog_period_s`; a caller whose watch clock is
+        simulated time calls it as that time advances (the lock-step rig, every period)."""
+        if not self._hb_on or now < self._hb_next_s:
+            return
+        with self._hb_lock:
+            if now < self._hb_next_s:
+                return  # the other caller sent it
+            self._hb_next_s = max(self._hb_next_s + self._hb_period_s, now)
+        with contextlib.suppress(CommError):
+            self._send(0x700 + self.bus_cfg.master_node_id, bytes((NMT_OPERATIONAL,)))
 
     def stop_heartbeat(self) -> None:
         """Stop producing the master heartbeat (what a dead master does; tests use it)."""

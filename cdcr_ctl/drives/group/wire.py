@@ -196,6 +196,23 @@ class _Wire:
         if not self._closed:
             time.sleep(_Network.NOTIFIER_CYCLE)
 
+    def _on_hooked_frame(self, can_id: int, data: bytes, timestamp: float) -> None:
+        """A frame straight from the bus's receive path (:meth:`SlcanBus.set_frame_hook`): a
+        feedback TPDO or a drive's heartbeat."""
+        if can_id in self._by_tpdo:
+            self._on_tpdo_frame(can_id, data, timestamp)
+            return
+        self._frames.append((self.clock(), "rx", can_id, data))
+        try:
+            if self._traffic is not None:
+                msg = can.Message(
+                    timestamp=timestamp, arbitration_id=can_id, data=data, is_extended_id=False
+                )
+                self._log_frame(msg)
+            self._on_heartbeat(can_id, bytearray(data), timestamp)
+        except Exception:  # the bus's receive path must go on
+            log.exception("handling CAN frame 0x%03X failed", can_id)
+
     def _on_tpdo_frame(self, can_id: int, data: bytes, timestamp: float) -> None:
         """A feedback TPDO straight from the bus's receive path (:meth:`SlcanBus.set_frame_hook`,
         python-can's notifier thread): what :meth:`_on_frame` does with it, without a Message."""

@@ -89,7 +89,8 @@ TRANSITIONS_KEPT = 256
 
 
 class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
-    """One simulated drive on ``network`` (a canopen Network over any python-can bus)."""
+    """One simulated drive on ``network`` (a canopen Network over any python-can bus). ``clock``:
+    the drive's own time (s; the lock-step rig gives its simulated clock)."""
 
     #: Take the exact fast path of the steady CSP cycle's target RPDO (written without the
     #: generic checks); False: every write through canopen's callbacks and the limits check.
@@ -101,6 +102,7 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
         node_id: int,
         kind: str = "epos4",
         motor: MotorParams | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.node_id = node_id
         self.kind = kind
@@ -168,7 +170,9 @@ class SimEpos(_Objects, _PdoService, _StateMachine, _Stepping):
         self._master_hb_cob: int | None = None
         self._master_hb_s: float | None = None
         self._consumer_ms = 0
-        self._now: Callable[[], float] = time.monotonic
+        #: The drive's own time (s): SYNC arrivals, the master heartbeat's consumer. The
+        #: lock-step rig gives its simulated clock.
+        self._now: Callable[[], float] = clock
         self._params: dict[tuple[int, int], int] = {}
         #: Values derived from parameters (interpolation period, position limits): emptied with
         #: every write of the objects they come from (``objects._DERIVED_FROM``) and every reset.

@@ -60,12 +60,13 @@ class SimDriveBus:
     ``channel`` (the controller opens the same channel in this process). ``interface="slcan"``:
     the nodes sit on a private virtual channel bridged to an slcan pseudo-terminal
     (:attr:`channel_path`; ``link`` symlinks to it; ``tcp``: on a loopback TCP port instead,
-    :attr:`channel_path` ``socket://127.0.0.1:PORT``). ``motors`` overrides the motor parameters
-    per node id. ``free_run``: advance the drives on the wall clock while no SYNC comes (a master
-    that never sends SYNC still sees profile moves finish); off by default, so that time moves
-    only with SYNC and runs are reproducible. ``lag_cycles``: feedback lag of every node in SYNCs
-    (:attr:`SimEpos.lag_cycles`; 1 as on a real drive). ``sync_period_s``: the time between two
-    SYNCs (a rig config gives its ``can.sync_period_s``; None: each node's 0x60C2).
+    ``tcp_port`` or one the kernel picks, :attr:`channel_path` ``socket://127.0.0.1:PORT``).
+    ``motors`` overrides the motor parameters per node id. ``free_run``: advance the drives on
+    the wall clock while no SYNC comes (a master that never sends SYNC still sees profile moves
+    finish); off by default, so that time moves only with SYNC and runs are reproducible.
+    ``lag_cycles``: feedback lag of every node in SYNCs (:attr:`SimEpos.lag_cycles`; 1 as on a
+    real drive). ``sync_period_s``: the time between two SYNCs (a rig config gives its
+    ``can.sync_period_s``; None: each node's 0x60C2).
     """
 
     def __init__(
@@ -79,6 +80,7 @@ class SimDriveBus:
         motors: Mapping[int, MotorParams] | None = None,
         free_run: bool = False,
         tcp: bool = False,
+        tcp_port: int = 0,
         lag_cycles: int = DEFAULT_LAG_CYCLES,
         sync_period_s: float | None = None,
     ) -> None:
@@ -96,7 +98,7 @@ class SimDriveBus:
             adapter = _AdapterBus()
             self._bus = adapter
             self.device = SlcanDevice(
-                None, link, bitrate=self.bitrate, deliver=self._deliver, tcp=tcp
+                None, link, bitrate=self.bitrate, deliver=self._deliver, tcp=tcp, tcp_port=tcp_port
             )
             adapter.device = self.device
             self.channel_path = self.device.path

@@ -1,4 +1,5 @@
-"""The transport of the simulated transmitters: a pseudo-terminal, the serving thread, fault hooks.
+"""The transport of the simulated transmitters: a pseudo-terminal (or a loopback TCP port:
+:class:`TcpEndpoint`), the serving thread, fault hooks.
 
 Fault hooks let tests and the simulated rig break the link on purpose: :meth:`PtySim.drop_next`,
 :meth:`PtySim.corrupt_next` (bad CRC / unparsable line), :meth:`PtySim.inject_garbage`,
@@ -15,6 +16,7 @@ import fcntl
 import math
 import os
 import select
+import socket
 import threading
 import time
 import tty
@@ -127,6 +129,105 @@ class PtyEndpoint:
                 self.master_fd = -1
 
 
+class TcpEndpoint:
+    """The device end on a loopback TCP port instead of a pty (a serial-to-Ethernet converter):
+    clients open ``path``, ``socket://127.0.0.1:PORT`` (pyserial's URL). Why: a pty's bytes wait
+    for the kernel's tty worker thread, which a loaded machine delays whatever the two ends'
+    priority; loopback TCP hands them over in the writer's system call
+    (:mod:`cdcr_ctl.sim.slcan_device`). One client at a time: :meth:`read` accepts it, and the
+    next one once it hangs up. The interface is :class:`PtyEndpoint`'s; ``port`` 0: one the
+    kernel picks. Writes never block: bytes with no client or no room are dropped and counted.
+    """
+
+    def __init__(self, port: int = 0) -> None:
+        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._listener.bind(("127.0.0.1", port))
+        self._listener.listen(1)
+        self.port = self._listener.getsockname()[1]
+        self.path = f"socket://127.0.0.1:{self.port}"
+        self.link: Path | None = None
+        self.overflow_bytes = 0
+        self.closed = False
+        self._conn: socket.socket | None = None
+        self._lock = threading.Lock()
+
+    def write(self, data: bytes) -> None:
+        """Send ``data`` to the client; what cannot go now (no client, no room) is dropped."""
+        with self._lock:
+            conn = self._conn
+            if self.closed or conn is None:
+                self.overflow_bytes += len(data)
+                return
+            try:
+                n = conn.send(data)
+            except BlockingIOError:
+                n = 0
+            except OSError:
+                self._hang_up()
+                n = 0
+            self.overflow_bytes += len(data) - n
+
+    def read(self, max_bytes: int, timeout_s: float) -> bytes:
+        """Bytes the client sent (at most ``max_bytes``), waiting ``timeout_s`` (s); b'' if none
+        (or while no client is connected: this accepts one)."""
+        if self.closed:
+            return b""
+        conn = self._conn
+        try:
+            if conn is None:
+                ready, _, _ = select.select([self._listener], [], [], timeout_s)
+                if ready:
+                    new, _ = self._listener.accept()
+                    new.setblocking(False)
+                    new.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    with self._lock:
+                        self._conn = new
+                return b""
+            ready, _, _ = select.select([conn], [], [], timeout_s)
+            if not ready:
+                return b""
+            data = conn.recv(max_bytes)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except (OSError, ValueError):
+            data = b""
+        if not data:  # the client hung up: wait for the next
+            with self._lock:
+                self._hang_up()
+        return data
+
+    def _hang_up(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            with contextlib.suppress(OSError):
+                conn.close()
+
+    def close(self) -> None:
+        """Hang up and stop listening (idempotent): the client's next read or write fails."""
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            self._hang_up()
+            with contextlib.suppress(OSError):
+                self._listener.close()
+
+    def release(self) -> None:
+        self.close()
+
+
+def endpoint(link: str | Path | None) -> PtyEndpoint | TcpEndpoint:
+    """The device end for ``link``: a loopback TCP port for ``socket://127.0.0.1:PORT``, else a
+    pty (symlinked to ``link`` when given)."""
+    if link is not None and str(link).startswith("socket://"):
+        host, _, port = str(link).removeprefix("socket://").rpartition(":")
+        if host not in ("127.0.0.1", "localhost") or not port.isdigit():
+            raise ValueError(f"{link}: a simulated port serves socket://127.0.0.1:PORT only")
+        return TcpEndpoint(int(port))
+    return PtyEndpoint(link)
+
+
 @dataclass
 class _Faults:
     drop: int = 0
@@ -161,7 +262,7 @@ class PtySim:
         self._faults_lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.pty = PtyEndpoint(link)
+        self.pty = endpoint(link)
 
     @property
     def path(self) -> str:
@@ -210,7 +311,7 @@ class PtySim:
         if self._thread is not None:
             self._thread.join(2.0)
         old.release()
-        self.pty = PtyEndpoint(old.link)
+        self.pty = TcpEndpoint(old.port) if isinstance(old, TcpEndpoint) else PtyEndpoint(old.link)
         self._thread = None
         if not self._stop.is_set():
             self.start()

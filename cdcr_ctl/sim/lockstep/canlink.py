@@ -13,10 +13,19 @@ heartbeats, EMCY) is queued for the group's bus listener thread, as on a real bu
 The bytes are the real ones: the group builds and parses them with the production PDO/SDO code
 and the nodes with theirs; only the wire and its timing are gone (a SYNC's answers arrive within
 its cycle, as they do on a real bus at these rates).
+
+Heartbeats live on simulated time: a node's producer (canopen's ``send_periodic``, which
+:class:`NodeNetwork` overrides) is a :class:`SimPeriodicTask` that :meth:`CanLink.tick` sends
+when simulated time passes its due time, handed to the host at once (through the frame hook,
+when the host hooked the heartbeats, as the drive group does). As python-can's periodic task,
+it sends its first frame when it starts; unlike it, it also sends at once when the node's NMT
+state changes (the set-up, during which simulated time stands still, waits for the OPERATIONAL
+report; those frames take the listener's way, since they go out while the host is sending).
 """
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -71,9 +80,15 @@ class NodeNetwork(canopen.Network):
         if can_id & 0x7F and (can_id & 0x780) in scanner.SERVICES:
             scanner.on_message_received(can_id)
 
+    def send_periodic(
+        self, can_id: int, data: bytes, period: float, remote: bool = False
+    ) -> SimPeriodicTask:
+        """canopen's periodic transmission (a node's heartbeat producer), on simulated time."""
+        return SimPeriodicTask(self._link, can_id, bytes(data), period)
+
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
         link = self._link
-        if not remote and link.hook is not None and can_id in link.hooked:
+        if not remote and link.hook is not None and can_id in link.sync_hooked:
             link.frames_to_host += 1
             clock = link.cpu_clock
             c0 = clock()
@@ -109,10 +124,13 @@ class HostBus(can.BusABC):
             return None, False
 
     def set_frame_hook(self, can_ids: Sequence[int], hook: FrameHook) -> None:
-        """Hand these COB-IDs (the cyclic TPDOs) to ``hook(can_id, data, t)`` without a Message,
-        on the sender's thread."""
-        self._link.hooked = frozenset(can_ids)
-        self._link.hook = hook
+        """Hand these COB-IDs (the cyclic TPDOs, the heartbeats) to ``hook(can_id, data, t)``
+        without a Message, on the sender's thread (heartbeats: those :meth:`CanLink.tick`
+        sends)."""
+        link = self._link
+        link.hooked = frozenset(can_ids)
+        link.sync_hooked = frozenset(c for c in link.hooked if not _is_heartbeat(c))
+        link.hook = hook
 
 
 class CanLink:
@@ -127,7 +145,14 @@ class CanLink:
     def __init__(self) -> None:
         self.host_queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
         self.hooked: frozenset[int] = frozenset()
+        #: The hooked COB-IDs handed over whenever a node sends them (all but heartbeats: a
+        #: node's boot-up or NMT state report goes out while the host is sending its command,
+        #: and a handler that answers it would wait for the host's own send lock).
+        self.sync_hooked: frozenset[int] = frozenset()
         self.hook: FrameHook | None = None
+        #: Simulated time (s): the rig's clock (the periodic tasks' due times are on it).
+        self.clock: Callable[[], float] = no_cpu_clock
+        self._periodic: list[SimPeriodicTask] = []
         self.host = HostBus(self)
         self.network = NodeNetwork(self)
         self.node_bus = self.network.bus
@@ -162,11 +187,29 @@ class CanLink:
                 notify(can_id, bytearray(data), 0.0)
         self.node_time_s += clock() - c0 - (self.decode_time_s - d0)
 
+    def tick(self, t_s: float) -> None:
+        """Simulated time has reached ``t_s``: every periodic frame due by then goes out (a node
+        that is silent or stopped its producer sends nothing). Call it where no host lock is
+        held (the rig's world advance, on the loop thread)."""
+        for task in list(self._periodic):
+            while task.next_s <= t_s and task.running:
+                task.next_s += task.period_s
+                self.periodic_frame(task.can_id, task.data)
+
+    def periodic_frame(self, can_id: int, data: bytes) -> None:
+        """One periodic frame from a node, handed to the host's hook at once when hooked."""
+        hook = self.hook
+        if hook is not None and can_id in self.hooked:
+            self.frames_to_host += 1
+            hook(can_id, data, 0.0)
+            return
+        self.network.send_message(can_id, data)
+
     def to_host(self, msg: can.Message) -> None:
         """A frame from a node: hooked TPDOs decoded now, the rest queued for the listener."""
         self.frames_to_host += 1
         hook = self.hook
-        if hook is not None and msg.arbitration_id in self.hooked:
+        if hook is not None and msg.arbitration_id in self.sync_hooked:
             clock = self.cpu_clock
             c0 = clock()
             hook(msg.arbitration_id, bytes(msg.data), 0.0)
@@ -183,4 +226,38 @@ class CanLink:
         )
 
 
-__all__ = ["CanLink", "HostBus", "NodeBus", "NodeNetwork"]
+def _is_heartbeat(can_id: int) -> bool:
+    """Whether ``can_id`` is a node's NMT error-control COB-ID (0x701-0x77F: heartbeat, boot-up)."""
+    return 0x700 < can_id < 0x780
+
+
+class SimPeriodicTask:
+    """A node's periodic frame on simulated time (what canopen's ``send_periodic`` returns:
+    :meth:`stop`, :meth:`update`), sent by :meth:`CanLink.tick`. It sends its first frame at
+    once, then every ``period_s`` of simulated time; :meth:`update` with new data sends it at
+    once too (module docstring)."""
+
+    def __init__(self, link: CanLink, can_id: int, data: bytes, period_s: float) -> None:
+        self._link = link
+        self.can_id = can_id
+        self.data = data
+        self.period_s = float(period_s)
+        self.running = True
+        self.next_s = link.clock() + self.period_s
+        link._periodic.append(self)
+        link.network.send_message(can_id, data)
+
+    def stop(self) -> None:
+        self.running = False
+        with contextlib.suppress(ValueError):
+            self._link._periodic.remove(self)
+
+    def update(self, data: bytes) -> None:
+        new = bytes(data)
+        if new != self.data:
+            self.data = new
+            if self.running:
+                self._link.network.send_message(self.can_id, new)
+
+
+__all__ = ["CanLink", "HostBus", "NodeBus", "NodeNetwork", "SimPeriodicTask"]

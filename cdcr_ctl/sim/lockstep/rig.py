@@ -69,15 +69,19 @@ from cdcr_ctl.sim.tracker import SimNatNetServer, true_transform
 
 log = logging.getLogger(__name__)
 
-#: Heartbeats (CANopen's liveness checks, producer and consumer on the wall clock) between the
-#: drive layer and the nodes: in lock-step both sit in this process and every frame is delivered
-#: synchronously, so there is no link whose death they could detect; only a starved thread (a
-#: loaded machine, the loop running flat out) could make one late. Their periods are relaxed to
-#: these (ms) so that it never does; the frames still go out and are checked.
+#: Heartbeats (CANopen's liveness checks) between the drive layer and the nodes live on simulated
+#: time here: the nodes produce theirs as simulated time passes (:meth:`.canlink.CanLink.tick`),
+#: the master's goes out every period it is due (:meth:`DriveGroup.produce_heartbeat`), and both
+#: consumers read the simulated clock (the group's ``watch_clock``, the nodes' clock). A host
+#: that stalls (a loaded machine, a starved thread) while simulated time stands still trips
+#: nothing; a heartbeat missing in simulated time still does. Their periods are these (ms): the
+#: set-up, with the world standing still, waits on the wall clock for each node's OPERATIONAL
+#: report through the bus listener for three producer periods, and a longer period gives a
+#: loaded machine's listener thread more room there.
 LOCKSTEP_HEARTBEAT_MS = 1000
 LOCKSTEP_HEARTBEAT_CONSUMER_MS = 5000
 #: The drive group's watchdog thread (master heartbeat, idle heartbeat checks) wakes this often
-#: (s) instead of every 10 ms: with the heartbeats above it has nothing to do sooner, and every
+#: (s) instead of every 10 ms: on simulated time the loop's advance does its work, and every
 #: wake takes the interpreter lock from the loop thread (a thread switch each way).
 LOCKSTEP_WATCHDOG_S = 0.1
 
@@ -137,6 +141,7 @@ class LockstepRig:
         self._truth_process = truth_process
         self._closers: list[Any] = []
         self.can = CanLink()
+        self.can.clock = self.clock.now
         by_cable = {d.cable: d for d in rig.drives}
         self.nodes = [
             SimEpos(
@@ -144,6 +149,7 @@ class LockstepRig:
                 d.node_id,
                 d.type,
                 MotorParams(counts_per_rev=d.encoder_counts_per_rev),
+                clock=self.clock.now,
             )
             for d in (by_cable[c.name] for c in rig.robot.cables)
         ]
@@ -151,6 +157,8 @@ class LockstepRig:
         self.tracker: TrackerSchedule | None = None
         self.attitude_schedule: AttitudeSchedule | None = None
         self.drives: DriveGroupPort | None = None
+        #: The controller's drive group (its master heartbeat goes out from :meth:`advance`).
+        self.group: DriveGroup | None = None
         self.tensions: Any = NoTension(len(ctl.robot.cables))
         self.tip: Any = NoTip()
         #: The controller's attitude port (vertebra arm), or None.
@@ -186,9 +194,11 @@ class LockstepRig:
             self.can.host,
             ctl.can,
             [by_cable[c.name] for c in ctl.robot.cables],
+            watch_clock=self.clock.now,
             file=ctl_file,
         )
         group.watchdog_period_s = LOCKSTEP_WATCHDOG_S
+        self.group = group
         self.drives = DriveGroupPort(group)
         self._closers.insert(0, self.drives.close)
         group.boot()
@@ -326,6 +336,9 @@ class LockstepRig:
         drives' positions (one solve when a physics tick falls in the period: the positions
         change only at SYNC; none when no drive moved by a count since the last solve), then
         the sensors' transactions and frames of the period."""
+        self.can.tick(t1)  # the nodes' heartbeats due by t1
+        if self.group is not None:
+            self.group.produce_heartbeat(t1)
         proc = self.truth_proc
         if proc is not None and proc.pending:
             proc.collect()  # the positions of the previous period, solved meanwhile
