@@ -62,6 +62,7 @@ from soakverdict import SoakRun, verdict  # noqa: E402
 from syshelp import SIM_ABOVE, realtime  # noqa: E402
 
 from cdcr_ctl.cli.demo import _cli, make_session, running, wait_for_socket  # noqa: E402
+from cdcr_ctl.config import load_rig_config  # noqa: E402
 from cdcr_ctl.control import trajectory as tj  # noqa: E402
 from cdcr_ctl.daemon.client import DaemonError  # noqa: E402
 from cdcr_ctl.runlog import load_run  # noqa: E402
@@ -83,9 +84,14 @@ FAULTS = [
         None,
         "QUICK_STOP",
     ),
-    ("loadcell_garbage", lambda r: {"duration_s": 0.6}, None, "HALT"),
-    ("tracker_dropout", lambda r: {"duration_s": 0.6}, None, "HALT"),
+    # A sensor fault lasts twice the rig's sensor_timeout_s (filled in by soak()): one only a
+    # little longer than the timeout trips only if a loop cycle lands in the difference, and a
+    # loaded machine's loop can run that late, so the soak would count a right daemon as missing.
+    ("loadcell_garbage", lambda r: {"duration_s": SENSOR_FAULT_TIMEOUTS}, None, "HALT"),
+    ("tracker_dropout", lambda r: {"duration_s": SENSOR_FAULT_TIMEOUTS}, None, "HALT"),
 ]
+#: Sensor faults last this many of the rig config's ``limits.sensor_timeout_s``.
+SENSOR_FAULT_TIMEOUTS = 2.0
 
 
 def rss_kB(pid: int) -> int:
@@ -126,6 +132,7 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
     runs_dir.mkdir()
     # The CAN adapter on loopback TCP: a pty waits for the kernel's tty worker (syshelp.session).
     rig, sim = make_session(TRUTH, work, runs_dir, tcp_links=True)
+    sensor_timeout_s = load_rig_config(rig).limits.sensor_timeout_s
     if rt:
         realtime(rig, None, rt)
     out: dict = {
@@ -209,6 +216,8 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
                     time.sleep(rng.uniform(0.2, max(0.3, duration / 2)))
                     fault, make_args, undo, reaction = rng.choice(FAULTS)
                     args = make_args(rng)
+                    if args.get("duration_s") is SENSOR_FAULT_TIMEOUTS:
+                        args["duration_s"] = SENSOR_FAULT_TIMEOUTS * sensor_timeout_s
                     key = f"{fault}:{args.get('code', '')}".rstrip(":")
                     stats = out["by_fault"].setdefault(
                         key, {"injected": 0, "tripped": 0, "safe": 0, "recovered": 0}
