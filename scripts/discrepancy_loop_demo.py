@@ -25,12 +25,17 @@ of the re-run, the shrink, and the mean tip error of the commanded pose (mm;
 directory (``daemon-before.log``, ``cli.log``, ...). Usage::
 
     .venv/bin/python scripts/discrepancy_loop_demo.py --out /tmp/loop [SIM.yaml ...]
-        [--duration-s 25 --seed 11 --trajectory rich --rate-hz 250]
+        [--duration-s 25 --seed 11 --trajectory rich --rate-hz 250 --jobs 1]
+
+``--jobs N`` runs N worlds side by side (each world's daemon on a socket and in a directory of
+its own; lock-step time is simulated, so the figures do not depend on it, only the wall time).
+``--trajectory circle --duration-s 0`` is one planar go-and-return to the full bend (no turn).
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import json
 import math
@@ -248,6 +253,7 @@ def loop(
         "tip_error_before_mm": _mean_tip_error(run1),
         "tip_error_after_mm": _mean_tip_error(run2),
         "compensation": comp,
+        "trajectory_s": tr.duration_s,
         "wall_s": time.monotonic() - t0,
         "overlay": str(overlay),
         "runs": [str(run1), str(run2)],
@@ -272,6 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--rate-hz", type=float, default=250.0, help="loop and SYNC rate of the controller [250]"
     )
+    ap.add_argument("--jobs", type=int, default=1, help="worlds side by side [1]")
     args = ap.parse_args(argv)
     sims = [p.resolve() for p in args.sims] or sorted(
         p for p in EFFECTS_DIR.glob("*.yaml") if p.stem != "none"
@@ -281,32 +288,38 @@ def main(argv: list[str] | None = None) -> int:
         f"{'world':18s} {'named':18s} {'gap before':>11s} {'after':>6s} {'shrink':>7s}"
         f"  {'tip err before':>14s} {'after':>6s}  re-run verdict"
     )
-    rows = []
-    for sim in sims:
+
+    def one(sim: Path) -> dict:
         try:
             r = loop(sim, out / sim.stem, args.duration_s, args.trajectory, args.seed, args.rate_hz)
         except (SystemExit, RigError, subprocess.TimeoutExpired) as e:
             # one world's failure is said and counted; the others still run
             print(f"{sim.stem:18s} FAILED: {e}", flush=True)
-            rows.append({"world": sim.stem, "named": None, "shrink": math.nan, "error": str(e)})
-            continue
-        rows.append(r)
+            return {"world": sim.stem, "named": None, "shrink": math.nan, "error": str(e)}
         print(
             f"{r['world']:18s} {r['named']!s:18s} {r['gap_before']:8.3f} {r['gap_unit']:2s}"
             f" {r['gap_after']:6.3f} {100 * r['shrink']:6.1f}%  {r['tip_error_before_mm']:14.3f}"
             f" {r['tip_error_after_mm']:6.3f}  {r['rerun_verdict']}  ({r['wall_s']:.0f} s)",
             flush=True,
         )
+        return r
+
+    t0 = time.monotonic()
+    with concurrent.futures.ThreadPoolExecutor(max(1, args.jobs)) as pool:
+        rows = list(pool.map(one, sims))
     (out / "loop.json").write_text(json.dumps(rows, indent=1))
     ok = [
         r
         for r in rows
         if r["named"] == NAMED_AS.get(r["world"], r["world"]) and r["shrink"] >= MIN_SHRINK
     ]
+    sim_s = "/".join(sorted({f"{r['trajectory_s']:.1f}" for r in rows if "trajectory_s" in r}))
     print(
         f"named right with >= {100 * MIN_SHRINK:.0f} % shrink: {len(ok)} of {len(rows)}"
-        f" ({args.trajectory} trajectory, {args.duration_s:g} s simulated per run, loop at"
-        f" {args.rate_hz:g} Hz, seed {args.seed})"
+        f" ({args.trajectory} trajectory, --duration-s {args.duration_s:g}: {sim_s} s simulated"
+        " per run, loop at"
+        f" {args.rate_hz:g} Hz, seed {args.seed}; {time.monotonic() - t0:.0f} s wall, {args.jobs}"
+        " at a time)"
     )
     return 0 if len(ok) == len(rows) else 1
 
