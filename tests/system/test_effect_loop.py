@@ -12,7 +12,8 @@ planar go-and-return to the full bend (``circle`` trajectory of 0 s: no turn, 6.
 and two candidates; the whole set of worlds is the script's default, as the effects page runs
 it (docs/calibration/effects-and-loads.md):
 
-    .venv/bin/python scripts/discrepancy_loop_demo.py --out effect-loop --duration-s 5
+    .venv/bin/python scripts/discrepancy_loop_demo.py --out effect-loop \
+        --trajectory circle --duration-s 0 --jobs 2
 """
 
 from __future__ import annotations
