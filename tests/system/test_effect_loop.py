@@ -8,7 +8,8 @@ the re-run is measured.
 A world whose overlay the controller never read before (an actuator scale error: the drives'
 counts_per_mm): the effect is named, its overlay goes into the controller's config, and the
 re-run's gap between the controller's model and the tracker shrinks by >= 70 %. Lean: one
-planar go-and-return to the full bend (``circle`` trajectory of 0 s: no turn, 6.9 s simulated)
+planar go-and-return to the full bend, 90 deg (``circle`` trajectory of 0 s: no turn; 9.0 s
+simulated)
 and two candidates; the whole set of worlds is the script's default, as the effects page runs
 it (docs/calibration/effects-and-loads.md):
 
