@@ -2,7 +2,7 @@
 
     .venv/bin/python scripts/effects_experiments.py [--sim-config config/sim/qi2023-truth.yaml]
         [--payload-kg 0.005] [--phi-rate 0.3141592653589793] [--out DIR]
-        [--reversal-threshold-mm H] [--only ref]
+        [--reversal-threshold-mm H] [--only ref] [--overlay IDENTIFIED.yaml] [--name-hidden]
 
 The hard world (``config/sim/qi2023-truth.yaml``: lost motion 0.25-0.35 mm, mount tilted
 20 deg, friction +25 %, stiffness -20 %, chord holes) runs the spatial circle (theta 45 deg,
@@ -10,7 +10,9 @@ Qi et al. 2023 section 5.2) with the controller's compensation ``model``, in the
 simulated rig (the production loop, drive layer and sensor readers on simulated time,
 :mod:`cdcr_ctl.sim.lockstep`). The controller's config is the rig config with the world's
 robot section as its ``robot`` (every parameter as a perfect identification would write it:
-what is left is what the model cannot represent, not a fit's error). Three runs:
+what is left is what the model cannot represent, not a fit's error), or with ``--overlay`` the
+rig config with the overlay ``cdcr-ctl identify`` wrote from the world's calibration sweep (the
+realistic path: ``cdcr-ctl experiments`` writes it as ``identified.yaml``). Three runs:
 
 1. world without payload, controller without payload: the reference figure;
 2. world with the payload at the tip, controller with ``robot.tip_load.payload_kg``;
@@ -21,7 +23,9 @@ drive count, :func:`cdcr_ctl.config.build_model.reversal_hysteresis_mm`; 0 is th
 sample-to-sample rule) to measure what the threshold does; ``--only ref`` runs case 1 alone.
 
 Printed per run: mean and max tip error (mm) over the whole run (cdcr_ctl.analysis.tip_errors)
-and max/mean, and the ratio of run 2's mean to run 1's (acceptance: <= 1.5).
+and max/mean, and the ratio of run 2's mean to run 1's (acceptance: <= 1.5). ``--name-hidden``:
+``cdcr-ctl discrepancy`` on run 3 (the payload hidden from the config), its named effect and
+fitted payload.
 """
 
 from __future__ import annotations
@@ -48,24 +52,32 @@ def _write(path: Path, doc: dict) -> Path:
     return path
 
 
-def _worlds(sim_path: Path, out: Path, payload_kg: float) -> tuple[Path, Path, Path, Path]:
-    """(world without payload, world with it, controller without, controller with)."""
+def _worlds(
+    sim_path: Path, out: Path, payload_kg: float, overlay: Path | None = None
+) -> tuple[Path, Path, Path, Path]:
+    """(world without payload, world with it, controller without, controller with). The
+    controllers' robot section: the world's, or with ``overlay`` the rig config's with the
+    identified overlay."""
     doc = yaml.safe_load(sim_path.read_text())
     rig = (sim_path.parent / doc["rig"]).resolve()
     doc["rig"] = str(rig)
     truth_robot = dict(doc.get("truth_robot") or {})
     loaded_robot = {**truth_robot, "tip_load": {"payload_kg": payload_kg}}
     geometry = (doc.get("effects") or {}).get("geometry", "chord")
-    ctl = {"extends": str(rig), "control": {"geometry": geometry}}
+    ctl: dict = {"extends": str(rig), "control": {"geometry": geometry}}
+    robot, robot_loaded = truth_robot, loaded_robot
+    if overlay is not None:
+        ctl["overlays"] = [str(overlay.resolve())]
+        robot, robot_loaded = {}, {"tip_load": {"payload_kg": payload_kg}}
     return (
         _write(out / "world.yaml", doc),
         _write(out / "world-payload.yaml", {**doc, "truth_robot": loaded_robot}),
-        _write(out / "ctl.yaml", {**ctl, "robot": truth_robot}),
-        _write(out / "ctl-payload.yaml", {**ctl, "robot": loaded_robot}),
+        _write(out / "ctl.yaml", {**ctl, "robot": robot}),
+        _write(out / "ctl-payload.yaml", {**ctl, "robot": robot_loaded}),
     )
 
 
-def run_one(world: Path, ctl: Path, traj, out: Path, tag: str) -> dict:
+def run_one(world: Path, ctl: Path, traj, out: Path, tag: str) -> tuple[dict, Path]:
     loaded = load_sim_config(world)
     cfg = load_rig_config(ctl)
     # truth inline (no worker process): the same physics, one process (the worker waits at most
@@ -74,7 +86,27 @@ def run_one(world: Path, ctl: Path, traj, out: Path, tag: str) -> dict:
         run = s.run(traj, f"circle-{tag}", "model")
     if run.state != "completed":
         raise SystemExit(f"{tag}: run ended {run.state}")
-    return tip_errors(run.log_dir, settle_s=0.0).summary()
+    return tip_errors(run.log_dir, settle_s=0.0).summary(), Path(run.log_dir)
+
+
+def name_hidden(run: Path) -> str:
+    """``cdcr-ctl discrepancy RUN``: the effect it names and, for a tip load, the fitted payload."""
+    import contextlib
+    import io
+    import json
+
+    from cdcr_ctl.cli.main import main as cdcr_main
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = cdcr_main(["--json", "discrepancy", "--no-progress", "--no-plots", str(run)])
+    if rc != 0:
+        raise SystemExit(f"cdcr-ctl discrepancy {run} exited {rc}:\n{buf.getvalue()}")
+    r = json.loads(buf.getvalue())
+    fitted = ", ".join(
+        f"{n} {v['value']:.4g} +- {v['ci95']:.2g} {v['unit']}" for n, v in r["parameters"].items()
+    )
+    return f"named {r['effect']} ({r['verdict']}); fitted {fitted}"
 
 
 def main() -> None:
@@ -85,6 +117,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("effects-experiments"))
     ap.add_argument("--reversal-threshold-mm", type=float, default=None)
     ap.add_argument("--only", choices=["ref"], default=None)
+    ap.add_argument("--overlay", type=Path, default=None, help="identified overlay (controller)")
+    ap.add_argument("--name-hidden", action="store_true", help="discrepancy on the hidden run")
     a = ap.parse_args()
     if a.reversal_threshold_mm is not None:
         from cdcr_ctl.config import build_model
@@ -92,7 +126,7 @@ def main() -> None:
         h = a.reversal_threshold_mm
         build_model.reversal_hysteresis_mm = lambda cfg: h
     a.out.mkdir(parents=True, exist_ok=True)
-    world0, world1, ctl0, ctl1 = _worlds(a.sim_config.resolve(), a.out, a.payload_kg)
+    world0, world1, ctl0, ctl1 = _worlds(a.sim_config.resolve(), a.out, a.payload_kg, a.overlay)
     traj = tj.spatial_circle(theta_rad=math.pi / 4, phi_rate_rad_s=a.phi_rate)
     rows = [
         ("no payload; config without", world0, ctl0, "ref"),
@@ -101,16 +135,21 @@ def main() -> None:
     ]
     if a.only == "ref":
         rows = rows[:1]
+    params = f"identified overlay {a.overlay}" if a.overlay else "the world's parameters"
     print(f"world {a.sim_config}, circle theta 45 deg at {a.phi_rate:.4f} rad/s, model mode")
+    print(f"controller: {params}")
     print(f"{'case':44s} {'mean mm':>8s} {'max mm':>8s} {'max/mean':>8s}")
-    res = {}
+    res: dict = {}
+    runs: dict = {}
     for label, w, c, tag in rows:
-        s = run_one(w, c, traj, a.out, tag)
+        s, runs[tag] = run_one(w, c, traj, a.out, tag)
         res[tag] = s
         m, x = s["mean_mm"], s["max_mm"]
         print(f"{label:44s} {m:8.3f} {x:8.3f} {x / m:8.2f}", flush=True)
     if a.only:
         return
+    if a.name_hidden:
+        print(f"payload hidden: cdcr-ctl discrepancy {name_hidden(runs['payload-hidden'])}")
     r = res["payload-cfg"]["mean_mm"] / res["ref"]["mean_mm"]
     print(
         f"mean with the payload in the config / mean without payload: {r:.2f} (<= 1.5 holds: "

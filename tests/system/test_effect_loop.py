@@ -1,16 +1,20 @@
-"""System: run, name, apply, re-run through the production control loop on the lock-step rig
-(scripts/discrepancy_loop_demo.py, the command the effects page's table comes from).
+"""System: run, name, apply, re-run through the daemon as it is typed
+(scripts/discrepancy_loop_demo.py, the command the effects page's table comes from):
+``cdcr-ctl sim WORLD --lockstep`` serves the production daemon on the lock-step rig, ``cdcr-ctl
+enable``, ``home`` and ``trajectory FILE`` drive the run over its socket, ``cdcr-ctl discrepancy
+--apply`` writes the overlay, the daemon is started again with the overlay in its config and
+the re-run is measured.
 
 A world whose overlay the controller never read before (an actuator scale error: the drives'
 counts_per_mm): the effect is named, its overlay goes into the controller's config, and the
-re-run's gap between the controller's model and the tracker shrinks by >= 70 %. A short run (5 s
-of the rich trajectory, which holds at least its planar legs and a circle, loop at 250 Hz) and
-two candidates keep this lean (45 s at load 3.5-5 on the 2-core machine; 5 or 10 s of the
-random trajectory bend too little: 0.10 mm of gap, 61-64 % shrink); the whole set of
-worlds is the script's default, as the effects page runs it
-(docs/calibration/effects-and-loads.md):
+re-run's gap between the controller's model and the tracker shrinks by >= 70 %. Lean: one
+planar go-and-return to the full bend, 90 deg (``circle`` trajectory of 0 s: no turn; 9.0 s
+simulated)
+and two candidates; the whole set of worlds is the script's default, as the effects page runs
+it (docs/calibration/effects-and-loads.md):
 
-    .venv/bin/python scripts/discrepancy_loop_demo.py --out effect-loop
+    .venv/bin/python scripts/discrepancy_loop_demo.py --out effect-loop \
+        --trajectory circle --duration-s 0 --jobs 2
 """
 
 from __future__ import annotations
@@ -18,20 +22,17 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import yaml
 from scriptload import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 EFFECTS = ROOT / "config" / "sim" / "effects"
 
 
-def _demo():
-    return load_script("discrepancy_loop_demo")
-
-
 @pytest.mark.timeout(900)
-def test_apply_through_the_loop_closes_the_gap(tmp_path):
+def test_apply_through_the_daemon_closes_the_gap(tmp_path):
     world = "actuator_scale"
-    demo = _demo()
+    demo = load_script("discrepancy_loop_demo")
     analysis = (
         "--effects",
         "actuator_scale,backlash",
@@ -42,8 +43,20 @@ def test_apply_through_the_loop_closes_the_gap(tmp_path):
         "--no-pairs",
     )
     # compensation "model" given (the rig config's): no check of the trajectory beforehand
-    r = demo.loop(EFFECTS / f"{world}.yaml", tmp_path, 5.0, "rich", 11, 250.0, analysis, "model")
+    r = demo.loop(EFFECTS / f"{world}.yaml", tmp_path, 0.0, "circle", 11, 250.0, analysis, "model")
     assert r["named"] == world, r
     assert r["shrink"] >= demo.MIN_SHRINK, r
     # the controller's config read the overlay: the re-run was commanded differently
     assert r["tip_error_after_mm"] < r["tip_error_before_mm"], r
+    # both runs were the daemon's: logged by it, with the config it ran (the overlay's counts
+    # per mm in the re-run's), and it was shut down by the CLI both times
+    before, after = (Path(p) for p in r["runs"])
+    overlay = yaml.safe_load(Path(r["overlay"]).read_text())
+    applied = [d["counts_per_mm"] for d in overlay["drives"]]
+    ran = yaml.safe_load((after / "config_effective.yaml").read_text())
+    assert [d["counts_per_mm"] for d in ran["drives"]] == applied
+    first = yaml.safe_load((before / "config_effective.yaml").read_text())
+    assert [d["counts_per_mm"] for d in first["drives"]] != applied
+    for tag in ("before", "after"):
+        log = (tmp_path / f"daemon-{tag}.log").read_text()
+        assert "lock-step daemon stopped: shutdown requested" in log, log[-2000:]
