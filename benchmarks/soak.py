@@ -213,11 +213,26 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
                 fault = None
                 inject = rng.random() < 0.67
                 if inject and not after_recovery and status(work)["run"] is not None:
-                    time.sleep(rng.uniform(0.2, max(0.3, duration / 2)))
+                    at_s = rng.uniform(0.2, max(0.3, duration / 2))
                     fault, make_args, undo, reaction = rng.choice(FAULTS)
                     args = make_args(rng)
                     if args.get("duration_s") is SENSOR_FAULT_TIMEOUTS:
                         args["duration_s"] = SENSOR_FAULT_TIMEOUTS * sensor_timeout_s
+
+                    # At at_s on the run's own clock (its elapsed time in the daemon's status),
+                    # not that long after its first rows reach the disk: a loaded machine's
+                    # writer lags, and a fault injected in the run's last moments cannot trip
+                    # before the run completes. A run already that near its end gets none.
+                    def reached(at_s=at_s):
+                        run_now = status(work)["run"]
+                        return "ended" if run_now is None else run_now["elapsed_s"] >= at_s
+
+                    left_s = duration - at_s
+                    if wait_for(reached, duration + 15, "injection time") == "ended" or (
+                        left_s < 2 * float(args.get("duration_s", 1.0))
+                    ):
+                        fault = None
+                if fault is not None:
                     key = f"{fault}:{args.get('code', '')}".rstrip(":")
                     stats = out["by_fault"].setdefault(
                         key, {"injected": 0, "tripped": 0, "safe": 0, "recovered": 0}
