@@ -301,10 +301,12 @@ def compare(runs, terms, baselines, folds: int, pairs: bool, sim) -> tuple[Desig
             if t.kind == "measurement":
                 continue
             params = t.parameters(r.spec)
+            far = t.far_steps(r.spec)
             for j, p in enumerate(params):
-                v = np.zeros(len(params))
-                v[j] = p.step
-                items.append((t.apply(r.spec, v), ri))
+                for h in (p.step, *far[j]):
+                    v = np.zeros(len(params))
+                    v[j] = h
+                    items.append((t.apply(r.spec, v), ri))
     sim.many(items)
     design = build_design(runs, terms, baselines, folds, sim)
     return design, select(design, terms, folds, pairs=pairs)

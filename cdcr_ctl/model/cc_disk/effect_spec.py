@@ -124,6 +124,13 @@ class EffectTerm(ABC):
         """Physical quantities implied by ``values`` (for the config fragment)."""
         return []
 
+    def far_steps(self, base: ModelSpec) -> tuple[tuple[float, ...], ...]:
+        """Far secant steps per parameter (one tuple each, in the parameter's unit), tried
+        beside its small ``step`` when a correction can lie far from zero, where the slope at
+        zero points elsewhere (see :func:`cdcr_ctl.discrepancy.design.build_design`). Empty
+        tuples by default."""
+        return tuple(() for _ in self.parameters(base))
+
 
 def _cables(params: RobotParams, **changes_per_cable: list) -> RobotParams:
     cables = list(params.cables)

@@ -295,6 +295,13 @@ class GravityDirection(EffectTerm):
             EffectParam("tilt_y", "rad", 0.05, -math.pi, math.pi),
         )
 
+    def far_steps(self, base: ModelSpec) -> tuple[tuple[float, ...], ...]:
+        """Quarter turns both ways about each mount axis, and the half turn about x (g
+        reversed: a robot hanging where the config says upright). Near zero the slope of a
+        turn is a sideways sag, at right angles to the reversed sag of a half turn."""
+        q = math.pi / 2
+        return ((q, -q, math.pi), (q, -q))
+
     def _gravity(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
         g = np.asarray(base.params.gravity_mm_s2, dtype=float)
         if np.linalg.norm(g) == 0:
