@@ -118,13 +118,13 @@ def active_terms(
     return out, notes
 
 
-def _secant_columns(run, base, entries, t, sim, ri) -> list[dict[float, np.ndarray]]:
+def _secant_columns(run, base, entries, t, sim, ri, far) -> list[dict[float, np.ndarray]]:
     """Secant columns of term ``t`` on run ``ri`` (baseline prediction ``base``; ``entries``:
     rows, channels and baseline values of the design's entries): per parameter, {step: column}
     for its small step and each of its far steps (``EffectTerm.far_steps``)."""
     rows, chans, y0 = entries
     params = t.parameters(run.spec)
-    far = t.far_steps(run.spec)
+    far = t.far_steps(run.spec) if far else tuple(() for _ in params)
     out = []
     for j, p in enumerate(params):
         cand = {}
@@ -164,12 +164,13 @@ def build_design(
     baselines: Sequence[Prediction],
     folds: int,
     sim: Callable[[ModelSpec, int], Prediction],
+    far: bool = False,
 ) -> Design:
     """Residuals, secant columns of every parameter, nuisance columns (see module doc).
 
-    A parameter with far steps (``EffectTerm.far_steps``) gets the secant, among its small step
-    and its far ones, that alone removes the most of the baseline residual over all runs (one
-    step for every run: the column's value is common to them)."""
+    With ``far``, a parameter with far steps (``EffectTerm.far_steps``) gets the secant, among
+    its small step and its far ones, that alone removes the most of the baseline residual over
+    all runs (one step for every run: the column's value is common to them)."""
     r_all, fold_all, run_all, row_all, chan_all = [], [], [], [], []
     cands_all: list[list[dict]] = []
     cols: list[tuple[EffectTerm, EffectParam]] = []
@@ -185,7 +186,7 @@ def build_design(
         y0 = predicted_vector(run, base, rows, chans)
         cands: list[dict] = []
         for t in terms:
-            cands += _secant_columns(run, base, (rows, chans, y0), t, sim, ri)
+            cands += _secant_columns(run, base, (rows, chans, y0), t, sim, ri, far)
         cands_all.append(cands)
         # nuisance: tracker lag (s) and per-cable tension offsets (N), this run only
         nu = []

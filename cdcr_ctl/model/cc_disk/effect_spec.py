@@ -107,6 +107,9 @@ class EffectTerm(ABC):
     #: The effect this one refines (contains as a special case): compared only when that one
     #: leads the first comparison (:func:`cdcr_ctl.discrepancy.selection.refinements`).
     refines: ClassVar[str | None] = None
+    #: Effects whose lead in a first comparison (this one's included) calls for this term's
+    #: far secant steps (:meth:`far_steps`): compared again with them.
+    far_when: ClassVar[tuple[str, ...]] = ()
 
     def not_applicable(self, base: ModelSpec) -> str | None:
         """Why this term cannot act on ``base`` (None when it can)."""

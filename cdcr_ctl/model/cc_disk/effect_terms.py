@@ -288,6 +288,7 @@ class GravityDirection(EffectTerm):
     title = "gravity direction (mount tilt)"
     signature = "sag towards a fixed direction other than the config's gravity vector"
     reference = "Qi et al. 2023 eq. 7-9 (external load W_e) with the mount direction fitted"
+    far_when = ("gravity_direction", "gravity_sag")
 
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (
