@@ -118,16 +118,61 @@ def active_terms(
     return out, notes
 
 
+def _secant_columns(run, base, entries, t, sim, ri, far) -> list[dict[float, np.ndarray]]:
+    """Secant columns of term ``t`` on run ``ri`` (baseline prediction ``base``; ``entries``:
+    rows, channels and baseline values of the design's entries): per parameter, {step: column}
+    for its small step and each of its far steps (``EffectTerm.far_steps``)."""
+    rows, chans, y0 = entries
+    params = t.parameters(run.spec)
+    far = t.far_steps(run.spec) if far else tuple(() for _ in params)
+    out = []
+    for j, p in enumerate(params):
+        cand = {}
+        for h in (p.step, *far[j]):
+            v = np.zeros(len(params))
+            v[j] = h
+            spec = t.apply(run.spec, v)
+            if t.kind == "measurement":
+                pj = Prediction(spec.tip_map(base.tip_mm), base.tension_N, base.psi, 0)
+            else:
+                pj = sim(spec, ri)
+            cand[h] = (predicted_vector(run, pj, rows, chans) - y0) / h
+        out.append(cand)
+    return out
+
+
+def _best_step(cands: list[dict], rs: list[np.ndarray], qs: list[np.ndarray]) -> float:
+    """The step whose secant column, alone beside each run's nuisance, removes the most of the
+    runs' baseline residuals ``rs`` (``qs``: orthonormal bases of the nuisance columns): the
+    start a far correction is linearised from."""
+    best, gain = None, -1.0
+    for h in cands[0]:
+        num = den = 0.0
+        for cand, r, q in zip(cands, rs, qs, strict=True):
+            c = cand[h] - q @ (q.T @ cand[h]) if q.shape[1] else cand[h]
+            num += float(c @ r)
+            den += float(c @ c)
+        g = num * num / den if den > 0 else 0.0
+        if g > gain:
+            best, gain = h, g
+    return best
+
+
 def build_design(
     runs: Sequence[AlignedRun],
     terms: Sequence[EffectTerm],
     baselines: Sequence[Prediction],
     folds: int,
     sim: Callable[[ModelSpec, int], Prediction],
+    far: bool = False,
 ) -> Design:
-    """Residuals, secant columns of every parameter, nuisance columns (see module doc)."""
+    """Residuals, secant columns of every parameter, nuisance columns (see module doc).
+
+    With ``far``, a parameter with far steps (``EffectTerm.far_steps``) gets the secant, among
+    its small step and its far ones, that alone removes the most of the baseline residual over
+    all runs (one step for every run: the column's value is common to them)."""
     r_all, fold_all, run_all, row_all, chan_all = [], [], [], [], []
-    per_run_cols: list[list[np.ndarray]] = []
+    cands_all: list[list[dict]] = []
     cols: list[tuple[EffectTerm, EffectParam]] = []
     steps: list[float] = []
     for t in terms:
@@ -139,22 +184,10 @@ def build_design(
     for ri, (run, base) in enumerate(zip(runs, baselines, strict=True)):
         r, rows, chans = measurement_vector(run, base)
         y0 = predicted_vector(run, base, rows, chans)
-        G = np.zeros((len(r), len(cols)))
-        c = 0
+        cands: list[dict] = []
         for t in terms:
-            params = t.parameters(run.spec)
-            for j, p in enumerate(params):
-                v = np.zeros(len(params))
-                v[j] = p.step
-                spec = t.apply(run.spec, v)
-                if t.kind == "measurement":
-                    tip = spec.tip_map(base.tip_mm)
-                    pj = Prediction(tip, base.tension_N, base.psi, 0)
-                else:
-                    pj = sim(spec, ri)
-                G[:, c] = (predicted_vector(run, pj, rows, chans) - y0) / p.step
-                c += 1
-        per_run_cols.append([G])
+            cands += _secant_columns(run, base, (rows, chans, y0), t, sim, ri, far)
+        cands_all.append(cands)
         # nuisance: tracker lag (s) and per-cable tension offsets (N), this run only
         nu = []
         names = []
@@ -190,6 +223,12 @@ def build_design(
         run_all.append(np.full(len(r), ri))
         row_all.append(rows)
         chan_all.append(chans)
+    qs = [np.linalg.qr(b)[0] if b.shape[1] else b for b in nu_blocks]
+    G = np.zeros((sum(len(x) for x in r_all), len(cols)))
+    for c in range(len(cols)):
+        per_run = [cands[c] for cands in cands_all]
+        h = _best_step(per_run, r_all, qs) if len(per_run[0]) > 1 else cols[c][1].step
+        G[:, c] = np.concatenate([cand[h] for cand in per_run])
     M = sum(len(x) for x in r_all)
     Q = sum(b.shape[1] for b in nu_blocks)
     Nu = np.zeros((M, Q))
@@ -200,7 +239,7 @@ def build_design(
         q += b.shape[1]
     return Design(
         r0=np.concatenate(r_all),
-        G=np.vstack([c[0] for c in per_run_cols]),
+        G=G,
         Nu=Nu,
         fold=np.concatenate(fold_all),
         run=np.concatenate(run_all),

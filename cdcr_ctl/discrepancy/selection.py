@@ -292,19 +292,35 @@ def refinements(later: Sequence[EffectTerm], sel: Selection) -> list[EffectTerm]
     return [t for t in later if t.refines in lead]
 
 
-def compare(runs, terms, baselines, folds: int, pairs: bool, sim) -> tuple[Design, Selection]:
+def far_wanted(terms: Sequence[EffectTerm], sel: Selection) -> bool:
+    """Whether the first comparison calls for the far secant steps of some of ``terms``: it
+    found something missing and its best fit, or the pair that beat it, holds an effect of a
+    term's ``far_when`` (a gravity term for ``gravity_direction``: a sag the config's direction
+    does not give)."""
+    if sel.verdict == "nothing_missing":
+        return False
+    lead = {t.name for f in (sel.best, sel.pair) if f is not None for t in f.terms}
+    return any(lead & set(t.far_when) for t in terms)
+
+
+def compare(
+    runs, terms, baselines, folds: int, pairs: bool, sim, far: bool = False
+) -> tuple[Design, Selection]:
     """Every column simulation of ``terms`` up front (``sim.many``: in parallel when the
-    workflow's simulator has workers; cached), then the design and the model comparison."""
+    workflow's simulator has workers; cached), then the design and the model comparison;
+    ``far``: with the terms' far secant steps too (:func:`far_wanted`)."""
     items = []
     for ri, r in enumerate(runs):
         for t in terms:
             if t.kind == "measurement":
                 continue
             params = t.parameters(r.spec)
+            steps = t.far_steps(r.spec) if far else tuple(() for _ in params)
             for j, p in enumerate(params):
-                v = np.zeros(len(params))
-                v[j] = p.step
-                items.append((t.apply(r.spec, v), ri))
+                for h in (p.step, *steps[j]):
+                    v = np.zeros(len(params))
+                    v[j] = h
+                    items.append((t.apply(r.spec, v), ri))
     sim.many(items)
-    design = build_design(runs, terms, baselines, folds, sim)
+    design = build_design(runs, terms, baselines, folds, sim, far)
     return design, select(design, terms, folds, pairs=pairs)

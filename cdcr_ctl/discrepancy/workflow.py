@@ -46,6 +46,7 @@ from cdcr_ctl.discrepancy.selection import (
     apply_all,
     compare,
     entry_vector,
+    far_wanted,
     predicted_vector,
     refinements,
     refit,
@@ -263,11 +264,19 @@ def analyse(
         first, later = split_refinements(terms)
         design, selection = compare(runs, first, baselines, folds, pairs, sim)
         extra = refinements(later, selection)
-        if extra:  # a refinement of the leading effect: compared again with its columns
-            design, selection = compare(runs, [*first, *extra], baselines, folds, pairs, sim)
+        far = far_wanted(first, selection)
+        lead = (selection.pair or selection.best).name
+        if extra or far:  # a refinement of the leading effect, far starts: compared again
+            design, selection = compare(runs, [*first, *extra], baselines, folds, pairs, sim, far)
+        if extra:
             notes.append(
                 f"refined {', '.join(t.refines for t in extra)}: compared again with"
                 f" {', '.join(t.name for t in extra)}"
+            )
+        if far:
+            notes.append(
+                f"{lead} led: compared again with the far start points (quarter and"
+                " half turns of the mount)"
             )
         rf = None
         if selection.chosen is not None:

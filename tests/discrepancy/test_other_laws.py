@@ -15,10 +15,15 @@ from scriptload import load_script
 
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import robot_params
-from cdcr_ctl.discrepancy.design import hysteresis_columns, lag_without_hysteresis, suspect_lag
+from cdcr_ctl.discrepancy.design import (
+    _best_step,
+    hysteresis_columns,
+    lag_without_hysteresis,
+    suspect_lag,
+)
 from cdcr_ctl.discrepancy.report import put_fitted
 from cdcr_ctl.errors import RigError
-from cdcr_ctl.model.cc_disk.effects import ModelSpec, OtherFrictionLaw
+from cdcr_ctl.model.cc_disk.effects import GravityDirection, ModelSpec, OtherFrictionLaw
 from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape, LawTransfer, cable_speeds
 from cdcr_ctl.model.cc_disk.params import Effects
 from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
@@ -133,6 +138,34 @@ def test_the_suspect_lag_flag_fires_on_a_hysteresis_and_not_on_a_real_lag():
     steady = np.column_stack((np.full(n, 5.0), np.zeros(n), np.zeros(n)))
     Hs = hysteresis_columns(steady, psi, rows, chans)
     assert lag_without_hysteresis(-steady[rows, chans], Hs, -0.15 * Hs[:, 0]) is None
+
+
+def test_a_hanging_robot_is_linearised_from_the_half_turn():
+    """The mount's far start points: the half turn about x reverses the config's gravity (a
+    robot hanging where the config says upright), quarter turns lay it sideways. Of a
+    parameter's secants, the design keeps the one that alone removes the most of the residual
+    beside the nuisance: the half turn's for a reversed sag (the slope at zero is a sideways
+    sag, at right angles to it), the small step's for a small sideways one."""
+    _, p = _qi()
+    spec = ModelSpec(p, Effects())
+    term = GravityDirection()
+    small_x = term.parameters(spec)[0].step
+    far_x, far_y = term.far_steps(spec)
+    assert math.pi in far_x and {math.pi / 2, -math.pi / 2} <= set(far_x) & set(far_y)
+    g0 = np.array(p.gravity_mm_s2)
+    g = np.array(term.apply(spec, np.array([math.pi, 0.0])).params.gravity_mm_s2)
+    assert g == pytest.approx(-g0, abs=1e-9 * np.linalg.norm(g0))
+    rng = np.random.default_rng(3)
+    n = 400
+    sag = rng.normal(size=n)  # the configured sag's pattern on the entries
+    side = rng.normal(size=n)  # a sideways sag's
+    nu = np.linalg.qr(rng.normal(size=(n, 2)))[0]  # the run's nuisance (lag) columns
+    cands = {small_x: side, math.pi / 2: (side - sag) / (math.pi / 2), math.pi: -2 * sag / math.pi}
+    reversed_sag = -2.0 * sag + 0.1 * rng.normal(size=n)
+    assert _best_step([cands], [reversed_sag], [nu]) == math.pi
+    assert _best_step([cands], [0.3 * side + 0.1 * rng.normal(size=n)], [nu]) == small_x
+    # one step for every run: two runs that each lean to the half turn choose it together
+    assert _best_step([cands, cands], [reversed_sag, 0.5 * reversed_sag], [nu, nu]) == math.pi
 
 
 @pytest.mark.slow

@@ -107,6 +107,9 @@ class EffectTerm(ABC):
     #: The effect this one refines (contains as a special case): compared only when that one
     #: leads the first comparison (:func:`cdcr_ctl.discrepancy.selection.refinements`).
     refines: ClassVar[str | None] = None
+    #: Effects whose lead in a first comparison (this one's included) calls for this term's
+    #: far secant steps (:meth:`far_steps`): compared again with them.
+    far_when: ClassVar[tuple[str, ...]] = ()
 
     def not_applicable(self, base: ModelSpec) -> str | None:
         """Why this term cannot act on ``base`` (None when it can)."""
@@ -123,6 +126,13 @@ class EffectTerm(ABC):
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
         """Physical quantities implied by ``values`` (for the config fragment)."""
         return []
+
+    def far_steps(self, base: ModelSpec) -> tuple[tuple[float, ...], ...]:
+        """Far secant steps per parameter (one tuple each, in the parameter's unit), tried
+        beside its small ``step`` when a correction can lie far from zero, where the slope at
+        zero points elsewhere (see :func:`cdcr_ctl.discrepancy.design.build_design`). Empty
+        tuples by default."""
+        return tuple(() for _ in self.parameters(base))
 
 
 def _cables(params: RobotParams, **changes_per_cable: list) -> RobotParams:

@@ -288,12 +288,20 @@ class GravityDirection(EffectTerm):
     title = "gravity direction (mount tilt)"
     signature = "sag towards a fixed direction other than the config's gravity vector"
     reference = "Qi et al. 2023 eq. 7-9 (external load W_e) with the mount direction fitted"
+    far_when = ("gravity_direction", "gravity_sag")
 
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
         return (
             EffectParam("tilt_x", "rad", 0.05, -math.pi, math.pi),
             EffectParam("tilt_y", "rad", 0.05, -math.pi, math.pi),
         )
+
+    def far_steps(self, base: ModelSpec) -> tuple[tuple[float, ...], ...]:
+        """Quarter turns both ways about each mount axis, and the half turn about x (g
+        reversed: a robot hanging where the config says upright). Near zero the slope of a
+        turn is a sideways sag, at right angles to the reversed sag of a half turn."""
+        q = math.pi / 2
+        return ((q, -q, math.pi), (q, -q))
 
     def _gravity(self, base: ModelSpec, values: np.ndarray) -> np.ndarray:
         g = np.asarray(base.params.gravity_mm_s2, dtype=float)
