@@ -72,23 +72,28 @@ from cdcr_ctl.sim.faults import FaultClient  # noqa: E402
 # motion makes an uncompensated cable go slack, which the tension limit rightly trips on).
 TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
-#: (fault, args maker, undo fault or None, expected reaction)
+#: (fault, args maker (rng, the rig's sensor timeout s), undo fault or None, expected reaction)
 FAULTS = [
-    ("emcy", lambda r: {"node": r.randint(1, 3), "code": "following_error"}, None, "QUICK_STOP"),
-    ("emcy", lambda r: {"node": r.randint(1, 3), "code": "over_current"}, None, "QUICK_STOP"),
-    ("heartbeat_stop", lambda r: {"node": r.randint(1, 3)}, "heartbeat_start", "QUICK_STOP"),
-    ("bus_off", lambda r: {"node": r.randint(1, 3)}, "bus_recover", "QUICK_STOP"),
     (
-        "tension_spike",
-        lambda r: {"cable": f"c{r.randint(1, 3)}", "add_N": 80.0, "duration_s": 0.3},
+        "emcy",
+        lambda r, _t: {"node": r.randint(1, 3), "code": "following_error"},
         None,
         "QUICK_STOP",
     ),
-    # A sensor fault lasts twice the rig's sensor_timeout_s (filled in by soak()): one only a
+    ("emcy", lambda r, _t: {"node": r.randint(1, 3), "code": "over_current"}, None, "QUICK_STOP"),
+    ("heartbeat_stop", lambda r, _t: {"node": r.randint(1, 3)}, "heartbeat_start", "QUICK_STOP"),
+    ("bus_off", lambda r, _t: {"node": r.randint(1, 3)}, "bus_recover", "QUICK_STOP"),
+    (
+        "tension_spike",
+        lambda r, _t: {"cable": f"c{r.randint(1, 3)}", "add_N": 80.0, "duration_s": 0.3},
+        None,
+        "QUICK_STOP",
+    ),
+    # A sensor fault lasts twice the rig's ``limits.sensor_timeout_s``: one only a
     # little longer than the timeout trips only if a loop cycle lands in the difference, and a
     # loaded machine's loop can run that late, so the soak would count a right daemon as missing.
-    ("loadcell_garbage", lambda r: {"duration_s": SENSOR_FAULT_TIMEOUTS}, None, "HALT"),
-    ("tracker_dropout", lambda r: {"duration_s": SENSOR_FAULT_TIMEOUTS}, None, "HALT"),
+    ("loadcell_garbage", lambda r, t: {"duration_s": SENSOR_FAULT_TIMEOUTS * t}, None, "HALT"),
+    ("tracker_dropout", lambda r, t: {"duration_s": SENSOR_FAULT_TIMEOUTS * t}, None, "HALT"),
 ]
 #: Sensor faults last this many of the rig config's ``limits.sensor_timeout_s``.
 SENSOR_FAULT_TIMEOUTS = 2.0
@@ -215,9 +220,7 @@ def soak(minutes: float, seed: int, keep: bool, rt: int = 0) -> tuple[dict, list
                 if inject and not after_recovery and status(work)["run"] is not None:
                     at_s = rng.uniform(0.2, max(0.3, duration / 2))
                     fault, make_args, undo, reaction = rng.choice(FAULTS)
-                    args = make_args(rng)
-                    if args.get("duration_s") is SENSOR_FAULT_TIMEOUTS:
-                        args["duration_s"] = SENSOR_FAULT_TIMEOUTS * sensor_timeout_s
+                    args = make_args(rng, sensor_timeout_s)
 
                     # At at_s on the run's own clock (its elapsed time in the daemon's status),
                     # not that long after its first rows reach the disk: a loaded machine's
