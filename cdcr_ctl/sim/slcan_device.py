@@ -59,6 +59,8 @@ from pathlib import Path
 
 import can
 
+from cdcr_ctl.sim.loopback import listen_loopback
+
 log = logging.getLogger(__name__)
 
 OK, ERROR = b"\r", b"\a"
@@ -173,13 +175,8 @@ class SlcanDevice:
         self._conn: socket.socket | None = None
         if tcp:
             self.master_fd, self.slave_fd = -1, -1  # -1: no host connected
-            listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            listener.bind(("127.0.0.1", tcp_port))
-            listener.listen(1)
-            self._listener = listener
+            self._listener, self.path = listen_loopback(tcp_port)
             self.pty_path = ""
-            self.path = f"socket://127.0.0.1:{listener.getsockname()[1]}"
         else:
             self.master_fd, self.slave_fd = os.openpty()
             tty.setraw(self.slave_fd)

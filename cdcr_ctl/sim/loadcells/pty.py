@@ -26,6 +26,7 @@ from pathlib import Path
 
 from cdcr_ctl.sensors.loadcell_modbus import char_time_s
 from cdcr_ctl.sim.loadcells.feed import SensorNoise, SimStats, TensionFeed, Tensions
+from cdcr_ctl.sim.loopback import listen_loopback
 
 #: Line noise sent before every frame while :meth:`PtySim.garble_for` is in force.
 GARBLE_NOISE = b"\x00\xff\x55\xaa#?\r"
@@ -140,12 +141,8 @@ class TcpEndpoint:
     """
 
     def __init__(self, port: int = 0) -> None:
-        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self._listener.bind(("127.0.0.1", port))
-        self._listener.listen(1)
+        self._listener, self.path = listen_loopback(port)
         self.port = self._listener.getsockname()[1]
-        self.path = f"socket://127.0.0.1:{self.port}"
         self.link: Path | None = None
         self.overflow_bytes = 0
         self.closed = False
