@@ -68,9 +68,11 @@ from cdcr_ctl.errors import RigError  # noqa: E402
 EFFECTS_DIR = ROOT / "config" / "sim" / "effects"
 #: Acceptance: the gap after applying the overlay is at most 30 % of the gap before.
 MIN_SHRINK = 0.70
-#: The candidate that names a world's hidden effect where it is not the world's own name: the
-#: friction of another law (cdcr_ctl.sim.friction_law) is the disk friction of the model's law.
-NAMED_AS = {"friction_law": "disk_friction"}
+#: The candidates that name a world's hidden effect right where it is not (only) the world's
+#: own name: friction of another law (cdcr_ctl.sim.friction_law) is named ``friction_law`` (its
+#: law, applied as ``robot.friction_law``) or, over a motion that cannot tell the laws apart, the
+#: model's own disk friction with a corrected coefficient.
+NAMED_AS = {"friction_law": ("friction_law", "disk_friction")}
 #: A run a cable went slack in even uncompensated is made again bent this much less, down to
 #: :data:`MIN_BEND_RAD` (rad).
 SLACK_BEND_FACTOR = 0.75
@@ -354,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
     ok = [
         r
         for r in rows
-        if r["named"] == NAMED_AS.get(r["world"], r["world"]) and r["shrink"] >= MIN_SHRINK
+        if r["named"] in NAMED_AS.get(r["world"], (r["world"],)) and r["shrink"] >= MIN_SHRINK
     ]
     sim_s = "/".join(sorted({f"{r['trajectory_s']:.1f}" for r in rows if "trajectory_s" in r}))
     bends = "/".join(sorted({f"{r['bend_deg']:.0f}" for r in rows if "bend_deg" in r}))
