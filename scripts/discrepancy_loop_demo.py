@@ -190,7 +190,17 @@ def run_once(
     :class:`Tripped` when the supervisor ended it."""
     timeout = 60.0 + WALL_PER_SIM_S * duration_s
     for attempt in (1, 2):
-        with daemon(sim, ctl, sock, out / f"daemon-{name}.log"):
+        with contextlib.ExitStack() as stack:
+            try:
+                stack.enter_context(daemon(sim, ctl, sock, out / f"daemon-{name}.log"))
+            except RigError as e:
+                # The lock-step truth worker's first solve is given SOLVE_TIMEOUT_S of wall
+                # time: a machine loaded far beyond its cores can starve it ("did not start").
+                # Said, and started once more.
+                if attempt == 1 and "did not start" in str(e):
+                    print(f"{sim.stem}: {e}; again", file=sys.stderr)
+                    continue
+                raise SystemExit(str(e)) from None
             p = cdcr(
                 out / "cli.log",
                 "--json",
