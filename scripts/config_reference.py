@@ -38,6 +38,7 @@ UNITS: list[tuple[str, str]] = [
     ("_mm_s2", "mm/s²"),
     ("_rpm_s", "rpm/s"),
     ("_mm_s", "mm/s"),
+    ("_s_per_mm", "s/mm"),
     ("_per_mm", "1/mm"),
     ("_per_s", "1/s"),
     ("_Nmm2", "N·mm²"),

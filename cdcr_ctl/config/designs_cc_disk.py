@@ -15,6 +15,7 @@ from typing import Any
 from cdcr_ctl.config.robot import RobotConfig
 from cdcr_ctl.model.cc_disk.compensation import CCDiskModel
 from cdcr_ctl.model.cc_disk.effects import with_cable_play
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import (
     CableParams,
     Effects,
@@ -105,6 +106,19 @@ def model_effects(cfg: Any) -> Effects:
     return Effects(**cfg.control.model_effects.model_dump(), geometry=cfg.control.geometry)
 
 
+def friction_law(robot: RobotConfig) -> FrictionLawShape | None:
+    """The disk friction's law of ``robot.friction_law``; None for the capstan law (the
+    defaults), so a config without the key builds the model it always built."""
+    f = robot.friction_law
+    shape = FrictionLawShape(
+        exponent=f.wrap_exponent,
+        viscous_s_per_mm=f.viscous_s_per_mm,
+        breakaway=f.breakaway,
+        breakaway_mm_s=f.stribeck_mm_s,
+    )
+    return None if shape.capstan else shape
+
+
 def loadcell_locations(cfg: Any) -> list[Location]:
     """Per cable (config order): where its load cell sits; ``robot_base`` when it has none."""
     where: dict[str, Location] = {}
@@ -124,7 +138,9 @@ def build_cc_disk_model(
     switches of ``control.model_effects`` (every effect on unless the config says otherwise),
     with the cable geometry of ``control.geometry``; the cables' lost motion (``backlash_mm``) is
     added to it as the first transmission effect, its inverse bounded by
-    :func:`dead_zone_step_mm`; ``reversal_band_mm`` defaults to ``control.reversal_band_mm``.
+    :func:`dead_zone_step_mm`; ``reversal_band_mm`` defaults to ``control.reversal_band_mm``;
+    the disk friction follows ``robot.friction_law`` (:func:`friction_law`), a speed-dependent
+    law on cable speeds taken over the loop's period 1 / ``control.rate_hz``.
     ``source`` names the file in errors."""
     if effects is None:
         effects = model_effects(cfg)
@@ -138,6 +154,8 @@ def build_cc_disk_model(
         effects,
         locations=loadcell_locations(cfg),
         reversal_band_mm=reversal_band_mm,
+        friction_law=friction_law(cfg.robot),
+        cycle_s=1.0 / cfg.control.rate_hz,
     )
 
 

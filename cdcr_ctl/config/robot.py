@@ -14,6 +14,7 @@ from typing import Annotated
 from pydantic import Field, model_validator
 
 from cdcr_ctl.config.base import Section
+from cdcr_ctl.model.cc_disk.friction_law import BREAKAWAY_MM_S
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 NonNegativeFloat = Annotated[float, Field(ge=0)]
@@ -148,11 +149,42 @@ class TipLoadConfig(Section):
     ] = Field(default_factory=lambda: [0.0, 0.0, 0.0])
 
 
+#: Largest wrap exponent of the disk friction law: with p = 4 the friction at 2 rad of wrap is
+#: 8 x the capstan law's; beyond it no hole of a disk robot rubs, the value is a typo.
+WRAP_EXPONENT_MAX = 4.0
+#: Largest Stribeck speed (mm/s): a breakaway that lasts up to 1 m/s of cable speed is no stick.
+STRIBECK_MAX_MM_S = 1000.0
+
+
+class FrictionLawConfig(Section):
+    """The disk-hole friction law (cdcr_ctl/model/cc_disk/friction_law.py); the defaults are the
+    capstan law of Qi et al. 2023 eq. 16-24, ln(T(z)/T_anchor) = s mu_disk z.
+
+    With other values: ln(T(z)/T_anchor) = s mu_disk m(v) (z / 1 rad)^p, the wrap z (rad)
+    accumulated from the cable's anchor, p = ``wrap_exponent``, m(v) = 1 + ``viscous_s_per_mm``
+    v + ``breakaway`` exp(-(v / ``stribeck_mm_s``)^2), v the cable's speed (mm/s). The
+    compensation and the discrepancy workflow's model both use it; ``cdcr-ctl discrepancy
+    --apply`` writes it when it names the ``friction_law`` effect.
+    """
+
+    #: p: > 1 the holes near the base (more wrap behind them) rub more; < 1 those near the tip.
+    wrap_exponent: Annotated[float, Field(gt=0, le=WRAP_EXPONENT_MAX, allow_inf_nan=False)] = 1.0
+    #: c_v: friction growing with the cable's speed, per mm/s.
+    viscous_s_per_mm: Annotated[float, Field(ge=0, le=5, allow_inf_nan=False)] = 0.0
+    #: b: the static excess at rest, a fraction of mu_disk.
+    breakaway: Annotated[float, Field(ge=0, le=4, allow_inf_nan=False)] = 0.0
+    #: v_b: the cable speed over which the breakaway excess decays (mm/s).
+    stribeck_mm_s: Annotated[float, Field(gt=0, le=STRIBECK_MAX_MM_S, allow_inf_nan=False)] = (
+        BREAKAWAY_MM_S
+    )
+
+
 class RobotConfig(Section):
     """The robot: segments base to tip, cables, guide pulleys, gravity and the tip load.
 
     ``gravity_mm_s2`` is gravity in the base frame, any direction (a mount turned sideways or
     upside down is a gravity vector along x or +z); ``tip_load`` the payload and tip force.
+    ``friction_law``: the law of every cable's disk-hole friction (``mu_disk`` its coefficient).
     """
 
     segments: Annotated[list[SegmentConfig], Field(min_length=1)]
@@ -164,3 +196,4 @@ class RobotConfig(Section):
         default_factory=lambda: [0.0, 0.0, -9810.0]
     )
     tip_load: TipLoadConfig = Field(default_factory=TipLoadConfig)
+    friction_law: FrictionLawConfig = Field(default_factory=FrictionLawConfig)

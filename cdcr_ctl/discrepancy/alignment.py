@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cdcr_ctl.config.build_model import loadcell_locations, robot_params
+from cdcr_ctl.config.build_model import friction_law, loadcell_locations, robot_params
 from cdcr_ctl.config.loader import load_rig_config, validate_mapping
 from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
@@ -275,7 +275,9 @@ def align_run(
     # The controller's model as build_model makes it: the cables' lost motion included.
     gain = cfg.control.model_effects.coupling_gain
     eff = Effects(geometry=cfg.control.geometry, coupling_gain=gain, **sw)
-    spec = ModelSpec(params, with_cable_play(params, eff))
+    spec = ModelSpec(params, with_cable_play(params, eff), friction_law=friction_law(cfg.robot))
+    if spec.friction_law is not None:
+        notes.append(f"controller's disk friction law (robot.friction_law): {spec.friction_law}")
     if run.has("q_act"):
         q = run.q_act()
         q_src = "q_act"

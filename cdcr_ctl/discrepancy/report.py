@@ -7,7 +7,8 @@
   phase, bend, tension level), ``candidates.png`` (held-out mean square per model).
 * ``fragment.yaml``: YAML to overlay on the rig config (``overlays:``): the fitted values under
   the rig config's own keys (cable ``E_MPa``/``EA_N``, ``mu_disk``, pulley ``alpha``, disk
-  ``mass_g``, drive ``counts_per_mm``, tracker ``base_from_tracker``). Quantities the rig config
+  ``mass_g``, drive ``counts_per_mm``, tracker ``base_from_tracker``, the disk friction's law
+  ``robot.friction_law``). Quantities the rig config
   has no key for yet (backlash, the model's effect switches, a coupling gain) are written as YAML
   comments with the value, so the fragment always validates.
 """
@@ -197,13 +198,9 @@ def put_fitted(
         else:
             tl["force_N"] = [round(float(v), 5) for v in fv.value]  # type: ignore[union-attr]
     elif fv.what == "friction_law":
-        why = (
-            f"friction_law.{fv.key} = {float(fv.value):.4g}: named, not applicable by the"
-            " controller yet (its model has the capstan law; no rig-config key)"
-        )
-        if for_apply:
-            raise RigError(f"discrepancy: {why}")
-        comments.append(why)
+        # the disk friction's law, read by the compensation and the discrepancy model alike
+        law = doc.setdefault("robot", {}).setdefault("friction_law", {})
+        law[fv.key] = round(float(fv.value), 5)
     else:
         raise RigError(f"discrepancy: no rig-config key for {fv.what}.{fv.key}")
 

@@ -14,7 +14,9 @@ import pytest
 from scriptload import load_script
 
 from cdcr_ctl.config import load_rig_config
-from cdcr_ctl.config.build_model import robot_params
+from cdcr_ctl.config.build_model import friction_law, robot_params
+from cdcr_ctl.config.loader import merge_tree, validate_mapping
+from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.design import (
     _best_step,
     hysteresis_columns,
@@ -22,9 +24,13 @@ from cdcr_ctl.discrepancy.design import (
     suspect_lag,
 )
 from cdcr_ctl.discrepancy.report import put_fitted
-from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.cc_disk.effects import GravityDirection, ModelSpec, OtherFrictionLaw
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape, LawTransfer, cable_speeds
+from cdcr_ctl.model.cc_disk.friction_law import (
+    BREAKAWAY_MM_S,
+    FrictionLawShape,
+    LawTransfer,
+    cable_speeds,
+)
 from cdcr_ctl.model.cc_disk.params import Effects
 from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 from cdcr_ctl.sim.simconfig import load_sim_config
@@ -86,21 +92,32 @@ def test_cable_speeds_follow_the_drive_with_the_contact_memory():
     assert v[1, 0] == pytest.approx(2.0 * -math.expm1(-0.01 / 0.05), rel=1e-9)
 
 
-def test_the_candidate_is_named_but_not_applicable_by_the_controller_yet():
-    """The controller's model has the capstan law only: the report says so in a comment and
-    ``--apply`` refuses rather than writing half of the law."""
+def test_the_applied_law_is_the_next_model_s_law_and_the_candidate_corrects_it():
+    """``--apply`` writes robot.friction_law; the config with it is the discrepancy's next
+    baseline, from which the candidate's zero is that law and its corrections add to it."""
     cfg, params = _qi()
     base = ModelSpec(params, Effects(geometry="chord"))
     values = np.array([0.1, 0.5, 0.2, 0.0, 0.0])
     doc: dict = {}
-    comments: list[str] = []
     for fv in OtherFrictionLaw().fitted(base, values):
-        put_fitted(doc, comments, fv, cfg, None, for_apply=False)
-    assert [c["name"] for c in doc["robot"]["cables"]] == ["c1", "c2", "c3"]
-    assert any("wrap_exponent = 1.5" in c and "not applicable" in c for c in comments)
-    with pytest.raises(RigError, match="not applicable by the controller yet"):
-        for fv in OtherFrictionLaw().fitted(base, values):
-            put_fitted({}, [], fv, cfg, None, for_apply=True)
+        put_fitted(doc, [], fv, cfg, None, for_apply=True)
+    assert doc["robot"]["friction_law"] == {
+        "wrap_exponent": 1.5,
+        "viscous_s_per_mm": 0.2,
+        "breakaway": 0.0,
+        "stribeck_mm_s": pytest.approx(BREAKAWAY_MM_S, abs=1e-5),
+    }
+    merged = validate_mapping(
+        merge_tree(cfg.model_dump(mode="json"), doc, (), {}, "overlay"), RigConfig, "merged"
+    )
+    law = friction_law(merged.robot)
+    assert law == FrictionLawShape(exponent=1.5, viscous_s_per_mm=0.2)
+    rebased = ModelSpec(robot_params(merged.robot), Effects(geometry="chord"), friction_law=law)
+    term = OtherFrictionLaw()
+    assert term.apply(rebased, np.zeros(5)) == rebased
+    assert term.apply(rebased, np.array([0.0, 0.25, 0.0, 0.0, 0.0])).friction_law == (
+        FrictionLawShape(exponent=1.75, viscous_s_per_mm=0.2)
+    )
 
 
 def _go_and_return(n_cycles: int = 4, dt: float = 0.02):

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from cdcr_ctl.config import load_rig_config
-from cdcr_ctl.config.build_model import model_effects, robot_params
+from cdcr_ctl.config.build_model import friction_law, model_effects, robot_params
 from cdcr_ctl.config.loader import merge_tree, validate_mapping
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.report import put_fitted
@@ -26,9 +26,8 @@ from cdcr_ctl.model.cc_disk.params import Effects
 
 ROOT = Path(__file__).resolve().parents[2]
 SWITCHES = ("disk_friction", "pulley_friction", "elongation", "coupling", "gravity")
-# the tracker alignment needs a fitted result (test_workflow.py); friction_law is named but not
-# applicable by the controller yet (test_other_laws.py)
-TERMS = [t for t in CANDIDATES if t.name not in ("tracker_offset", "friction_law")]
+# the tracker alignment needs a fitted result (test_workflow.py)
+TERMS = [t for t in CANDIDATES if t.name != "tracker_offset"]
 
 
 def _base(rig: str) -> tuple[RigConfig, ModelSpec]:
@@ -76,6 +75,13 @@ def test_the_overlay_carries_what_the_applied_term_changes(term):
             [c.backlash_mm for c in applied.params.cables], abs=1e-5
         )
         return
+    if term.name == "friction_law":
+        # robot.friction_law: the law the controller's compensation and the discrepancy
+        # model read (5 decimals in the overlay)
+        got, want = friction_law(merged.robot), applied.friction_law
+        assert got is not None and want is not None
+        for f in ("exponent", "viscous_s_per_mm", "breakaway", "breakaway_mm_s"):
+            assert getattr(got, f) == pytest.approx(getattr(want, f), abs=1e-5), f
     want_p = applied.params
     assert got_p.tip_mass_g == pytest.approx(want_p.tip_mass_g, abs=1e-3)
     assert got_p.gravity_mm_s2 == pytest.approx(want_p.gravity_mm_s2, abs=0.01)

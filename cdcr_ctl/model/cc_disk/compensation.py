@@ -23,6 +23,13 @@ Two ways in:
   when the pose holds, so a reversal flips the friction (the inverse of the forward model's dead
   zone).
 
+The disk friction's law is the capstan law of eq. 16-24 unless a
+:class:`~cdcr_ctl.model.cc_disk.friction_law.FrictionLawShape` says otherwise: then the chain is
+its :class:`~cdcr_ctl.model.cc_disk.friction_law.LawTransfer` (a wrap exponent; a speed-dependent
+part follows each cable's speed |dq_geom| / ``cycle_s`` between steps, lagged by
+:data:`~cdcr_ctl.model.cc_disk.friction_law.SPEED_MEMORY_S` as the discrepancy workflow's
+simulation does).
+
 :class:`CCDiskModel` adapts it to :class:`cdcr_ctl.model.port.RobotModelPort`.
 Units: psi (S, 2) rows (theta, phi) in rad; q in mm pulled in; tensions in N.
 """
@@ -36,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cdcr_ctl.errors import ModelError
+from cdcr_ctl.model.cc_disk.friction_law import SPEED_MEMORY_S, FrictionLawShape, LawTransfer
 from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
@@ -64,6 +72,9 @@ class CompensationState:
     w_mm: list[float]
     effect_states: list[object] = field(default_factory=list)
     last: Transfer | None = None
+    #: A speed-dependent friction law's memory: the last q_geom (mm) and cable speeds (mm/s).
+    q_geom_mm: list[float] | None = None
+    speed_mm_s: list[float] | None = None
 
     def friction(self) -> FrictionState:
         return FrictionState(s=tuple(self.s), w_mm=tuple(self.w_mm))
@@ -77,6 +88,8 @@ class Compensator:
     measured tensions enter and which modelled tension :attr:`Transfer.T_at` reports.
     ``reversal_band_mm`` > 0 spreads a friction reversal over that much material travel (a smooth
     dead-zone inverse); 0 flips it at once (the exact inverse of the forward model).
+    ``friction_law``: the disk friction's law (None or the capstan shape: eq. 16-24);
+    ``cycle_s``: the time between :meth:`step` calls (s), needed by a speed-dependent law.
     """
 
     def __init__(
@@ -85,10 +98,22 @@ class Compensator:
         effects: Effects | None = None,
         locations: Sequence[Location] | None = None,
         reversal_band_mm: float = 0.0,
+        friction_law: FrictionLawShape | None = None,
+        cycle_s: float = 0.0,
     ) -> None:
         self.params = params
         self.effects = Effects() if effects is None else effects
-        self.transfer = ForceTransfer(params, self.effects)
+        law = None if friction_law is None or friction_law.capstan else friction_law
+        self.friction_law = law
+        self.transfer = (
+            ForceTransfer(params, self.effects)
+            if law is None
+            else LawTransfer(params, self.effects, law)
+        )
+        self._speed_law = law is not None and law.speed_dependent
+        if self._speed_law and not cycle_s > 0.0:
+            raise ModelError("a speed-dependent friction law needs the step period cycle_s > 0")
+        self.cycle_s = float(cycle_s)
         K = params.n_cables
         self.locations: list[Location] = (
             ["robot_base"] * K if locations is None else list(locations)
@@ -229,6 +254,8 @@ class Compensator:
         tr = self.transfer
         xs = self._flat(psi)
         P = tr.pose(xs)
+        if self._speed_law:
+            self._follow_speeds(P.q_geom, state)
         res = tr.evaluate(xs, state.s, pose=P)
         changed = False
         band = self.reversal_band_mm
@@ -251,6 +278,22 @@ class Compensator:
             res = self.measured_transfer(xs, new_s, [float(v) for v in measured_N], P)
         state.last = res
         return res
+
+    def _follow_speeds(self, q_geom: list[float], state: CompensationState) -> None:
+        """Each cable's speed |dq_geom| / cycle_s, lagged by SPEED_MEMORY_S, into the law."""
+        dt = self.cycle_s
+        if state.q_geom_mm is None or state.speed_mm_s is None:
+            v = [0.0] * len(q_geom)
+        else:
+            a = -math.expm1(-dt / SPEED_MEMORY_S)
+            v = [
+                vo + a * (abs(qn - qo) / dt - vo)
+                for vo, qn, qo in zip(state.speed_mm_s, q_geom, state.q_geom_mm, strict=True)
+            ]
+        state.q_geom_mm = list(q_geom)
+        state.speed_mm_s = v
+        assert isinstance(self.transfer, LawTransfer)
+        self.transfer.set_speeds(v)
 
     def actuator_command(self, q_cable_mm: np.ndarray, state: CompensationState) -> np.ndarray:
         """Apply the inverse of :attr:`Effects.actuator` (actuator-first order), mm."""
@@ -286,7 +329,8 @@ def _null_vector(arms: list[tuple[float, float]]) -> list[float] | None:
 
 
 class CCDiskModel(Compensator):
-    """The constant-curvature disk design as the control loop's ``RobotModelPort``."""
+    """The constant-curvature disk design as the control loop's ``RobotModelPort`` (built from a
+    rig config by :func:`cdcr_ctl.config.build_model.build_model`)."""
 
     def q_nominal(self, psi: np.ndarray) -> np.ndarray:
         """Ideal inverse kinematics (mm pulled in), no compensation."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from cdcr_ctl.model.cc_disk.effect_spec import EffectParam, FittedValue, ModelSpec
 from cdcr_ctl.model.cc_disk.effect_terms import DiskFriction
-from cdcr_ctl.model.cc_disk.friction_law import BREAKAWAY_MM_S, FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
 
 
 class OtherFrictionLaw(DiskFriction):
@@ -25,8 +25,10 @@ class OtherFrictionLaw(DiskFriction):
     Parameters: ``d_mu_scale`` (as :class:`DiskFriction`), ``d_exponent`` (the wrap exponent
     p = 1 + d), ``viscous_s_per_mm`` (c_v >= 0, per mm/s of the cable's speed),
     ``breakaway`` (b >= 0, the static excess at rest, a fraction of the Coulomb coefficient)
-    and ``d_log_stribeck`` (its Stribeck speed v_b = :data:`BREAKAWAY_MM_S` exp(d)). All zero:
-    the model as it is. Signature: a direction-dependent
+    and ``d_log_stribeck`` (the log of its Stribeck speed's ratio). Each is a
+    correction of the model's own law (``ModelSpec.friction_law``, the config's
+    ``robot.friction_law``; the capstan law when it has none): p = p_0 + d, c_v = c_v0 + dc,
+    b = b_0 + db, v_b = v_b0 exp(d). All zero: the model as it is. Signature: a direction-dependent
     error (hysteresis) whose width does not follow the capstan law: it grows with the bend
     faster or slower than exp(mu theta), or with the speed, or a stick band after every stop
     wider than the model's.
@@ -38,31 +40,38 @@ class OtherFrictionLaw(DiskFriction):
     reference = "Qi et al. 2023 eq. 16-24 generalised (friction_law.py: wrap exponent, Stribeck)"
     refines = "disk_friction"
 
+    @staticmethod
+    def base_law(base: ModelSpec) -> FrictionLawShape:
+        """The model's own law (the capstan law when the spec has none)."""
+        return FrictionLawShape() if base.friction_law is None else base.friction_law
+
     def parameters(self, base: ModelSpec) -> tuple[EffectParam, ...]:
+        b = self.base_law(base)
         return (
             *super().parameters(base),
-            EffectParam("d_exponent", "1 (wrap exponent - 1)", 0.2, -0.6, 2.0),
-            EffectParam("viscous_s_per_mm", "s/mm", 0.1, 0.0, 5.0),
-            EffectParam("breakaway", "1 (x mu at rest)", 0.3, 0.0, 4.0),
-            EffectParam("d_log_stribeck", "1 (ln of v_b / 0.4 mm/s)", 0.3, -3.0, 3.0),
+            EffectParam("d_exponent", "1 (wrap exponent - model's)", 0.2, 0.4 - b.exponent, 2.0),
+            EffectParam("viscous_s_per_mm", "s/mm", 0.1, -b.viscous_s_per_mm, 5.0),
+            EffectParam("breakaway", "1 (x mu at rest)", 0.3, -b.breakaway, 4.0),
+            EffectParam("d_log_stribeck", "1 (ln of v_b / model's v_b)", 0.3, -3.0, 3.0),
         )
 
-    @staticmethod
-    def shape(values: np.ndarray) -> FrictionLawShape:
+    @classmethod
+    def shape(cls, values: np.ndarray, base: ModelSpec | None = None) -> FrictionLawShape:
+        b = FrictionLawShape() if base is None else cls.base_law(base)
         return FrictionLawShape(
-            exponent=1.0 + float(values[1]),
-            viscous_s_per_mm=max(float(values[2]), 0.0),
-            breakaway=max(float(values[3]), 0.0),
-            breakaway_mm_s=BREAKAWAY_MM_S * math.exp(float(values[4])),
+            exponent=b.exponent + float(values[1]),
+            viscous_s_per_mm=max(b.viscous_s_per_mm + float(values[2]), 0.0),
+            breakaway=max(b.breakaway + float(values[3]), 0.0),
+            breakaway_mm_s=b.breakaway_mm_s * math.exp(float(values[4])),
         )
 
     def apply(self, base: ModelSpec, values: np.ndarray) -> ModelSpec:
         spec = super().apply(base, values[:1])
-        law = self.shape(values)
-        return spec if law.capstan else replace(spec, friction_law=law)
+        law = self.shape(values, base)
+        return replace(spec, friction_law=None if law.capstan else law)
 
     def fitted(self, base: ModelSpec, values: np.ndarray) -> list[FittedValue]:
-        law = self.shape(values)
+        law = self.shape(values, base)
         return [
             *super().fitted(base, values[:1]),
             FittedValue("friction_law", "", "wrap_exponent", law.exponent),
