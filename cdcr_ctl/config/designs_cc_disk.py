@@ -10,12 +10,10 @@ which the schema consults, names its builder).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cdcr_ctl.config.robot import RobotConfig
-from cdcr_ctl.model.cc_disk.compensation import CCDiskModel
-from cdcr_ctl.model.cc_disk.effects import with_cable_play
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import (
     CableParams,
     Effects,
@@ -24,6 +22,9 @@ from cdcr_ctl.model.cc_disk.params import (
     RobotParams,
     SegmentParams,
 )
+
+if TYPE_CHECKING:
+    from cdcr_ctl.model.cc_disk.compensation import CCDiskModel
 
 #: Share of the cable velocity limit the dead-zone inverse may add to the command while it
 #: pre-travels the play after a reversal (cdcr_ctl.model.shared.deadzone). The loop's offset ramp
@@ -142,6 +143,11 @@ def build_cc_disk_model(
     the disk friction follows ``robot.friction_law`` (:func:`friction_law`), a speed-dependent
     law on cable speeds taken over the loop's period 1 / ``control.rate_hz``.
     ``source`` names the file in errors."""
+    # Imported here: the model's solvers bring scipy (0.5 s of CPU), which loading and checking
+    # a config (every `cdcr-ctl -c RIG ...` command) never needs.
+    from cdcr_ctl.model.cc_disk.compensation import CCDiskModel
+    from cdcr_ctl.model.cc_disk.effects import with_cable_play
+
     if effects is None:
         effects = model_effects(cfg)
     if reversal_band_mm is None:

@@ -14,7 +14,7 @@ from typing import Annotated
 from pydantic import Field, model_validator
 
 from cdcr_ctl.config.base import Section
-from cdcr_ctl.model.cc_disk.friction_law import BREAKAWAY_MM_S
+from cdcr_ctl.model.cc_disk.friction_shape import BREAKAWAY_MM_S
 
 PositiveFloat = Annotated[float, Field(gt=0)]
 NonNegativeFloat = Annotated[float, Field(ge=0)]

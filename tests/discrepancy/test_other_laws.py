@@ -25,12 +25,8 @@ from cdcr_ctl.discrepancy.design import (
 )
 from cdcr_ctl.discrepancy.report import put_fitted
 from cdcr_ctl.model.cc_disk.effects import GravityDirection, ModelSpec, OtherFrictionLaw
-from cdcr_ctl.model.cc_disk.friction_law import (
-    BREAKAWAY_MM_S,
-    FrictionLawShape,
-    LawTransfer,
-    cable_speeds,
-)
+from cdcr_ctl.model.cc_disk.friction_law import LawTransfer, cable_speeds
+from cdcr_ctl.model.cc_disk.friction_shape import BREAKAWAY_MM_S, FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects
 from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 from cdcr_ctl.sim.simconfig import load_sim_config

@@ -13,7 +13,8 @@ import pytest
 from cdcr_ctl.config import load_rig_config
 from cdcr_ctl.config.build_model import build_cc_disk_model, friction_law
 from cdcr_ctl.errors import ConfigError, ConfigErrors
-from cdcr_ctl.model.cc_disk.friction_law import SPEED_MEMORY_S, FrictionLawShape, LawTransfer
+from cdcr_ctl.model.cc_disk.friction_law import SPEED_MEMORY_S, LawTransfer
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.transfer import ForceTransfer
 
 ROOT = Path(__file__).resolve().parents[2]

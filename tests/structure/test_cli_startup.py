@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import click
 import pytest
@@ -74,3 +75,25 @@ def test_a_light_command_imports_nothing_heavy(argv):
     loaded = out.split()
     heavy = sorted(m for m in loaded if any(m == h or m.startswith(h + ".") for h in HEAVY))
     assert heavy == []
+
+
+def test_loading_a_rig_config_imports_no_solver():
+    """`cdcr-ctl check-config RIG` (and every `cdcr-ctl -c RIG COMMAND`, which loads the config
+    the same way) loads and validates the config without the model's solvers: scipy is for the
+    processes that build the model (the daemon, the simulator)."""
+    rig = Path(__file__).resolve().parents[2] / "config" / "qi2023-sim.yaml"
+    code = (
+        "import contextlib, io, sys\n"
+        "from cdcr_ctl.cli.main import main\n"
+        "out = io.StringIO()\n"
+        "with contextlib.redirect_stdout(out):\n"
+        f"    code = main(['check-config', {str(rig)!r}])\n"
+        "assert code in (0, None), (code, out.getvalue())\n"
+        "assert 'qi2023-sim' in out.getvalue(), out.getvalue()\n"
+        "print(' '.join(sorted(sys.modules)))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    ).stdout
+    assert "cdcr_ctl.config.loader" in out.split()
+    assert [m for m in out.split() if m == "scipy" or m.startswith("scipy.")] == []

@@ -43,7 +43,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cdcr_ctl.errors import ModelError
-from cdcr_ctl.model.cc_disk.friction_law import SPEED_MEMORY_S, FrictionLawShape, LawTransfer
+from cdcr_ctl.model.cc_disk.friction_law import SPEED_MEMORY_S, LawTransfer
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 from cdcr_ctl.model.cc_disk.routing import cable_matrix_x

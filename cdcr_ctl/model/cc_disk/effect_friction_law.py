@@ -16,7 +16,7 @@ import numpy as np
 
 from cdcr_ctl.model.cc_disk.effect_spec import EffectParam, FittedValue, ModelSpec
 from cdcr_ctl.model.cc_disk.effect_terms import DiskFriction
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 
 
 class OtherFrictionLaw(DiskFriction):

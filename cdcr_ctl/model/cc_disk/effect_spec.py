@@ -15,7 +15,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 #: Reference axial stiffness (N) when the config has rigid cables: 0.8 mm PE cable,

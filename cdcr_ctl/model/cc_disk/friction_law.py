@@ -24,11 +24,11 @@ everything else (statics, pulleys, stick and slide) is the model's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
 from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose
 
@@ -36,37 +36,6 @@ from cdcr_ctl.model.cc_disk.transfer import ForceTransfer, Pose
 Z_REF_RAD = 1.0
 #: Time constant (s) over which a cable's friction follows its speed (:func:`cable_speeds`).
 SPEED_MEMORY_S = 0.05
-#: Reference Stribeck speed (mm/s): a third of the cable speed of Qi et al. 2023's pi/10 rad/s
-#: bend at 4 mm routing radius (1.3 mm/s); a fitted shape scales it.
-BREAKAWAY_MM_S = 0.4
-
-
-@dataclass(frozen=True)
-class FrictionLawShape:
-    """The law's shape (module docstring): wrap ``exponent`` p, ``viscous_s_per_mm`` c_v,
-    ``breakaway`` b (fraction of the Coulomb coefficient) over ``breakaway_mm_s`` v_b."""
-
-    exponent: float = 1.0
-    viscous_s_per_mm: float = 0.0
-    breakaway: float = 0.0
-    breakaway_mm_s: float = BREAKAWAY_MM_S
-
-    @property
-    def capstan(self) -> bool:
-        """The model's own law (p = 1, no speed dependence)."""
-        return self.exponent == 1.0 and self.viscous_s_per_mm == 0.0 and self.breakaway == 0.0
-
-    @property
-    def speed_dependent(self) -> bool:
-        return self.viscous_s_per_mm != 0.0 or self.breakaway != 0.0
-
-    def speed_factor(self, v_mm_s: float) -> float:
-        """m(v) of the module docstring (v >= 0, mm/s)."""
-        return (
-            1.0
-            + self.viscous_s_per_mm * v_mm_s
-            + self.breakaway * math.exp(-((v_mm_s / self.breakaway_mm_s) ** 2))
-        )
 
 
 class LawTransfer(ForceTransfer):
