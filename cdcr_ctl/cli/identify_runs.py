@@ -131,7 +131,7 @@ def fit_and_write(
     cfg = load_rig_config(cfg_path)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    ident = identify_runs(cfg, run_dirs, options, fit_pulleys)
+    ident = identify_runs(cfg, run_dirs, options, fit_pulleys, source=str(cfg_path))
     dt = time.monotonic() - t0
     verdict = judge_identification(ident, options)
     overlay = out / "identified.yaml"

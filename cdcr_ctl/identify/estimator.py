@@ -56,6 +56,7 @@ from cdcr_ctl.identify.dwell import DwellPoint, with_play
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, Estimate, FitOptions, Identification
 from cdcr_ctl.identify.parameters import FORCE_KINDS, TILT_CI_DEG, FitParameter, NotIdentified
 from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 __all__ = [
@@ -80,12 +81,16 @@ def identify(
     fit_params: Sequence[FitParameter],
     fixed: Sequence[NotIdentified] = (),
     options: FitOptions | None = None,
+    friction_law: FrictionLawShape | None = None,
 ) -> Identification:
     """Fit ``fit_params`` to the dwell ``points`` in the stages of the module docstring.
 
     ``params`` are the controller's nominal parameters (the start and the values of everything
     not fitted); ``effects`` the controller's model effects; ``locations`` the load-cell
-    location per cable. Raises :class:`RigError` when there is nothing to fit from.
+    location per cable; ``friction_law`` the controller's disk friction law
+    (:func:`cdcr_ctl.config.build_model.friction_law`; None: the capstan law), under which the
+    friction coefficients are fitted (:func:`.problem.dwell_transfer`). Raises :class:`RigError`
+    when there is nothing to fit from.
 
     The friction states of the points are assigned for the configured play of each cable
     (:func:`.dwell.with_play`); when the fitted play changes them (a play wider than the
@@ -97,13 +102,20 @@ def identify(
         raise RigError("identification: no dwell points")
     widths = opt.play_mm or tuple(c.backlash_mm for c in params.cables)
     pts = with_play(points, widths) if any(b > 0 for b in widths) else list(points)
-    res = _identify(params, effects, pts, locations, fit_params, fixed, opt)
+    res = _identify(params, effects, pts, locations, fit_params, fixed, opt, friction_law)
     fitted = tuple(c.backlash_mm for c in res.fitted.cables)
     if opt.play_mm is None and any(b > 0 for b in fitted):
         again = with_play(pts, fitted)
         if any((a.s, a.s_known) != (b.s, b.s_known) for a, b in zip(again, pts, strict=True)):
             res2 = _identify(
-                params, effects, again, locations, fit_params, fixed, replace(opt, play_mm=fitted)
+                params,
+                effects,
+                again,
+                locations,
+                fit_params,
+                fixed,
+                replace(opt, play_mm=fitted),
+                friction_law,
             )
             res2.stages.insert(
                 0,
@@ -123,6 +135,7 @@ def _identify(
     fit_params: Sequence[FitParameter],
     fixed: Sequence[NotIdentified],
     opt: FitOptions,
+    friction_law: FrictionLawShape | None = None,
 ) -> Identification:
     """One fit of :func:`identify` with the points' friction states as they are."""
     fps = list(fit_params)
@@ -130,8 +143,8 @@ def _identify(
     warnings: list[str] = []
     stages: list[str] = []
     while True:
-        prob = _Problem(params, effects, pts, locations, fps, opt)
-        nuis = initial_nuisance(params, effects, pts, locations, prob.unc)
+        prob = _Problem(params, effects, pts, locations, fps, opt, friction_law)
+        nuis = initial_nuisance(params, effects, pts, locations, prob.unc, friction_law)
         force = [j for j, f in enumerate(fps) if f.kind in FORCE_KINDS]
         pulley_force = [
             j
@@ -219,6 +232,7 @@ def _identify(
         n_unknowns=n,
         stages=stages,
         warnings=warnings,
+        friction_law=friction_law,
     )
 
 

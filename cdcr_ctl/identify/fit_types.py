@@ -11,6 +11,7 @@ import numpy as np
 
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.parameters import FitParameter, NotIdentified
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import RobotParams
 
 RESIDUAL_KINDS = ("tip", "cell", "moment", "compat")
@@ -91,6 +92,8 @@ class Identification:
     with the nominal and the fitted parameters (poses and tensions re-estimated for each).
     ``residuals_before``/``residuals_after``: per kind, (point index, value) arrays for plots.
     ``poses``: fitted bending vectors per point (N, 2S); ``s``: friction fractions (N, K).
+    ``friction_law``: the disk friction law the coefficients were fitted under (None: the
+    capstan law), read from ``friction_law_source``.
     """
 
     nominal: RobotParams
@@ -109,6 +112,28 @@ class Identification:
     n_unknowns: int
     stages: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    friction_law: FrictionLawShape | None = None
+    friction_law_source: str = "the rig config"
+
+    @property
+    def friction_law_text(self) -> str | None:
+        """One line naming the law fitted under; None for the capstan law."""
+        law = self.friction_law
+        if law is None or law.capstan:
+            return None
+        parts = [f"wrap exponent {law.exponent:g}"]
+        if law.viscous_s_per_mm:
+            parts.append(f"viscous {law.viscous_s_per_mm:g} s/mm")
+        if law.breakaway:
+            parts.append(
+                f"breakaway {law.breakaway:g} over {law.breakaway_mm_s:g} mm/s "
+                "(at rest in the dwells: mu_disk is the Coulomb coefficient)"
+            )
+        return (
+            "disk friction law: robot.friction_law "
+            + ", ".join(parts)
+            + f" (from {self.friction_law_source})"
+        )
 
     def estimate(self, name: str) -> Estimate:
         for e in self.estimates:

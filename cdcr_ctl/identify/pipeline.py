@@ -21,7 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from cdcr_ctl.config.build_model import build_model, loadcell_locations
+from cdcr_ctl.config.build_model import build_model, friction_law, loadcell_locations
 from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, RigError
@@ -51,11 +51,16 @@ def identify_runs(
     run_dirs: Sequence[str | Path],
     options: FitOptions | None = None,
     fit_pulleys: str = "auto",
+    source: str = "the rig config",
 ) -> Identification:
     """Fit the identifiable parameters of ``cfg``'s robot to the logged ``run_dirs``.
 
     The start values and everything not fitted come from ``cfg`` (the controller's nominal
-    config); the model effects (geometry, friction, gravity) are the controller's. Raises
+    config); the model effects (geometry, friction, gravity) are the controller's, the disk
+    friction's law too (``robot.friction_law`` through
+    :func:`~cdcr_ctl.config.build_model.friction_law`, the function the controller's model is
+    built with), so the fitted mu_disk is the coefficient of the law the controller applies.
+    ``source`` names the config in the report. Raises
     :class:`RigError` when the logs hold no usable dwell, :class:`ConfigError` for a design
     other than ``cc_disk``.
     """
@@ -75,7 +80,9 @@ def identify_runs(
             "identification: nothing identifiable in these runs: "
             + "; ".join(f"{f.name}: {f.reason}" for f in fixed)
         )
-    res = identify(model.params, model.effects, points, locs, fps, fixed, options)
+    law = friction_law(cfg.robot)
+    res = identify(model.params, model.effects, points, locs, fps, fixed, options, law)
+    res.friction_law_source = source
     res.warnings[:0] = warnings
     return res
 
@@ -164,6 +171,8 @@ def overlay_document(
         f"rig {cfg.name}; {len(ident.points)} dwells from: " + ", ".join(sources),
         f"reduced chi^2 {ident.chi2_reduced:.3g} over {ident.n_residuals} residuals",
     ]
+    if ident.friction_law_text is not None:
+        header.append(ident.friction_law_text)
     for f in ident.fixed:
         notes.append(f"not fitted {f.name} = {f.nominal:.5g}: {f.reason}")
     return {"robot": rob}, header + notes
@@ -180,7 +189,18 @@ def overlay_text(cfg: RigConfig, ident: Identification, sources: Sequence[str] =
 
 def report_dict(ident: Identification) -> dict[str, Any]:
     """JSON-ready summary: estimates with intervals, fixed parameters, residual RMS, stages."""
+    law = ident.friction_law
     return {
+        "friction_law": None
+        if law is None or law.capstan
+        else {
+            "wrap_exponent": law.exponent,
+            "viscous_s_per_mm": law.viscous_s_per_mm,
+            "breakaway": law.breakaway,
+            "stribeck_mm_s": law.breakaway_mm_s,
+            "source": ident.friction_law_source,
+            "text": ident.friction_law_text,
+        },
         "estimates": [
             {
                 "name": e.name,
@@ -209,7 +229,8 @@ def report_dict(ident: Identification) -> dict[str, Any]:
 
 def summary_table(ident: Identification) -> str:
     """Plain-text table: parameter, nominal, fitted, change, 95 % interval; then residuals."""
-    lines = [f"{'parameter':<22}{'nominal':>12}{'fitted':>12}{'change':>9}   95 % CI"]
+    lines = [] if ident.friction_law_text is None else [ident.friction_law_text]
+    lines.append(f"{'parameter':<22}{'nominal':>12}{'fitted':>12}{'change':>9}   95 % CI")
     for e in ident.estimates:
         lo, hi = e.ci95
         lines.append(

@@ -4,6 +4,13 @@
 the model at the measured state (Qi et al. 2023 eq. 1-4, 8-15, 23, 29-37; lost motion Yang et
 al. 2022 eq. 13-17) over [free globals | per-dwell nuisance]; :func:`initial_nuisance` gives the
 starting poses and tensions.
+
+The disk friction follows the controller's law (``robot.friction_law``, a
+:class:`~cdcr_ctl.model.cc_disk.friction_law.FrictionLawShape`; None: the capstan law of eq.
+16-24): the chain is then a :class:`~cdcr_ctl.model.cc_disk.friction_law.LawTransfer` at rest,
+every dwell being quasi-static (cable speed ~0), so a speed-dependent law's coefficient is its
+at-rest value mu_k m(0) = mu_k (1 + b) and the fitted mu_disk is the Coulomb coefficient the
+controller's law multiplies.
 """
 
 from __future__ import annotations
@@ -18,6 +25,7 @@ from cdcr_ctl.errors import ModelError
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, FitOptions
 from cdcr_ctl.identify.parameters import FitParameter, apply_values
+from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape, LawTransfer
 from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
@@ -37,6 +45,17 @@ _T_MAX = 1e3  # N
 PLAY_SETTLE_MM = 1.0
 
 
+def dwell_transfer(
+    params: RobotParams, effects: Effects, friction_law: FrictionLawShape | None
+) -> ForceTransfer:
+    """The force-transfer chain of a quasi-static dwell (module docstring): the capstan law's
+    :class:`ForceTransfer` for None or a capstan shape, else the law's :class:`LawTransfer` with
+    every cable at rest (its speeds start at 0 mm/s)."""
+    if friction_law is None or friction_law.capstan:
+        return ForceTransfer(params, effects)
+    return LawTransfer(params, effects, friction_law)
+
+
 class _Problem:
     """Residuals and Jacobian of the joint problem for one set of free globals and residual kinds.
 
@@ -52,8 +71,10 @@ class _Problem:
         locations: Sequence[Location],
         fps: Sequence[FitParameter],
         options: FitOptions,
+        friction_law: FrictionLawShape | None = None,
     ) -> None:
         self.base = base
+        self.friction_law = friction_law
         self.effects = effects
         self.points = list(points)
         self.locations = list(locations)
@@ -171,7 +192,7 @@ class _Problem:
     def transfer(self, g: np.ndarray) -> ForceTransfer:
         key = tuple(float(v) for v in g)
         if key != self._ft_key:
-            self._ft = ForceTransfer(self.params_of(g), self.effects)
+            self._ft = dwell_transfer(self.params_of(g), self.effects, self.friction_law)
             self._ft_key = key
         assert self._ft is not None
         return self._ft
@@ -337,10 +358,11 @@ def initial_nuisance(
     points: Sequence[DwellPoint],
     locations: Sequence[Location],
     unc: Sequence[Sequence[int]],
+    friction_law: FrictionLawShape | None = None,
 ) -> np.ndarray:
     """Starting poses (tip inversion for one segment, else the command) and anchor tensions
     (load cells through the nominal friction, else the nominal statics, else T0)."""
-    ft = ForceTransfer(params, effects)
+    ft = dwell_transfer(params, effects, friction_law)
     S, K = params.n_segments, params.n_cables
     Bpinv = np.linalg.pinv(cable_matrix_x(params))
     out: list[float] = []

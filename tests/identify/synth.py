@@ -27,6 +27,7 @@ from cdcr_ctl.identify.sweep import CalibrationSweep
 from cdcr_ctl.model import Effects, ForwardStepper
 from cdcr_ctl.model.cc_disk.params import RobotParams
 from cdcr_ctl.runlog import RunLogWriter, RunMetadata, sample_columns
+from cdcr_ctl.sim.friction_law import use_friction_law
 from cdcr_ctl.sim.simconfig import load_sim_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -36,10 +37,12 @@ SIM_CONFIG = ROOT / "config" / "sim" / "qi2023-truth.yaml"
 
 @dataclass(frozen=True)
 class World:
-    """The truth: parameters and effects of the simulated robot."""
+    """The truth: parameters and effects of the simulated robot; ``wrap_exponent``: disk
+    friction of the simulator's ``wrap_power`` law with this exponent (None: the capstan law)."""
 
     params: RobotParams
     effects: Effects
+    wrap_exponent: float | None = None
 
 
 def truth_world(sim_config: Path = SIM_CONFIG) -> World:
@@ -117,6 +120,8 @@ def write_run(
     S, K = model.n_segments, model.n_cables
     rng = np.random.default_rng(seed)
     stepper = ForwardStepper(world.params, world.effects)
+    if world.wrap_exponent is not None:
+        use_friction_law(stepper, "wrap_power", exponent=world.wrap_exponent)
     state = model.new_state()
     times = _row_times(traj, samples_per_dwell, move_rows)
     writer = RunLogWriter(
