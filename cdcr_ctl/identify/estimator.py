@@ -56,7 +56,7 @@ from cdcr_ctl.identify.dwell import DwellPoint, with_play
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, Estimate, FitOptions, Identification
 from cdcr_ctl.identify.parameters import FORCE_KINDS, TILT_CI_DEG, FitParameter, NotIdentified
 from cdcr_ctl.identify.problem import _Problem, _rms, initial_nuisance
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 __all__ = [

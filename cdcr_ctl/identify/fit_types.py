@@ -11,7 +11,7 @@ import numpy as np
 
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.parameters import FitParameter, NotIdentified
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import RobotParams
 
 RESIDUAL_KINDS = ("tip", "cell", "moment", "compat")

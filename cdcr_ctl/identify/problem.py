@@ -25,7 +25,8 @@ from cdcr_ctl.errors import ModelError
 from cdcr_ctl.identify.dwell import DwellPoint
 from cdcr_ctl.identify.fit_types import RESIDUAL_KINDS, FitOptions
 from cdcr_ctl.identify.parameters import FitParameter, apply_values
-from cdcr_ctl.model.cc_disk.friction_law import FrictionLawShape, LawTransfer
+from cdcr_ctl.model.cc_disk.friction_law import LawTransfer
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.kinematics import tip_position_fast
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 from cdcr_ctl.model.cc_disk.routing import cable_matrix_x
