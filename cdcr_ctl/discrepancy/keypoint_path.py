@@ -85,6 +85,8 @@ TIE_SE = 2.0
 #: Budget of each replay-fitted candidate: CPU seconds of its replays (the same fit on a
 #: loaded machine as on an idle one).
 EFFECT_BUDGET_S = 20.0
+#: Replays of its rows a candidate's fit is planned for (rows per candidate from the budget).
+EFFECT_REPLAYS = 30
 
 
 @dataclass
@@ -229,7 +231,7 @@ def analyse_keypoints(
         spreads: list[str] = []
         if rep_effects:
             nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
-            n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6)
+            n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, EFFECT_REPLAYS)
             rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
             spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
             n_fit = sum(len(r.rows) for r in rr)
