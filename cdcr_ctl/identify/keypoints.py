@@ -98,7 +98,7 @@ class KeypointOptions:
     max_rel: float = MAX_REL
     max_offset_rad: float = MAX_OFFSET_RAD
     kind: str | None = None  # None: detect per run
-    max_nfev: int = 30  # least-squares evaluations (each Jacobian one replay per parameter)
+    max_nfev: int = 30  # least-squares trial evaluations (the Jacobians not counted)
     tension_noise_N: float = TENSION_NOISE_N
     jobs: int | None = None  # worker processes for the Jacobian's replays (None: CPU count)
     backlash: bool = False  # also the candidate cables.backlash_mm (:func:`candidates`)
