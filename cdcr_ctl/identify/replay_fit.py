@@ -223,12 +223,18 @@ class Evaluator:
         return [r for r, _ in outs]
 
     def jacobian(
-        self, fps: Sequence[FitParameter], x: np.ndarray, f0: np.ndarray, hi: np.ndarray
+        self,
+        fps: Sequence[FitParameter],
+        x: np.ndarray,
+        f0: np.ndarray,
+        hi: np.ndarray,
+        analytic: bool | None = None,
     ) -> np.ndarray:
         """Jacobian of the weighted residuals at ``x``: the sensitivity replay when the
         residuals are tips only and no parameter acts before the solve (module docstring),
-        else forward differences (backward at an upper bound)."""
-        if self.prob.analytic(fps):
+        else forward differences (backward at an upper bound); ``analytic`` False: forward
+        differences in any case (None: as the problem allows)."""
+        if self.prob.analytic(fps) if analytic is None else analytic and self.prob.analytic(fps):
             steps = np.where(x + SENS_STEP <= hi, SENS_STEP, -SENS_STEP)
             variants = []
             for j, h in enumerate(steps):
