@@ -56,7 +56,6 @@ class SensitivityStepper(ForwardStepper):
     def __init__(self, params: RobotParams, effects: Effects | None = None) -> None:
         super().__init__(params, effects)
         self.solves: list[tuple[list[float], tuple[float, ...], ForwardResult]] = []
-        self.row_end: list[int] = []  # per step: number of solves recorded after it
 
     def _accept(self, res: ForwardResult, q: list[float]) -> None:
         self.solves.append((list(q), tuple(self.state.w_mm), res))
