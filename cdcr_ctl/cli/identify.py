@@ -96,18 +96,17 @@ __all__ = [
 @click.option(
     "--budget-s",
     type=click.FloatRange(1.0, 36_000.0),
-    default=40.0,
-    show_default=True,
-    help="CPU seconds the keypoint fit's replays may take (rows chosen to fit it, the cost of "
-    "a row measured on the config's replay; about the same rows on a loaded machine, which takes "
-    "longer; the two whole-log replays of the held-out check come on top).",
+    default=None,
+    help="CPU seconds the keypoint fit's replays may take [default: 20] (rows chosen to fit "
+    "it, the cost of a row measured on the config's replay; about the same rows on a loaded "
+    "machine, which takes longer; the two whole-log replays of the held-out check come on top).",
 )
 @click.option(
     "--max-nfev",
     type=click.IntRange(1, 1000),
     default=30,
     show_default=True,
-    help="Least-squares evaluations of the keypoint fit (each Jacobian: one replay per parameter).",
+    help="Least-squares evaluations of the keypoint fit (trial points; the Jacobians not counted).",
 )
 @click.option(
     "--jobs",
@@ -126,7 +125,7 @@ def identify_cmd(
     tip_noise_mm: float,
     holdout: float,
     max_points: int | None,
-    budget_s: float,
+    budget_s: float | None,
     max_nfev: int,
     jobs: int | None,
     progress: bool,
@@ -172,7 +171,7 @@ def identify_cmd(
                 tip_noise_mm=tip_noise_mm,
                 max_points=max_points,
                 max_nfev=max_nfev,
-                budget_s=budget_s,
+                **({} if budget_s is None else {"budget_s": budget_s}),
                 jobs=jobs,
                 progress=say,
             )

@@ -85,6 +85,14 @@ TIE_SE = 2.0
 #: Budget of each replay-fitted candidate: CPU seconds of its replays (the same fit on a
 #: loaded machine as on an idle one).
 EFFECT_BUDGET_S = 20.0
+#: What the report recommends when gravity sag ties with another candidate.
+GRAVITY_HINT = (
+    "to tell a sag apart, log bends towards and away from gravity up to ~1.3 rad per segment "
+    "(the weight's lever arm changes with the pose; a registration or routing error does not "
+    "change that way) over more rows, or add a known mass at the tip"
+)
+#: Replays of its rows a candidate's fit is planned for (rows per candidate from the budget).
+EFFECT_REPLAYS = 30
 
 
 @dataclass
@@ -229,7 +237,7 @@ def analyse_keypoints(
         spreads: list[str] = []
         if rep_effects:
             nj = max(1, min(jobs or (os.cpu_count() or 1), 8))
-            n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, 4, 6)
+            n_want = max_points or rows_for_budget(EFFECT_BUDGET_S, s_row, EFFECT_REPLAYS)
             rr, sp = _choose_rows(runs, fit_keys, n_want, n_cand)
             spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
             n_fit = sum(len(r.rows) for r in rr)
@@ -267,6 +275,8 @@ def analyse_keypoints(
         )
         if nested:
             verdict += "; fitted together: " + "; ".join(nested)
+        if "gravity" in (best.name, tie.name):
+            verdict += f"; {GRAVITY_HINT}"
         named = None
     elif named is not None:
         vals = ", ".join(f"{n} {v:.4g}" for n, v in zip(named.names, named.values, strict=True))

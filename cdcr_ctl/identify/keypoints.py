@@ -71,8 +71,8 @@ from cdcr_ctl.runlog.reader import load_run
 #: Fraction of each run's time span held out (the end of the run).
 HOLDOUT_FRACTION = 0.3
 #: CPU time (s) the replays of the fit of the chosen rows may take, the observability Jacobian
-#: included (the two whole-log replays come on top). 2 processes share it on 2 CPUs.
-BUDGET_S = 40.0
+#: included (the two whole-log replays come on top).
+BUDGET_S = 20.0
 #: Jacobians a fit is planned for (the observability one and the least-squares iterations).
 FIT_ITERATIONS = 6
 #: Tracker noise assumed when the log gives no estimate (mm, per axis).
@@ -98,7 +98,7 @@ class KeypointOptions:
     max_rel: float = MAX_REL
     max_offset_rad: float = MAX_OFFSET_RAD
     kind: str | None = None  # None: detect per run
-    max_nfev: int = 30  # least-squares evaluations (each Jacobian one replay per parameter)
+    max_nfev: int = 30  # least-squares trial evaluations (the Jacobians not counted)
     tension_noise_N: float = TENSION_NOISE_N
     jobs: int | None = None  # worker processes for the Jacobian's replays (None: CPU count)
     backlash: bool = False  # also the candidate cables.backlash_mm (:func:`candidates`)
@@ -285,10 +285,14 @@ def identify_keypoint_runs(
             n_want = opt.max_points
             why = f"--max-points {opt.max_points}"
         else:
-            n_want = rows_for_budget(opt.budget_s, s_row, len(fps), FIT_ITERATIONS)
+            cells = any(np.isfinite(p.tension_N).any() for p in points)
+            sens = replay_fit.analytic_jacobian(params, fps, cells)
+            plan = replay_fit.planned_replays(len(fps), sens, FIT_ITERATIONS)
+            n_want = rows_for_budget(opt.budget_s, s_row, plan)
             why = (
                 f"CPU budget {opt.budget_s:g} s at {s_row * 1e3:.2g} ms CPU per replayed row, "
-                f"{len(fps)} candidates; {jobs} processes"
+                f"{len(fps)} candidates, "
+                + ("sensitivity replays" if sens else f"forward differences in {jobs} processes")
             )
         rr, spreads = _choose_rows(runs, fit_keys, n_want, n_cand)
         n_fit = sum(len(r.rows) for r in rr)

@@ -10,12 +10,16 @@ residuals are, per fitted row i,
     r_tip,i = (p_model,i(g) - p_measured,i) / sigma_tip          (3 per row, mm / mm)
     r_cell,i = (T_model,i(g) - T_measured,i) / sigma_cell        (one per finite load cell)
 
-and the fit is min_g sum r^2 (``scipy.optimize.least_squares``, trust region, bounds), the
-Jacobian by forward differences: one replay per parameter, run in parallel processes. The
-rows fitted are the first ones of each run (by time) so that every replay starts at the run's
-start (straight, pretensioned) and follows the same friction history as the rig did; no pose
-or tension is a free unknown, so stick after a reversal, slack and sliding come out of the
-replay and never from a rule applied to the rows.
+and the fit is min_g sum r^2 (``scipy.optimize.least_squares``, trust region, bounds). The
+Jacobian of tip residuals comes from one replay that carries the solution's sensitivities
+along the path (:mod:`cdcr_ctl.model.cc_disk.forward.sensitivity`: implicit differentiation of
+every solve, the friction memory's sensitivity handed on from row to row), about twice the
+cost of a plain replay for ten parameters; with load-cell residuals or a play parameter
+(``backlash_mm``, which acts before the solve) it is forward differences, one replay per
+parameter, run in parallel processes. Every replay starts at the run's start (straight,
+pretensioned) and follows the same friction history as the rig did; no pose or tension is a
+free unknown, so stick after a reversal, slack and sliding come out of the replay and never
+from a rule applied to the rows.
 
 Statistics: with J the weighted Jacobian at the solution (columns in the fit variables, ln of
 positive parameters, rad for hole offsets) and chi2_red = sum r^2 / (m - n),
@@ -39,11 +43,24 @@ from cdcr_ctl.identify.fit_types import Estimate
 from cdcr_ctl.identify.parameters import FitParameter, apply_values
 from cdcr_ctl.model.cc_disk.effects import BacklashPlay, with_cable_play
 from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward.sensitivity import replay_sensitivity
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 #: Step of the forward differences in the fit variables (ln value, or rad): small next to a
 #: tolerance (25 %, 1 deg = 0.017 rad), large next to the forward solve's convergence.
 DIFF_STEP = 1e-4
+#: Step of the raw functions' differences of the sensitivity replay (fit variables): no
+#: solve in between, so only rounding (~1e-15 relative) limits it from below.
+SENS_STEP = 1e-6
+#: CPU cost of a sensitivity replay per parameter, in plain replays of the same rows (measured
+#: on the 1600-row hard world's chosen rows: 10 parameters 1.4-1.9 replays).
+SENS_COST_PER_PARAM = 0.08
+#: Trial evaluations per Jacobian of a trust-region fit (measured there: 17 for 6).
+TRIALS_PER_JACOBIAN = 3.0
+#: A fit stops when a step lowers the sum of squares by less than this many (s2-scaled)
+#: variances: near the minimum a Gauss-Newton step's decrease is the squared distance to it
+#: in standard deviations, so the fit ends within ~0.2 sigma of it (:func:`fit`).
+STOP_DECREASE = 0.04
 #: Evaluations a fit runs whatever its deadline (three trust-region steps and their checks).
 MIN_EVALUATIONS = 4
 #: Weighted residual (noise standard deviations) of a row the replay could not solve.
@@ -99,6 +116,11 @@ class ReplayProblem:
                 is_tip.append(np.zeros(e.size, bool))
         return np.concatenate(out), np.concatenate(is_tip), failed
 
+    def analytic(self, fps: Sequence[FitParameter]) -> bool:
+        """Whether the sensitivity replay gives the Jacobian (:func:`analytic_jacobian`)."""
+        cells = any(np.isfinite(r.tension_N).any() for r in self.runs)
+        return analytic_jacobian(self.base, fps, cells)
+
     def is_tip(self) -> np.ndarray:
         """Which entries of the residual vector are tip residuals (the others: load cells)."""
         out: list[np.ndarray] = []
@@ -109,6 +131,26 @@ class ReplayProblem:
 
     def residuals(self, fps: Sequence[FitParameter], x: Sequence[float]) -> np.ndarray:
         return self.residuals_of(self.params_of(fps, x))[0]
+
+
+def analytic_jacobian(params: RobotParams, fps: Sequence[FitParameter], cells: bool) -> bool:
+    """Whether the Jacobian comes from the sensitivity replay (module docstring): no load-cell
+    residuals (``cells``), no parameter of the actuator effects (play), elastic cables."""
+    return (
+        not cells
+        and not any(fp.kind == "backlash" for fp in fps)
+        and all(math.isfinite(c.EA_N) for c in params.cables)
+    )
+
+
+def planned_replays(n_params: int, analytic: bool, n_jacobians: int) -> float:
+    """Plain replays of its rows a fit of ``n_jacobians`` Jacobians costs: forward differences
+    ``n_params`` + 1 replays per Jacobian (the trial point included); with sensitivities one
+    replay carrying them (:data:`SENS_COST_PER_PARAM` of a replay per parameter on top) and
+    :data:`TRIALS_PER_JACOBIAN` trial evaluations."""
+    if not analytic:
+        return float(n_jacobians * (n_params + 1))
+    return n_jacobians * (1.0 + SENS_COST_PER_PARAM * n_params + TRIALS_PER_JACOBIAN)
 
 
 def effects_of(params: RobotParams, effects: Effects) -> Effects:
@@ -126,6 +168,19 @@ def _replay_with(args: tuple[ReplayProblem, RobotParams]) -> tuple[np.ndarray, f
     c0 = time.process_time()
     res = args[0].residuals_of(args[1])[0]
     return res, time.process_time() - c0
+
+
+def _sensitivity_task(args: tuple) -> tuple[np.ndarray, float]:
+    """Jacobian (weighted tip residuals x parameters) by the sensitivity replay, and the CPU
+    time (s) it took."""
+    c0 = time.process_time()
+    prob, params, variants, steps = args
+    effects = effects_of(params, prob.effects)
+    cols: list[np.ndarray] = []
+    for r in prob.runs:
+        _, dtip = replay_sensitivity(params, effects, variants, steps, r.q_path)
+        cols.append(dtip[r.rows].reshape(-1, len(variants)) / prob.tip_noise_mm)
+    return np.vstack(cols), time.process_time() - c0
 
 
 class Evaluator:
@@ -168,9 +223,32 @@ class Evaluator:
         return [r for r, _ in outs]
 
     def jacobian(
-        self, fps: Sequence[FitParameter], x: np.ndarray, f0: np.ndarray, hi: np.ndarray
+        self,
+        fps: Sequence[FitParameter],
+        x: np.ndarray,
+        f0: np.ndarray,
+        hi: np.ndarray,
+        analytic: bool | None = None,
     ) -> np.ndarray:
-        """Forward differences (backward at an upper bound) of the weighted residuals."""
+        """Jacobian of the weighted residuals at ``x``: the sensitivity replay when the
+        residuals are tips only and no parameter acts before the solve (module docstring),
+        else forward differences (backward at an upper bound); ``analytic`` False: forward
+        differences in any case (None: as the problem allows)."""
+        if self.prob.analytic(fps) if analytic is None else analytic and self.prob.analytic(fps):
+            steps = np.where(x + SENS_STEP <= hi, SENS_STEP, -SENS_STEP)
+            variants = []
+            for j, h in enumerate(steps):
+                xj = np.array(x, dtype=float)
+                xj[j] += h
+                variants.append(self.prob.params_of(fps, xj))
+            task = (self.prob, self.prob.params_of(fps, x), variants, steps)
+            self.n_replays += 1
+            if self.pool is None:
+                J, cpu = _sensitivity_task(task)
+            else:
+                J, cpu = self.pool.submit(_sensitivity_task, task).result()
+            self.cpu_s += cpu
+            return J
         steps = np.where(x + DIFF_STEP <= hi, DIFF_STEP, -DIFF_STEP)
         xs = []
         for j, h in enumerate(steps):
@@ -278,7 +356,11 @@ def fit(
     else:
         r_before, is_tip, _ = prob.residuals_of(prob.params_of(fps, x_nom))
     try:
-        sol = least_squares(fun, x0, jac=jac, bounds=(lo, hi), x_scale=sc, max_nfev=max_nfev)
+        # dF < ftol F stops: F is s2 (m - n) at the minimum (s2 = max(1, chi2_red))
+        ftol = max(1e-8, STOP_DECREASE / max(r_before.size - len(fps), 1))
+        sol = least_squares(
+            fun, x0, jac=jac, bounds=(lo, hi), x_scale=sc, max_nfev=max_nfev, ftol=ftol
+        )
         x_best, f_best, J = sol.x, sol.fun, sol.jac
         nfev, message = int(sol.nfev), str(sol.message)
     except _OutOfTime:

@@ -150,11 +150,12 @@ def replay_path(q_path: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.nd
     return q[keep], np.array([pos[int(r)] for r in np.asarray(rows, dtype=int)], dtype=int)
 
 
-def rows_for_budget(cpu_budget_s: float, cpu_per_row: float, n_params: int, n_iter: int) -> int:
-    """How many chosen rows a fit of ``n_iter`` Jacobians (``n_params`` + 1 replays each) can
-    replay within ``cpu_budget_s`` seconds of CPU time when a row of the log's own path costs
+def rows_for_budget(cpu_budget_s: float, cpu_per_row: float, replays: float) -> int:
+    """How many chosen rows a fit of ``replays`` replays of its rows (forward-difference
+    Jacobians, sensitivity replays and trial evaluations, counted in plain replays) can replay
+    within ``cpu_budget_s`` seconds of CPU time when a row of the log's own path costs
     ``cpu_per_row`` of it (a chosen row costs :data:`CHOSEN_ROW_COST` such rows); at least
     :data:`MIN_FIT_ROWS`. CPU time, not wall time: about the same rows on a loaded machine as
     on an idle one (the loaded one takes longer)."""
-    per_iter = (n_params + 1) * CHOSEN_ROW_COST * cpu_per_row
-    return max(MIN_FIT_ROWS, int(cpu_budget_s / max(per_iter * n_iter, 1e-9)))
+    per_row = replays * CHOSEN_ROW_COST * cpu_per_row
+    return max(MIN_FIT_ROWS, int(cpu_budget_s / max(per_row, 1e-9)))

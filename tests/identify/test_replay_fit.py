@@ -98,3 +98,46 @@ def test_a_hidden_transmission_play_is_fitted_as_backlash(model, tmp_path):
     assert abs(b.value - 0.4) < max(4 * b.std, 0.02)
     assert b.ci95[0] > 0.0
     assert np.isfinite(sol.chi2_reduced)
+
+
+def test_sensitivity_replay_matches_central_differences_of_the_replay(model, tmp_path):
+    """The Jacobian of the fit from one replay carrying implicit-differentiation sensitivities
+    (:mod:`cdcr_ctl.model.cc_disk.forward.sensitivity`, friction memory handed on row to row)
+    against central differences of whole replays (h = 1e-4 in the fit variables) for every
+    candidate, on a 40-row log with disk friction. Central differences err by O(h^2) ~ 1e-8
+    relative plus the solver's tolerance over 2h (~1e-5 mm); the sensitivities by their own
+    differences (1e-6, 1e-7: ~1e-6 relative). Rows where a +-h replay changes a cable's mode
+    (stick/slide) differ by a jump that is not a derivative: they are left out and counted."""
+    from cdcr_ctl.identify.replay_fit import effects_of
+    from cdcr_ctl.model.cc_disk.forward import ForwardStepper
+    from cdcr_ctl.model.cc_disk.forward.sensitivity import replay_sensitivity
+
+    run, _ = make_keypoint_log(model.params, model.effects, tmp_path, n_rows=40, seed=5)
+    prob = _problem(model, run)
+    q = prob.runs[0].q_path
+    fps = candidates(model.params)
+    x0 = np.array([fp.to_var(fp.nominal) for fp in fps])
+
+    def rep(x):
+        p = prob.params_of(fps, x)
+        st = ForwardStepper(p, effects_of(p, model.effects))
+        out = [st.step(qi) for qi in q]
+        return np.array([r.tip_mm for r in out]), [r.modes for r in out]
+
+    eye = np.eye(len(fps))
+    variants = [prob.params_of(fps, x0 + 1e-6 * e) for e in eye]
+    p0 = prob.params_of(fps, x0)
+    tip, dtip = replay_sensitivity(p0, effects_of(p0, model.effects), variants, [1e-6] * 10, q)
+    tip0, modes0 = rep(x0)
+    assert np.array_equal(tip, tip0)
+    skipped = 0
+    for j, e in enumerate(eye):
+        (tp, mp), (tm, mm) = rep(x0 + 1e-4 * e), rep(x0 - 1e-4 * e)
+        same = np.array([a == b == c for a, b, c in zip(mp, mm, modes0, strict=True)])
+        same = np.logical_and.accumulate(same)  # a changed mode carries on in the memory
+        skipped += int((~same).sum())
+        fd = (tp - tm) / 2e-4
+        scale = np.max(np.abs(fd))
+        assert scale > 0
+        assert np.max(np.abs(fd - dtip[:, :, j])[same]) < 1e-4 * scale + 1e-4, fps[j].name
+    assert skipped < 0.1 * len(q) * len(fps)
