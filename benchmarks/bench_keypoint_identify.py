@@ -261,9 +261,10 @@ def _cli(args: list[str]) -> tuple[subprocess.CompletedProcess, float, float]:
     return out, time.perf_counter() - t0, cpu
 
 
-def make_log(world: str, rows: int, seed: int, out: Path, bend_max_rad: float = 0.7) -> None:
+def make_log(world: str, rows: int, seed: int, out: Path, bend_max_rad: float | None) -> None:
     """Write one keypoint log of an independent world (``hard`` or a hidden-effect name) along
-    :func:`~cdcr_ctl.sim.keypoint_world.lab_path` with segment bends up to ``bend_max_rad``."""
+    :func:`~cdcr_ctl.sim.keypoint_world.lab_path` with segment bends up to ``bend_max_rad``
+    (None: the world's own, ``WorldSpec.path_bend_max_rad``)."""
     from cdcr_ctl.sim.keypoint_world import (
         hard_world,
         hidden_effect_worlds,
@@ -277,6 +278,8 @@ def make_log(world: str, rows: int, seed: int, out: Path, bend_max_rad: float = 
         spec, rig = hidden_effect_worlds(seed)[world.split("-")[0]], hidden_rig(world)
     m = build_model(load_rig_config(rig))
     t0 = time.perf_counter()
+    if bend_max_rad is None:
+        bend_max_rad = spec.path_bend_max_rad
     path = lab_path(m.params, rows, spec.seed, bend_max_rad=bend_max_rad)
     run = make_world_log(m.params, spec, out.parent, rows, name=out.name, path=path)
     print(
@@ -410,7 +413,10 @@ def main() -> None:
     ap.add_argument("--world", default="hard", help="make-log: hard or a hidden-effect name")
     ap.add_argument("--out", type=Path, default=Path("runs/keypoints"), help="make-log: run dir")
     ap.add_argument(
-        "--bend-max", type=float, default=0.7, help="make-log: largest bend per segment, rad"
+        "--bend-max",
+        type=float,
+        default=None,
+        help="make-log: largest bend per segment, rad (default: the world's own path)",
     )
     ap.add_argument("--seed-list", type=int, nargs="*", default=[1], help="worlds: seeds")
     ap.add_argument("--effects", nargs="*", default=None, help="discrepancy-worlds: subset")

@@ -40,7 +40,8 @@ radii, EI, EA, pretension, masses):
 :func:`lab_path` is a lab's calibration set: single-tendon pulls, then combined pulls out and
 back between random poses (:func:`cdcr_ctl.sim.keypoint_log.sweep_poses`) sent through the
 config's nominal inverse kinematics, as a lab sends them: the model sets the *commands* only,
-never the world's response. Production code never imports this module.
+never the world's response. Its largest bend per segment is the world's
+``path_bend_max_rad``. Production code never imports this module.
 """
 
 from __future__ import annotations
@@ -87,6 +88,7 @@ class WorldSpec:
     tip_noise_mm: float = 1.0
     seed: int = 0
     name: str = "world"
+    path_bend_max_rad: float = 0.7  # the largest bend per segment of the world's lab_path
     extra: dict = field(default_factory=dict)
 
 
@@ -327,9 +329,11 @@ def make_world_log(
     """Solve the world along :func:`lab_path` and write a keypoint run (``samples.csv``,
     ``run.yaml``: tip only, no commanded pose) under ``out_dir/name``; the spec goes to
     ``name.world.json`` beside it (never read by the fit). ``path``: these actuator rows
-    (N, K) mm instead of :func:`lab_path`."""
+    (N, K) mm instead of :func:`lab_path` with bends up to ``spec.path_bend_max_rad``."""
     rng = np.random.default_rng(spec.seed)
-    q = lab_path(nominal, n_rows, spec.seed) if path is None else np.asarray(path, float)
+    if path is None:
+        path = lab_path(nominal, n_rows, spec.seed, bend_max_rad=spec.path_bend_max_rad)
+    q = np.asarray(path, float)
     q = np.round(q / Q_RESOLUTION_MM) * Q_RESOLUTION_MM
     world = ChainWorld(nominal, spec)
     run_dir = Path(out_dir) / name
@@ -458,8 +462,16 @@ def hidden_effect_worlds(seed: int = 1, noise_mm: float = 1.0) -> dict[str, Worl
             seed=seed,
             name="registration",
         ),
+        # the path a lab runs when the arm's sag is in question: bends towards and away from
+        # gravity up to 1.3 rad per segment, where the sag's moment arm (and its sign) changes
+        # with the pose; a tracker frame's offset is the same rigid map at every pose
         "gravity": WorldSpec(
-            link_mass_g=3.0, tip_mass_g=10.0, tip_noise_mm=n, seed=seed, name="gravity"
+            link_mass_g=3.0,
+            tip_mass_g=10.0,
+            tip_noise_mm=n,
+            seed=seed,
+            name="gravity",
+            path_bend_max_rad=1.3,
         ),
     }
 
