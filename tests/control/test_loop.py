@@ -102,10 +102,12 @@ LIM = LimitsConfig(
 )
 
 
-def make_loop(tension=None, model=None, compensation="model", home_counts=(100, 200, 300)):
-    """A loop on fake drives at 500 Hz with a 100 mm/s velocity limit: (loop, drives, tension,
-    supervisor)."""
-    drives = FakeDrives()
+def make_loop(
+    tension=None, model=None, compensation="model", home_counts=(100, 200, 300), drives=None
+):
+    """A loop on fake drives (``drives``, default :class:`FakeDrives`) at 500 Hz with a 100 mm/s
+    velocity limit: (loop, drives, tension, supervisor)."""
+    drives = drives or FakeDrives()
     ten = tension or FakeTension()
     sup = Supervisor(LIM, use_tension=True)
     loop = ControlLoop(
@@ -404,6 +406,31 @@ def test_home_ramps_in_a_compensation_that_is_not_zero_at_straight():
     np.testing.assert_allclose(sent[-1], np.array(home) + 0.5 * CPM)
 
 
+class UnpoweredWhenStopped(FakeDrives):
+    """Fake drives whose quick stop switches the power stage off until :meth:`reenable`: targets
+    sent meanwhile are recorded but move nothing (a real drive in QUICK STOP ACTIVE or FAULT
+    ignores its RPDO targets), so a position the test back-drives stays where it was put."""
+
+    def __init__(self):
+        super().__init__()
+        self.powered = True
+
+    def send_cycle(self, targets):
+        with self.lock:
+            self.sent.append(list(targets))
+            if self.powered:
+                self.pos = list(targets)
+
+    def quick_stop(self):
+        with self.lock:
+            self.powered = False
+        super().quick_stop()
+
+    def reenable(self):
+        with self.lock:
+            self.powered = True
+
+
 class SlackCable1(FakeTension):
     """Cable 1 reads slack (0 N) while its drive is paid out below ``taut_counts``, as a cable
     whose motor was back-driven by its tension while the power stage was off; 3 N otherwise."""
@@ -426,7 +453,7 @@ def test_a_cable_paid_out_during_a_fault_is_pulled_back_in_by_the_next_run():
     step out, pulling the cable back in: the slack it reads meanwhile is not a ``tension_low``
     trip, the run completes and the cable is taut again. A cable that stays slack while nothing
     pulls it in still trips."""
-    loop, drives, ten, sup = make_loop(tension=SlackCable1())
+    loop, drives, ten, sup = make_loop(tension=SlackCable1(), drives=UnpoweredWhenStopped())
     ten.drives = drives  # the tension reads the loop's drives
     loop.start()
     try:
@@ -439,6 +466,7 @@ def test_a_cable_paid_out_during_a_fault_is_pulled_back_in_by_the_next_run():
         assert wait_until(lambda: ten.latest()[0][0] == 0.0)
         drives.fault = None
         sup.reset()
+        drives.reenable()  # the daemon's fault reset and enable
         loop.drives_reenabled()
         assert wait_until(lambda: not loop._stopped_drives)
         sink = ListSink()
