@@ -11,7 +11,16 @@ import time
 
 import pytest
 from faulthelp import rows_on_disk
-from syshelp import client, relaunch, session, start_daemon, start_sim, wait_for_socket, wait_status
+from syshelp import (
+    client,
+    realtime,
+    relaunch,
+    session,
+    start_daemon,
+    start_sim,
+    wait_for_socket,
+    wait_status,
+)
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.runlog import load_run
@@ -41,6 +50,7 @@ def wait_under_way(run_dir, rows: int = 100, timeout_s: float = 30.0) -> None:
 
 def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
     with session(tmp_path) as (work, rig, sim, _runs), start_sim(sim, tmp_path / "sim.log"):
+        realtime(rig)  # as the unit runs it: at SCHED_OTHER beside stress-ng no run got under way
         # SIGTERM mid-trajectory: clean stop, drives disabled, log closed with its reason.
         with start_daemon(rig, tmp_path / "d1.log") as d:
             wait_for_socket(work / "control.sock", d, tmp_path / "d1.log")
@@ -79,6 +89,7 @@ def test_sigterm_and_sigkill_of_the_daemon(tmp_path):
 
 def test_killed_simulator_mid_trajectory_quick_stops_and_keeps_the_log(tmp_path):
     with session(tmp_path) as (work, rig, sim, _runs):
+        realtime(rig)  # the daemon at SCHED_FIFO as the unit runs it
         sim_ctx = start_sim(sim, tmp_path / "sim.log")
         proc = sim_ctx.__enter__()
         with start_daemon(rig, tmp_path / "d.log") as d:
