@@ -115,6 +115,8 @@ class Compensator:
         if self._speed_law and not cycle_s > 0.0:
             raise ModelError("a speed-dependent friction law needs the step period cycle_s > 0")
         self.cycle_s = float(cycle_s)
+        #: The speed memory's blend per step (1 - exp(-cycle_s / SPEED_MEMORY_S)): fixed at start.
+        self._speed_blend = -math.expm1(-self.cycle_s / SPEED_MEMORY_S) if self._speed_law else 0.0
         K = params.n_cables
         self.locations: list[Location] = (
             ["robot_base"] * K if locations is None else list(locations)
@@ -286,7 +288,7 @@ class Compensator:
         if state.q_geom_mm is None or state.speed_mm_s is None:
             v = [0.0] * len(q_geom)
         else:
-            a = -math.expm1(-dt / SPEED_MEMORY_S)
+            a = self._speed_blend
             v = [
                 vo + a * (abs(qn - qo) / dt - vo)
                 for vo, qn, qo in zip(state.speed_mm_s, q_geom, state.q_geom_mm, strict=True)
