@@ -41,23 +41,28 @@ def rod_tip(lengths, EI, M_seg, F, n=2000):
     ds = L / n
     # tendon moment at arc s: the tendons of every segment whose anchor lies beyond s
     ends = np.cumsum(lengths)
-    Mt = np.array([sum(M for M, e in zip(M_seg, ends, strict=True) if si < e - 1e-12) for si in s])
-    pL = np.array([0.0, L])
+    Mt = [sum(M for M, e in zip(M_seg, ends, strict=True) if si < e - 1e-12) for si in s]
+    Fx, Fz = float(F[0]), float(F[1])
+    xL, zL = 0.0, L
     for _ in range(1000):
-        th = np.zeros(n + 1)
-        p = np.zeros((n + 1, 2))
+        # One sweep of the midpoint rule in plain floats (the sweep is sequential).
+        th, x, z = 0.0, 0.0, 0.0
+        xs, zs = [0.0], [0.0]
         for j in range(n):
             # midpoint: curvature at j from the current guess of p(L)
-            m = Mt[j] + (pL[1] - p[j, 1]) * F[0] - (pL[0] - p[j, 0]) * F[1]
-            k1 = m / EI
-            thm = th[j] + 0.5 * ds * k1
-            pm = p[j] + 0.5 * ds * np.array([math.sin(th[j]), math.cos(th[j])])
-            m2 = Mt[j] + (pL[1] - pm[1]) * F[0] - (pL[0] - pm[0]) * F[1]
-            th[j + 1] = th[j] + ds * m2 / EI
-            p[j + 1] = p[j] + ds * np.array([math.sin(thm), math.cos(thm)])
-        if np.linalg.norm(p[-1] - pL) < 1e-4:
-            return p[-1], p
-        pL = 0.7 * pL + 0.3 * p[-1]  # relaxed: a large tip load overshoots the plain iteration
+            k1 = (Mt[j] + (zL - z) * Fx - (xL - x) * Fz) / EI
+            thm = th + 0.5 * ds * k1
+            xm = x + 0.5 * ds * math.sin(th)
+            zm = z + 0.5 * ds * math.cos(th)
+            th += ds * (Mt[j] + (zL - zm) * Fx - (xL - xm) * Fz) / EI
+            x += ds * math.sin(thm)
+            z += ds * math.cos(thm)
+            xs.append(x)
+            zs.append(z)
+        if math.hypot(x - xL, z - zL) < 1e-4:
+            return np.array([x, z]), np.column_stack([xs, zs])
+        # relaxed: a large tip load overshoots the plain iteration
+        xL, zL = 0.7 * xL + 0.3 * x, 0.7 * zL + 0.3 * z
     raise RuntimeError("rod fixed point did not converge")
 
 

@@ -60,6 +60,20 @@ def test_pulley_table_matches_direct_solution_off_grid():
         assert tr.mean_ratio(T) == pytest.approx(prof.int_T[-1] / (1.5708 * T), rel=1e-4)
 
 
+@pytest.mark.parametrize(
+    ("rho", "wrap", "alpha", "n"), [(20.0, 1.5708, 0.15, 0.67), (10.0, math.pi, 0.6, 0.5)]
+)
+def test_stacked_table_is_each_grid_tensions_own_solution(rho, wrap, alpha, n):
+    """The table's one stacked integration against one LSODA solve per grid tension: both at
+    rtol 1e-10, so they agree to ~1e-9 (a few steps' worth of the tolerance); 1e-8 allows it."""
+    lnk, mean = cap._tension_table(rho, wrap, alpha, n, 25)
+    grid = np.exp(np.linspace(math.log(cap.TABLE_T_MIN_N), math.log(cap.TABLE_T_MAX_N), 25))
+    for i in (0, 7, 12, 19, 24):
+        prof = cap.solve_profile(rho, alpha, n, wrap, float(grid[i]))
+        assert lnk[i] == pytest.approx(math.log(prof.kappa[-1]), abs=1e-8)
+        assert mean[i] == pytest.approx(prof.int_T[-1] / (wrap * grid[i]), rel=1e-8)
+
+
 @pytest.mark.parametrize("n", [1.0, 0.67])
 def test_paying_out_inverts_the_ratio(n):
     tr = cap.PulleyTransfer(8.0, 1.5708, 0.3, n, 0.4)
