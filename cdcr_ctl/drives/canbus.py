@@ -15,12 +15,14 @@ import socket
 
 import can
 
+from cdcr_ctl import seriallink
 from cdcr_ctl.config.drives import CanBusConfig
 from cdcr_ctl.drives.slcan import SlcanBus
 from cdcr_ctl.errors import CommError
 
 #: Pause after opening an slcan serial port before the first command (s). Adapters that reset
-#: on open (Arduino-style CDC) may need more; python-can's default is 2 s.
+#: on open (Arduino-style CDC) may need more; python-can's default is 2 s. A ``socket://`` link
+#: (an adapter served over TCP) has no port that resets on open: no pause.
 SLCAN_SLEEP_AFTER_OPEN_S = 0.2
 
 
@@ -29,7 +31,8 @@ def bus_kwargs(cfg: CanBusConfig) -> dict[str, object]:
     kwargs: dict[str, object] = {"interface": cfg.interface, "channel": cfg.channel}
     if cfg.interface == "slcan":
         kwargs["bitrate"] = cfg.bitrate
-        kwargs["sleep_after_open"] = SLCAN_SLEEP_AFTER_OPEN_S
+        tcp = cfg.channel.startswith("socket://")
+        kwargs["sleep_after_open"] = 0.0 if tcp else SLCAN_SLEEP_AFTER_OPEN_S
     elif cfg.interface == "virtual":
         kwargs["receive_own_messages"] = False
     elif cfg.interface == "socketcan":
@@ -46,6 +49,7 @@ def open_bus(cfg: CanBusConfig) -> can.BusABC:
         if cfg.interface == "slcan":
             # python-can's slcan set-up, with a frame path that keeps up with a 1 kHz cycle.
             del kwargs["interface"]
+            seriallink.register()
             return SlcanBus(**kwargs)
         return can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as exc:

@@ -30,6 +30,7 @@ from typing import Protocol
 import numpy as np
 import serial
 
+from cdcr_ctl import seriallink
 from cdcr_ctl.config.loadcells import LoadCellsConfig
 from cdcr_ctl.errors import RigTimeoutError, SensorError
 from cdcr_ctl.sensors.loadcell import Calibration, LinkStats, LoadCellReading
@@ -373,6 +374,7 @@ def forces_and_ages(samples: Sequence[LoadCellSample]) -> tuple[np.ndarray, np.n
 def open_serial(cfg: LoadCellsConfig) -> serial.SerialBase:
     """Open ``cfg.serial`` (device path or pyserial URL) exclusively; SensorError on failure."""
     s = cfg.serial
+    seriallink.register()
     try:
         return serial.serial_for_url(
             s.port,

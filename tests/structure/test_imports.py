@@ -28,6 +28,7 @@ LAYERS: dict[str, int] = {
     "errors": 0,
     "firstuse": 0,  # package attributes imported on first use (standard library only)
     "ownership": 0,  # one owner per bus, socket and simulator link (flock; standard library)
+    "seriallink": 0,  # pyserial URL handlers (pyserial and the standard library only)
     "model": 0,
     "config": 1,
     "drives": 2,
