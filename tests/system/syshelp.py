@@ -122,6 +122,15 @@ def wait_run_end(work: Path, run_id: str, timeout_s: float) -> tuple[dict, dict]
     return next(r for r in st["runs"] if r["id"] == run_id), st
 
 
+def status_of_run(work: Path, run_id: str) -> tuple[dict, dict] | None:
+    """None while run ``run_id`` runs (or is not yet taken up); once it has ended, its entry in
+    ``status["runs"]`` and the status's fault."""
+    with client(work) as c:
+        st = c.call("status")
+    done = [r for r in st["runs"] if r["id"] == run_id]
+    return (done[0], st["fault"]) if done and st["run"] is None else None
+
+
 def relaunch(rig: Path, work: Path, log: Path) -> None:
     """A new daemon starts after a killed one, finds the drives disabled (their heartbeat
     consumers noticed the master's death), and enables them."""
@@ -145,6 +154,7 @@ __all__ = [
     "set_rate",
     "start_daemon",
     "start_sim",
+    "status_of_run",
     "wait_for_socket",
     "wait_progress",
     "wait_run_end",
