@@ -23,8 +23,10 @@ TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
 
 @contextlib.contextmanager
-def session(tmp_path: Path, tcp_links: bool = True):
+def session(tmp_path: Path, tcp_links: bool = True, realtime_daemon: bool = False):
     """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars).
+    ``realtime_daemon``: the rig config asks for SCHED_FIFO :data:`RT_PRIORITY`, as a lab PC's
+    unit runs the daemon (:func:`realtime`).
     ``tcp_links``: the simulated CAN adapter and load cells on free loopback TCP ports (False:
     on ptys linked to ``work/can`` and ``work/loadcells``). Over a pty, the bytes wait for the
     kernel's tty worker thread, which runs time-shared whatever the simulator's and the daemon's
@@ -35,6 +37,8 @@ def session(tmp_path: Path, tcp_links: bool = True):
     runs = tmp_path / "runs"
     runs.mkdir()
     rig, sim = make_session(TRUTH, work, runs, tcp_links=tcp_links)
+    if realtime_daemon:
+        realtime(rig)
     try:
         yield work, rig, sim, runs
     finally:
