@@ -23,8 +23,10 @@ TRUTH = ROOT / "config" / "sim" / "qi2023-truth-clean.yaml"
 
 
 @contextlib.contextmanager
-def session(tmp_path: Path, tcp_links: bool = True):
+def session(tmp_path: Path, tcp_links: bool = True, realtime_daemon: bool = False):
     """(work dir, rig config, sim config, runs dir) with short paths (sockets need < 108 chars).
+    ``realtime_daemon``: the rig config asks for SCHED_FIFO :data:`RT_PRIORITY`, as a lab PC's
+    unit runs the daemon (:func:`realtime`).
     ``tcp_links``: the simulated CAN adapter and load cells on free loopback TCP ports (False:
     on ptys linked to ``work/can`` and ``work/loadcells``). Over a pty, the bytes wait for the
     kernel's tty worker thread, which runs time-shared whatever the simulator's and the daemon's
@@ -35,6 +37,8 @@ def session(tmp_path: Path, tcp_links: bool = True):
     runs = tmp_path / "runs"
     runs.mkdir()
     rig, sim = make_session(TRUTH, work, runs, tcp_links=tcp_links)
+    if realtime_daemon:
+        realtime(rig)
     try:
         yield work, rig, sim, runs
     finally:
@@ -122,6 +126,15 @@ def wait_run_end(work: Path, run_id: str, timeout_s: float) -> tuple[dict, dict]
     return next(r for r in st["runs"] if r["id"] == run_id), st
 
 
+def status_of_run(work: Path, run_id: str) -> tuple[dict, dict] | None:
+    """None while run ``run_id`` runs (or is not yet taken up); once it has ended, its entry in
+    ``status["runs"]`` and the status's fault."""
+    with client(work) as c:
+        st = c.call("status")
+    done = [r for r in st["runs"] if r["id"] == run_id]
+    return (done[0], st["fault"]) if done and st["run"] is None else None
+
+
 def relaunch(rig: Path, work: Path, log: Path) -> None:
     """A new daemon starts after a killed one, finds the drives disabled (their heartbeat
     consumers noticed the master's death), and enables them."""
@@ -145,6 +158,7 @@ __all__ = [
     "set_rate",
     "start_daemon",
     "start_sim",
+    "status_of_run",
     "wait_for_socket",
     "wait_progress",
     "wait_run_end",

@@ -33,7 +33,7 @@ from typing import Any
 import pytest
 import yaml
 from faulthelp import rows_on_disk, start_sim_with_faults
-from syshelp import client, session, wait_run_end
+from syshelp import RT_PRIORITY, client, realtime, session, status_of_run, wait_run_end
 
 from cdcr_ctl.control import trajectory as tj
 from cdcr_ctl.ownership import LOCK_DIR_ENV, bus_key
@@ -130,9 +130,8 @@ def check_refusals(work: Path, rig: Path, sim: Path, owners: dict[str, int], env
     run: each refuses (exit 1, "already running (pid N)") having sent no CAN frame. The
     simulated drives count the host's frames by CiA 301 service (the fault channel's
     ``counters``): NMT and SDO requests, which a starting master or a scan sends and the
-    running daemon does not, stay at their count while its SYNCs go on. The first simulator's
-    links still point where they did."""
-    links = {p: os.readlink(work / p) for p in ("can", "loadcells")}
+    running daemon does not, stay at their count while its SYNCs go on (and the first simulator
+    goes on serving: the run completes)."""
     fc = FaultClient(faults)
     before = fc.query("counters")["host_frames"]
     load = os.getloadavg()[0]
@@ -152,7 +151,6 @@ def check_refusals(work: Path, rig: Path, sim: Path, owners: dict[str, int], env
     assert after["sync"] > before["sync"]  # the running daemon went on meanwhile
     for kind in QUIET_SERVICES:
         assert after.get(kind, 0) == before.get(kind, 0), (kind, before, after)
-    assert {p: os.readlink(work / p) for p in links} == links
     # The refusal's own work (an interpreter, the CLI, the config) is within the bound; its
     # wall time is too unless other jobs oversubscribe the cores (then it is reported: 6-33 s
     # at load averages of 15-19 on 2 cores, for 1.5-1.6 s of CPU).
@@ -172,14 +170,25 @@ def test_exec_start_runs_notifies_owns_its_bus_logs_under_the_state_directory_an
     state.mkdir()
     runtime.mkdir(mode=0o750)
     faults = tmp_path / "f.sock"
+    # The simulated CAN adapter and load cells on loopback TCP, as in every test session
+    # (syshelp.session): over ptys their bytes wait for the kernel's tty worker, time-shared
+    # whatever the daemon's and the simulator's priority, and beside stress-ng --cpu 2 the
+    # daemon, at SCHED_FIFO, lost the drives' heartbeats (0.3 s) in 3 runs of 3.
     with (
-        session(tmp_path, tcp_links=False) as (work, rig, sim, _runs),
+        session(tmp_path) as (work, rig, sim, _runs),
         start_sim_with_faults(sim, faults, tmp_path / "sim.log") as simproc,
     ):
         # The lab's config says nothing about logs: the defaults apply (the state directory).
         doc = yaml.safe_load(rig.read_text())
+        channel = doc["can"]["channel"]
         del doc["logging"]
         rig.write_text(yaml.safe_dump(doc, sort_keys=False))
+        # It asks for SCHED_FIFO (config/qi2023.yaml), which the unit grants (LimitRTPRIO): the
+        # daemon runs at the tests' real-time priority, as on the lab PC. At SCHED_OTHER beside
+        # other jobs (load average 6-7 on 2 cores) its runs tripped on heartbeat:node1 and
+        # no_feedback:all, or got no 100 rows onto the disk in 30 s.
+        assert int(unit_setting("LimitRTPRIO")) > RT_PRIORITY
+        realtime(rig)
         notify = NotifySocket(work / "notify")
         env = {k: v for k, v in os.environ.items() if k != LOCK_DIR_ENV}
         env.update(
@@ -201,7 +210,7 @@ def test_exec_start_runs_notifies_owns_its_bus_logs_under_the_state_directory_an
             # One daemon per bus and per socket: its locks are in the runtime directory.
             held = sorted(p.read_text().split()[1] for p in runtime.glob("*.lock"))
             assert held == [
-                bus_key("slcan", str(work / "can")),
+                bus_key("slcan", channel),
                 f"socket:{work / 'control.sock'}",
             ]
             assert all(p.read_text().split()[0] == str(d.pid) for p in runtime.glob("*.lock"))
@@ -227,8 +236,12 @@ def test_exec_start_runs_notifies_owns_its_bus_logs_under_the_state_directory_an
             assert Path(res["log_dir"]).parent == state / "runs"
             with client(work) as c:
                 seen_logging = c.call("status")["logging"]
+            # Under way: 100 rows (0.4 s of the run) on disk. A run that ended first fails here
+            # with its end and fault, not after the wait.
             end = time.monotonic() + 30
             while rows_on_disk(res["log_dir"]) <= 100:
+                ended = status_of_run(work, res["run"])
+                assert ended is None, f"the run ended before it got under way: {ended}"
                 assert time.monotonic() < end, "the run never got under way"
                 time.sleep(0.05)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import struct
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import canopen
@@ -52,6 +52,10 @@ IP_PREFILL_POINTS = 3
 CLOSE_SETTLE_S = 0.3
 #: On close: SDO timeout for the best-effort writes (s).
 CLOSE_SDO_TIMEOUT_S = 0.1
+#: A sequence's wait on the drives' time (the group's watch clock) gives up after this many
+#: times its timeout of wall time as well: the drives' time of a caller that does not advance it
+#: (:class:`SequenceDeadline`) never leaves a wait hanging.
+WALL_BACKSTOP_FACTOR = 30
 #: The SYNC frame (COB-ID, data).
 _SYNC_FRAME = (SYNC_COB_ID, b"")
 
@@ -153,6 +157,46 @@ class _Drive:
 
     def reset_stream(self) -> None:
         self.last_target, self.pp_pending, self.ip_points, self.ip_active = None, False, 0, False
+
+
+class SequenceDeadline:
+    """The timeout of one wait of a sequence (a 402 step, a fault reset, homing, a move, the
+    settle on close): ``timeout_s`` (s) on the drives' time ``drive_clock`` (the group's watch
+    clock: the wall clock of real drives, simulated time in lock-step, where it advances one SYNC
+    period with each SYNC the waiting group clocks), with a backstop of
+    :data:`WALL_BACKSTOP_FACTOR` times ``timeout_s`` on ``wall_clock`` (the group's clock). Where
+    the two clocks are one, the backstop never comes first."""
+
+    def __init__(
+        self, timeout_s: float, drive_clock: Callable[[], float], wall_clock: Callable[[], float]
+    ) -> None:
+        self.timeout_s = float(timeout_s)
+        self._drive_clock = drive_clock
+        self._wall_clock = wall_clock
+        self.restart()
+
+    def restart(self) -> None:
+        """Count the timeout from now again (a 402 walk: from each step the drives took)."""
+        self._drive_t0 = self._drive_clock()
+        self._wall_t0 = self._wall_clock()
+
+    def left_s(self) -> float:
+        """Time left on the drives' clock (s, >= 0)."""
+        return max(0.0, self._drive_t0 + self.timeout_s - self._drive_clock())
+
+    def expired(self) -> str | None:
+        """None while time is left; else why: '' when the drives' time passed the timeout, the
+        backstop's text (naming itself and both clocks' elapsed times) when wall time did."""
+        if self._drive_clock() - self._drive_t0 > self.timeout_s:
+            return ""
+        wall = self._wall_clock() - self._wall_t0
+        if wall > WALL_BACKSTOP_FACTOR * self.timeout_s:
+            return (
+                f" (wall-clock backstop: {wall:.1f} s of wall time passed, "
+                f"{WALL_BACKSTOP_FACTOR} x the timeout, while the drives' clock advanced "
+                f"{self._drive_clock() - self._drive_t0:.3f} s)"
+            )
+        return None
 
 
 def sdo_controlword_request(controlword: int) -> bytes:

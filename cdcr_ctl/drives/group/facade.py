@@ -59,12 +59,19 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
     ``bus`` is injected (any python-can bus); the group owns it from here and shuts it down on
     :meth:`close`. Use as a context manager: exit quick-stops and disables the drives, stops the
     master heartbeat and closes the bus, even if start-up failed half way. ``clock`` (default
-    ``time.monotonic``) stamps feedback and measures every timeout. ``watch_clock`` (default:
-    ``clock``) is the time the heartbeats live on: the drives' heartbeats are stamped and their
-    deadlines checked on it, and the master heartbeat is due on it (:meth:`produce_heartbeat`);
-    a caller whose drives run on simulated time (the lock-step rig) passes that time, so a host
-    that stalls while simulated time stands still trips nothing. ``file`` names the config file
-    in errors. The cyclic PDO set must fit ``bus_cfg.max_bus_load`` (ConfigError otherwise).
+    ``time.monotonic``) stamps feedback and measures the bus's own timeouts (boot, SDO, feedback
+    ages). ``watch_clock`` (default: ``clock``) is the time the drives live on: their heartbeats
+    are stamped and checked on it, the master heartbeat is due on it (:meth:`produce_heartbeat`),
+    and the sequences' waits for the drives' state (each 402 step, fault reset, homing, moves,
+    the settle on close) are measured on it, with a backstop of
+    :data:`~cdcr_ctl.drives.group.common.WALL_BACKSTOP_FACTOR` times each timeout on ``clock``.
+    A caller whose drives run on simulated time (the lock-step rig) passes that time, and
+    ``idle_sync``: called before each SYNC the group clocks itself while no cycle runs (a
+    sequence waiting for feedback), it advances that time (and the caller's world) by one SYNC
+    period. So a host that stalls while simulated time stands still trips and times out
+    nothing, and a drive that never answers still times out after the same simulated time.
+    ``file`` names the config file in errors. The cyclic PDO set must fit
+    ``bus_cfg.max_bus_load`` (ConfigError otherwise).
     """
 
     def __init__(
@@ -75,12 +82,14 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         clock: Callable[[], float] = time.monotonic,
         *,
         watch_clock: Callable[[], float] | None = None,
+        idle_sync: Callable[[], None] | None = None,
         file: str = "",
         react_to_faults: bool = True,
     ) -> None:
         self.bus_cfg = bus_cfg
         self.clock = clock
         self.watch_clock = clock if watch_clock is None else watch_clock
+        self.idle_sync = idle_sync
         self.file = file
         self.react_to_faults = react_to_faults
         try:
@@ -232,10 +241,10 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
             )
             if moving:
                 self.quick_stop_all()
-                deadline = self.clock() + CLOSE_SETTLE_S
+                deadline = self._deadline(CLOSE_SETTLE_S)
                 while (
                     not bus_dead
-                    and self.clock() < deadline
+                    and deadline.expired() is None
                     and any(
                         d.feedback.state is State.OPERATION_ENABLED
                         or (
@@ -245,7 +254,7 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
                         for d in self._drives
                     )
                 ):
-                    self._await_feedback(deadline - self.clock())
+                    self._await_feedback(deadline.left_s())
             self.disable_all()
         if bus_dead:
             return

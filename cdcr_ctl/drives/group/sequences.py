@@ -39,6 +39,7 @@ from cdcr_ctl.drives.group.common import (
     SETPOINT_ACK_TIMEOUT_S,
     STATE_STEP_TIMEOUT_S,
     TPDO_MISSES,
+    SequenceDeadline,
     _Drive,
     sdo_controlword_request,
 )
@@ -118,14 +119,22 @@ class _Sequences:
             err.add_note("reset_faults() first")
             raise err
 
+    def _deadline(self, timeout_s: float) -> SequenceDeadline:
+        """A wait's timeout on the drives' time (the watch clock), backstopped on the clock."""
+        return SequenceDeadline(timeout_s, self.watch_clock, self.clock)
+
     def _await_feedback(self, max_wait_s: float) -> None:
-        """Wait for the next TPDO (at most ``max_wait_s``); clock SYNC if no cycle runs."""
+        """Wait for the next TPDO (at most ``max_wait_s``, and a SYNC period, of wall time);
+        clock SYNC if no cycle runs, at most one per period of wall time, each after
+        ``idle_sync`` (the drives' time advanced one period where the caller keeps it)."""
         now = self.clock()
         if (
             now - self._last_cycle_s > IDLE_PERIODS * self.period_s
             and now >= self._next_self_sync_s
         ):
             self._next_self_sync_s = now + self.period_s
+            if self.idle_sync is not None:
+                self.idle_sync()
             if self._sync_source is not None:
                 self._sync_source()
             else:
@@ -145,8 +154,9 @@ class _Sequences:
         what: str,
         after_sync: int | None = None,
     ) -> None:
-        """Wait until ``done(d)`` for every drive, on feedback newer than SYNC ``after_sync``."""
-        deadline = self.clock() + timeout_s
+        """Wait until ``done(d)`` for every drive, on feedback newer than SYNC ``after_sync``;
+        ``timeout_s`` on the drives' time (:meth:`_deadline`)."""
+        deadline = self._deadline(timeout_s)
         while True:
             self._require_no_fault()
             late = [
@@ -156,28 +166,30 @@ class _Sequences:
             ]
             if not late:
                 return
-            if self.clock() > deadline:
+            why = deadline.expired()
+            if why is not None:
                 d = late[0]
                 raise RigTimeoutError(
                     f"node {d.id}: {what} not confirmed within {timeout_s} s (state "
-                    f"{d.feedback.state.value}, statusword 0x{d.feedback.statusword:04X})"
+                    f"{d.feedback.state.value}, statusword 0x{d.feedback.statusword:04X}){why}"
                 )
-            self._await_feedback(deadline - self.clock())
+            self._await_feedback(deadline.left_s())
 
     def _walk(self, target: State, step_timeout_s: float) -> None:
         """Step every drive through the 402 diagram to ``target``, all drives at once; each
-        step must show in the statusword within ``step_timeout_s``."""
+        step must show in the statusword within ``step_timeout_s`` of the drives' time
+        (:meth:`_deadline`)."""
         self._require_started()
         sent: dict[int, tuple[State, int]] = {}
         last_states = [d.feedback.state for d in self._drives]
-        deadline = self.clock() + step_timeout_s
+        deadline = self._deadline(step_timeout_s)
         while True:
             self._require_no_fault()
             states = [d.feedback.state for d in self._drives]
             if all(s is target for s in states):
                 return
             if states != last_states:
-                deadline = self.clock() + step_timeout_s
+                deadline.restart()
                 last_states = states
             with self._cycle_lock:
                 self._require_no_fault()
@@ -193,14 +205,15 @@ class _Sequences:
                     if cw is not None and sent.get(d.id) != (s, cw):
                         self._send_controlword(d, cw)
                         sent[d.id] = (s, cw)
-            if self.clock() > deadline:
+            why = deadline.expired()
+            if why is not None:
                 late = [d for d in self._drives if d.feedback.state is not target]
                 d = late[0]
                 raise RigTimeoutError(
                     f"node {d.id}: still {d.feedback.state.value} {step_timeout_s} s after "
-                    f"controlword 0x{d.controlword:04X} on the way to {target.value}"
+                    f"controlword 0x{d.controlword:04X} on the way to {target.value}{why}"
                 )
-            self._await_feedback(max(0.0, deadline - self.clock()))
+            self._await_feedback(deadline.left_s())
 
     def enable(self, timeout_s: float = STATE_STEP_TIMEOUT_S) -> None:
         """Every drive to OPERATION ENABLED: controlwords 0x06, 0x07, 0x0F as each needs, all
@@ -211,11 +224,11 @@ class _Sequences:
 
     def reset_faults(self, timeout_s: float = FAULT_RESET_TIMEOUT_S) -> list[str]:
         """Fault reset (controlword 0x80 rising edge) of every drive in FAULT, confirmed by its
-        statusword leaving FAULT within ``timeout_s``; then check every drive answers (TPDO and
-        heartbeat) and clear the latched fault. A drive that rebooted since configuration is
-        reconfigured first (:meth:`reconfigure`). Returns what was done beyond the reset, one
-        line per drive (the reconfigured ones). Raises DriveFault naming the node when a reset
-        does not take, a reconfiguration fails or a drive does not answer."""
+        statusword leaving FAULT within ``timeout_s`` of the drives' time; then check every drive
+        answers (TPDO and heartbeat) and clear the latched fault. A drive that rebooted since
+        configuration is reconfigured first (:meth:`reconfigure`). Returns what was done beyond
+        the reset, one line per drive (the reconfigured ones). Raises DriveFault naming the node
+        when a reset does not take, a reconfiguration fails or a drive does not answer."""
         self._require_started()
         notes = []
         for node in self.rebooted_nodes:
@@ -238,7 +251,7 @@ class _Sequences:
                 self._send_controlword(d, CW_DISABLE_VOLTAGE)
                 self._send_controlword(d, CW_FAULT_RESET)
             start = self.sync_count
-        deadline = self.clock() + timeout_s
+        deadline = self._deadline(timeout_s)
 
         def still_faulted(d: _Drive) -> bool:
             # confirmed only by feedback sampled at a SYNC sent after the reset
@@ -246,16 +259,17 @@ class _Sequences:
             return faulty or d.tpdo_sync <= start
 
         while any(still_faulted(d) for d in faulted):
-            if self.clock() > deadline:
+            why = deadline.expired()
+            if why is not None:
                 d = next(d for d in faulted if still_faulted(d))
                 code = d.last_emcy.code if d.last_emcy else 0
                 raise DriveFault(
                     d.id,
                     code,
                     f"fault reset not confirmed: still FAULT {timeout_s} s after controlword "
-                    f"0x0080 ({d.fault_text or 'no EMCY'})",
+                    f"0x0080 ({d.fault_text or 'no EMCY'}){why}",
                 )
-            self._await_feedback(max(0.0, deadline - self.clock()))
+            self._await_feedback(deadline.left_s())
         with self._cycle_lock:
             for d in faulted:
                 self._send_controlword(d, CW_DISABLE_VOLTAGE)

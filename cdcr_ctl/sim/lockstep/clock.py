@@ -11,6 +11,13 @@ how long a client takes between two requests changes nothing in the world or in 
 idle the loop thread waits for the next command (it polls ``busy`` every
 :data:`IDLE_POLL_S` of wall time or at once on :meth:`SimClock.wake`); that is waiting for work,
 not pacing simulated time.
+
+The drive layer's sequences (enable, homing, fault reset, the settle on close) run off the loop
+thread and clock their own SYNCs while the loop is idle; each such SYNC comes after
+:meth:`SimClock.step`, which advances the world one period as a cycle does. Their timeouts are
+measured on this clock (the drive group's ``watch_clock``): a starved host delays them but
+cannot make them expire, and a drive that never answers still times out after the same
+simulated time.
 """
 
 from __future__ import annotations
@@ -34,7 +41,9 @@ Advance = Callable[[float, float], None]
 
 class SimClock:
     """Loop clock on simulated time (s), starting at ``t0_s``. ``advance(t0, t1)`` moves the
-    world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always)."""
+    world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always).
+    Time is ``t0_s`` + the periods advanced so far (the loop's cycles after its first, and the
+    :meth:`step` calls) times the period."""
 
     def __init__(
         self,
@@ -50,8 +59,13 @@ class SimClock:
         self.busy = busy
         self.stats = LatenessStats()
         self.cycles = 0
+        #: Periods advanced by :meth:`step` (the drive layer's own SYNCs while the loop idles).
+        self.steps = 0
         self.t0_s = float(t0_s)
+        self._periods = 0
         self._t = self.t0_s
+        #: One advance of the world at a time (the loop's cycle, a sequence's :meth:`step`).
+        self._advance_lock = threading.Lock()
         self._wake = threading.Event()
         #: Set while the loop waits for work (it has ended its run, say), clear while it has
         #: some: a caller waiting for a run's end waits on this, not polling the loop.
@@ -79,13 +93,28 @@ class SimClock:
                 self._wake.clear()
             self.idle.clear()
         if self.cycles > 0:
-            t0, t1 = self._t, self.t0_s + self.cycles * self.period_s
-            if self.advance is not None:
-                self.advance(t0, t1)
-            self._t = t1
+            self._advance_one()
         self.cycles += 1
         self.stats.add(0.0)
         return self._t, 0.0
+
+    def step(self) -> None:
+        """(Off the loop thread: the drive group's ``idle_sync``.) Advance the world one period,
+        as a cycle does, before a SYNC the drive layer clocks itself while the loop has no work
+        (a drive sequence waiting for feedback: enable, homing, fault reset, the settle on
+        close). The number of these is a function of the drives' answers, not of the host's
+        timing: the group clocks each only when the drives' feedback has not yet shown what it
+        waits for."""
+        self._advance_one()
+        self.steps += 1
+
+    def _advance_one(self) -> None:
+        with self._advance_lock:
+            self._periods += 1
+            t0, t1 = self._t, self.t0_s + self._periods * self.period_s
+            if self.advance is not None:
+                self.advance(t0, t1)
+            self._t = t1
 
     def wait_settled(self, timeout_s: float) -> bool:
         """(Not on the loop thread.) Wait, on the wall clock, until the loop has taken up every
