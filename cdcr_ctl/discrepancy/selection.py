@@ -102,6 +102,8 @@ class Selection:
     n_eff: float
     baseline_ms: float
     reasons: list[str] = field(default_factory=list)
+    #: Effects the run cannot tell apart (a refinement and its base), the first written.
+    tie: tuple[str, ...] = ()
 
 
 class _Grams:
