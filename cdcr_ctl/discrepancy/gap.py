@@ -7,7 +7,7 @@ little shrink. The gap reported as the headline is the RMS norm of the error ave
 centred window of :data:`GAP_WINDOW_S` seconds (every row within +-W/2 of row i, NaN rows left
 out): averaging n independent tracker samples divides the noise's standard deviation by
 sqrt(n), while an error that changes over times longer than W passes nearly unchanged (a
-boxcar of width W scales a sinusoid of period P by sinc(W / P): 0.97 at P = 1 s, 0.85 at the
+boxcar of width W scales a sinusoid of period P by sinc(W / P): 0.94 at P = 1 s, 0.85 at the
 0.65 s of a slow cable reversal's transient).
 
 A sample-and-hold tracker slower than the log repeats a frame in several rows; those rows share
