@@ -93,7 +93,7 @@ def choose_refinement(d: Design, runs, sel, rf: Refit, sim, evals: int) -> Refit
             v = refinement_verdict(rb.mean_square, rr.mean_square, n_eff, k)
     b, r = fb.name, fr.name
     left = rb.mean_square - 1.0
-    lr = n_eff * math.log(rb.mean_square / rr.mean_square) if rr.mean_square > 0 else math.nan
+    lr = max(n_eff * math.log(rb.mean_square / rr.mean_square), 0.0) if rr.mean_square > 0 else 0.0
     how = (
         f"refitted, {b} leaves {left:.3f} noise variances above the noise ({rb.mean_square:.3f});"
         f" {r} ({k} more parameters) {rr.mean_square:.3f}, likelihood ratio {lr:.0f} (99 %"
