@@ -107,6 +107,7 @@ def discrepancy(
     The controller's rig config is -c/--config (default: the copy in each run directory).
     """
     from cdcr_ctl.discrepancy import analyse
+    from cdcr_ctl.discrepancy.gap import GAP_WINDOW_S
     from cdcr_ctl.discrepancy.keypoint_path import is_keypoint_log
     from cdcr_ctl.discrepancy.report import config_fragment, summary_lines, write_report
 
@@ -175,6 +176,12 @@ def discrepancy(
         "gap_shrink_percent": 100 * res.gap_shrink,
         "tip_gap_above_noise_mm": [b, a],
         "gap_above_noise_shrink_percent": 100 * res.systematic_gap_shrink,
+        # the tip error averaged over tip_gap_window_s (the tracker's noise / sqrt(rows)):
+        # before, after and its noise floor (mm)
+        "tip_gap_mm": list(res.tip_gap_mm),
+        "tip_gap_shrink_percent": 100 * res.tip_gap_shrink,
+        "tip_gap_window_s": GAP_WINDOW_S,
+        "tie": list(res.selection.tie),
         "elapsed_s": res.elapsed_s,
         "files": {k: str(v) for k, v in paths.items()},
     }

@@ -61,8 +61,12 @@ def refit(
     sim: Callable[[ModelSpec, int], Prediction],
     max_nfev: int = 8,
     on_eval: Callable[[], None] | None = None,
+    fresh: bool | None = None,
 ) -> Refit:
-    """Nonlinear least squares of ``fit.terms`` with full forward simulations (see module doc)."""
+    """Nonlinear least squares of ``fit.terms`` with full forward simulations (see module doc),
+    from ``fit.values``. ``fresh``: a forward-difference Jacobian at every iterate (True) or the
+    secant columns (False); None: fresh for at most :data:`FRESH_JACOBIAN_MAX_PARAMS` simulated
+    parameters."""
     terms = fit.terms
     cols = [i for i, (t, _) in enumerate(d.cols) if t in terms]
     J0 = d.G[:, cols]
@@ -109,7 +113,8 @@ def refit(
     x0 = np.clip(fit.values, np.where(np.isfinite(lo), lo + 1e-9 * span, lo), hi - 1e-9 * span)
     steps = np.abs(d.steps[cols])
     needs_sim = [c for c in cols if d.cols[c][0].kind != "measurement"]
-    fresh = 0 < len(needs_sim) <= FRESH_JACOBIAN_MAX_PARAMS
+    if fresh is None:
+        fresh = 0 < len(needs_sim) <= FRESH_JACOBIAN_MAX_PARAMS
 
     def jac(p: np.ndarray) -> np.ndarray:
         # few simulated parameters: a fresh forward-difference Jacobian at every iterate (the

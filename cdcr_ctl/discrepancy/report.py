@@ -1,7 +1,9 @@
 """Report of a discrepancy analysis: text, plots and a config fragment.
 
-* ``report.txt``: the verdict, the named effect with its fitted parameters and 95 % confidence
-  intervals, the tip gap before/after (measured RMS and the part above the tracker noise), the
+* ``report.txt``: the verdict (a tie names both effects), the named effect with its fitted
+  parameters and 95 % confidence intervals, the tip gap before/after (the RMS of the tip error
+  averaged over :data:`~cdcr_ctl.discrepancy.gap.GAP_WINDOW_S`, and per sample: measured RMS and
+  the part above the tracker noise), the
   model comparison table (held-out mean square, AIC, BIC) and the localisation tables.
 * ``residuals.png`` (tip error before/after over time), ``localisation.png`` (tip RMS by motion
   phase, bend, tension level), ``candidates.png`` (held-out mean square per model).
@@ -21,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from cdcr_ctl.discrepancy.gap import GAP_WINDOW_S
 from cdcr_ctl.discrepancy.workflow import DiscrepancyResult
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.model.cc_disk.effects import rotation_from_rotvec, rotvec_from_rotation
@@ -37,7 +40,10 @@ def summary_lines(res: DiscrepancyResult) -> list[str]:
     sel = res.selection
     name = res.named or ""
     titles = ", ".join(t.title for t in sel.chosen.terms) if sel.chosen else ""
-    out = [VERDICT_TEXT[sel.verdict].format(name=f"{name} ({titles})")]
+    head = VERDICT_TEXT[sel.verdict].format(name=f"{name} ({titles})")
+    if sel.tie:
+        head += f" -- TIE with {', '.join(sel.tie[1:])}: this run cannot tell them apart"
+    out = [head]
     out += [f"  {r}" for r in sel.reasons]
     if res.refit is not None:
         out.append("fitted parameters (nonlinear refit, 95 % CI, autocorrelation-corrected):")
@@ -46,8 +52,14 @@ def summary_lines(res: DiscrepancyResult) -> list[str]:
         ):
             out.append(f"  {n} = {v:.5g} +- {c:.2g}  [{u}]")
     b, a = res.systematic_gap_mm
+    gb, ga, gf = res.tip_gap_mm
     out.append(
-        f"tip RMS gap: {res.tip_rms_before_mm:.3f} mm -> {res.tip_rms_after_mm:.3f} mm"
+        f"tip gap (RMS of the tip error averaged over {GAP_WINDOW_S:g} s): {gb:.3f} mm ->"
+        f" {ga:.3f} mm (shrink {100 * res.tip_gap_shrink:.1f} %); its tracker noise floor"
+        f" {gf:.3f} mm"
+    )
+    out.append(
+        f"tip RMS gap per sample: {res.tip_rms_before_mm:.3f} mm -> {res.tip_rms_after_mm:.3f} mm"
         f" (shrink {100 * res.gap_shrink:.1f} %); tracker noise floor"
         f" {res.tip_noise_floor_mm:.3f} mm; above the noise: {b:.3f} -> {a:.3f} mm"
         f" (shrink {100 * res.systematic_gap_shrink:.1f} %)"

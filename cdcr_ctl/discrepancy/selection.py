@@ -18,12 +18,14 @@ so a model that is right up to noise has a mean squared residual of about 1.
    sample by a margin larger than the noise: the held-out mean square (in noise variances) must
    drop by more than ``noise_margin`` (1: the removed systematic part is larger than the noise),
    consistently (better in every held-out block, or a paired t > 2.13 over the blocks, 95 %
-   one-sided with 4 dof for 5 folds), and the baseline's own held-out excess over the noise
-   is within ``noise_margin``. A candidate that beats the baseline but explains less than
-   ``min_explained`` of the held-out excess over noise, or a baseline that misses by more than
-   the noise with no candidate beating it, is reported as "no effect in the library explains
-   this". A pair wins over its best single only if it removes a
-   further ``pair_gain`` of the excess in held-out data.
+   one-sided with 4 dof for 5 folds, or better in every block where the baseline's held-out
+   mean square exceeds the noise by more than ``noise_margin``: a block of holds that the
+   baseline fits to the noise tells no model from another), and the baseline's own held-out
+   excess over the noise is within ``noise_margin``. A candidate that beats the baseline but
+   explains less than ``min_explained`` of the held-out excess over noise, or a baseline that
+   misses by more than the noise with no candidate beating it, is reported as "no effect in the
+   library explains this". A pair wins over its best single only if it removes a further
+   ``pair_gain`` of the excess in held-out data.
 4. The winner is refitted with the full nonlinear model (a forward simulation per evaluation)
    by :func:`scipy.optimize.least_squares` (the nuisance projected out), with the secant
    columns as Jacobian. Confidence intervals: s^2 (J^T J)^-1 inflated by N / N_eff, 95 % normal.
@@ -102,6 +104,8 @@ class Selection:
     n_eff: float
     baseline_ms: float
     reasons: list[str] = field(default_factory=list)
+    #: Effects the run cannot tell apart (a refinement and its base), the first written.
+    tie: tuple[str, ...] = ()
 
 
 class _Grams:
@@ -213,7 +217,12 @@ def select(
     better = int((diff > 0).sum())
     gain_ms = (base.cv_sse - best.cv_sse) / N
     explained = (base.cv_sse - best.cv_sse) / excess if excess > 0 else 0.0
+    # a block the baseline already fits to within the noise (a hold) cannot tell models apart:
+    # better in every block where the baseline misses by more than the noise also counts
+    block_ms = base.cv_fold_sse / np.maximum(np.bincount(d.fold, minlength=folds), 1)
+    telling = block_ms - 1.0 > noise_margin
     consistent = better == folds or t_stat > T_CRIT_5FOLDS
+    consistent = consistent or bool(telling.any() and np.all(diff[telling] > 0))
     if (gain_ms <= noise_margin or not consistent) and ms - 1.0 > noise_margin:
         # the baseline itself misses by more than the noise (the noise level is measured apart,
         # from the second differences) and no candidate removes it: something is missing, but
@@ -236,7 +245,9 @@ def select(
     elif explained >= min_explained:
         verdict, chosen = "named", best
         reasons.append(
-            f"{best.name}: better in {better}/{folds} held-out blocks (paired t = {t_stat:.1f}),"
+            f"{best.name}: better in {better}/{folds} held-out blocks (paired t = {t_stat:.1f};"
+            f" in {int((diff[telling] > 0).sum())}/{int(telling.sum())} where the baseline"
+            " misses beyond the noise),"
             f" held-out mean square down by {gain_ms:.1f} noise variances, explains"
             f" {explained:.0%} of the held-out excess over noise"
         )

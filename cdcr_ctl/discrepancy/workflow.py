@@ -37,7 +37,9 @@ from cdcr_ctl.discrepancy.alignment import (
     residual_noise_sigma,
 )
 from cdcr_ctl.discrepancy.design import lag_split, suspect_lag
+from cdcr_ctl.discrepancy.gap import frame_ids, gap_rms, rms, windowed_error, windowed_floor
 from cdcr_ctl.discrepancy.localise import Table, localise
+from cdcr_ctl.discrepancy.refine import choose_refinement, maybe_pair
 from cdcr_ctl.discrepancy.selection import (
     Design,
     Refit,
@@ -62,6 +64,8 @@ from cdcr_ctl.model.cc_disk.effects import CANDIDATES, EffectTerm, ModelSpec
 class RunOutcome:
     """Per run: tip RMS gap (mm) and tension RMS gap (N) before and after the refit, and the
     tracker noise floor of the tip RMS (sqrt(3) sigma_tip, mm): the part no model can remove.
+    ``tip_gap_*_mm``: the same with the error averaged over :data:`~.gap.GAP_WINDOW_S` (the
+    model's systematic error; the floor is the averaged noise's, :mod:`~.gap`).
     ``lag_s``: the tracker's mean delay behind the rows (the run's timing model); ``lag_suspect``:
     why that delay is not trusted (empty when the log's timing supports it)."""
 
@@ -77,6 +81,9 @@ class RunOutcome:
     t_s: np.ndarray
     tip_err_before_mm: np.ndarray
     tip_err_after_mm: np.ndarray
+    tip_gap_before_mm: float = math.nan
+    tip_gap_after_mm: float = math.nan
+    tip_gap_floor_mm: float = math.nan
 
 
 @dataclass
@@ -115,6 +122,23 @@ class DiscrepancyResult:
         """1 - RMS after / RMS before of the measured tip gap (0 when nothing was refitted)."""
         b = self.tip_rms_before_mm
         return 1.0 - self.tip_rms_after_mm / b if b > 0 else 0.0
+
+    @property
+    def tip_gap_mm(self) -> tuple[float, float, float]:
+        """The tip gap with the error averaged over :data:`~.gap.GAP_WINDOW_S`, before and after,
+        and its noise floor (mm, pooled over the runs)."""
+        o = self.outcomes
+        return (
+            _pooled([x.tip_gap_before_mm for x in o], o),
+            _pooled([x.tip_gap_after_mm for x in o], o),
+            _pooled([x.tip_gap_floor_mm for x in o], o),
+        )
+
+    @property
+    def tip_gap_shrink(self) -> float:
+        """1 - after / before of :attr:`tip_gap_mm` (0 when nothing was refitted)."""
+        b, a, _ = self.tip_gap_mm
+        return 1.0 - a / b if b > 0 else 0.0
 
     @property
     def systematic_gap_mm(self) -> tuple[float, float]:
@@ -281,7 +305,8 @@ def analyse(
         rf = None
         if selection.chosen is not None:
             rf = refit(design, runs, selection.chosen, sim, max_nfev=refit_evals)
-            rf = _maybe_pair(design, runs, selection, rf, sim, refit_evals)
+            rf = choose_refinement(design, runs, selection, rf, sim, refit_evals)
+            rf = maybe_pair(design, runs, selection, rf, sim, refit_evals)
         baselines, nuis_before = _final_timing(design, runs, rf, sim)
         outcomes = _outcomes(runs, baselines, design, rf, nuis_before)
     finally:
@@ -304,35 +329,6 @@ def analyse(
         elapsed_s=time.monotonic() - t0,
         simulations=sim.count,
     )
-
-
-def _maybe_pair(d: Design, runs, sel: Selection, rf: Refit, sim, evals: int) -> Refit:
-    """Refit the pair that beat the single in linearised CV; keep it only if, refitted, it
-    removes a further ``pair_gain`` of the excess over noise (in noise variances per residual)."""
-    pair = sel.pair
-    if pair is None:
-        return rf
-    N = sel.n_entries
-    margin = sel.pair_gain * max(sel.baseline.cv_sse / N - 1.0, 0.0)
-    if pair.cv_sse / N >= rf.mean_square - margin:
-        sel.reasons.append(
-            f"pair {pair.name} not better than the refitted {sel.chosen.name}"
-            f" ({rf.mean_square:.2f} noise variances): the single effect is kept"
-        )
-        return rf
-    rp = refit(d, runs, pair, sim, max_nfev=evals)
-    if rp.mean_square < rf.mean_square - margin:
-        sel.reasons.append(
-            f"the pair {pair.name} (refitted mean square {rp.mean_square:.2f}) beats the single"
-            f" {sel.chosen.name} ({rf.mean_square:.2f}) by more than {margin:.2f}: both are missing"
-        )
-        sel.chosen = pair
-        return rp
-    sel.reasons.append(
-        f"pair {pair.name} refitted ({rp.mean_square:.2f}) is not better than {sel.chosen.name}"
-        f" ({rf.mean_square:.2f}) by {margin:.2f}: the single effect is kept"
-    )
-    return rf
 
 
 def _estimate_timing(run: AlignedRun, base: Prediction) -> None:
@@ -434,7 +430,7 @@ def _nuisance_fit(run_i: int, d: Design, resid_entries: np.ndarray) -> np.ndarra
 def _corrected_tip_error(
     run: AlignedRun, pred: Prediction, d: Design, ri: int, nuis: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """Tip error (N,) mm and tension residual (N, K) N after removing the nuisance fitted to
+    """Tip error (N, 3) mm and tension residual (N, K) N after removing the nuisance fitted to
     them (the load-cell offsets; the tracker lag is already in the run's timing, its linear
     nuisance is zero here: :func:`_final_timing`)."""
     m = d.run == ri
@@ -448,7 +444,7 @@ def _corrected_tip_error(
     if run.tension_N is not None:
         Te = run.tension_N - pred.tension_N
         Te[rows[~t_m], chans[~t_m] - 3] -= corr[~t_m] * run.sigma_tension_N
-    return np.linalg.norm(tip_c, axis=1), Te
+    return tip_c, Te
 
 
 def _outcomes(
@@ -468,13 +464,10 @@ def _outcomes(
         else:
             after, ea, Ta = base, eb, Tb
         tables = localise(run, base)
-
-        def rms(x):
-            return (
-                float(np.sqrt(np.nanmean(x**2)))
-                if x is not None and np.isfinite(x).any()
-                else float("nan")
-            )
+        frames = frame_ids(run.tip_mm)
+        wb, factor = windowed_error(run.t_s, eb, frames)
+        wa = windowed_error(run.t_s, ea, frames)[0] if rf is not None else wb
+        eb, ea = np.linalg.norm(eb, axis=1), np.linalg.norm(ea, axis=1)
 
         out.append(
             RunOutcome(
@@ -490,6 +483,9 @@ def _outcomes(
                 t_s=run.t_s,
                 tip_err_before_mm=eb,
                 tip_err_after_mm=ea,
+                tip_gap_before_mm=gap_rms(wb),
+                tip_gap_after_mm=gap_rms(wa),
+                tip_gap_floor_mm=windowed_floor(run.sigma_tip_mm, factor),
             )
         )
     return out
