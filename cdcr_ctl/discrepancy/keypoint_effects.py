@@ -77,6 +77,8 @@ class EffectFit:
     seconds: float
     params: RobotParams | None = None  # for replay effects: the fitted parameters
     err2_heldout: np.ndarray | None = None
+    #: for replay effects: the fitted replay's tips (N, 3) mm at every row of each run's path
+    tips_full: list[np.ndarray] | None = None
 
     @property
     def title(self) -> str:
@@ -250,10 +252,11 @@ def replay_fit_effect(
     scales = [tolerance(fp, 0.25, math.radians(1.0)) for fp in fps]
     sol = replay_fit.fit(ev, fps, scales, 20, None, progress=say, cpu_budget_s=cpu_budget_s)
     fitted = ev.prob.params_of(fps, sol.x)
-    d_all = []
+    d_all, reps = [], []
     for q, tip, held in runs_full:
         rep = replay(ForwardStepper(fitted, replay_fit.effects_of(fitted, effects)), q)
         d_all.append((rep.tip_mm - tip)[held])
+        reps.append(rep.tip_mm)
     d = np.vstack(d_all)
     rm = _rmse(d)
     return EffectFit(
@@ -265,6 +268,7 @@ def replay_fit_effect(
         time.monotonic() - t0,
         fitted,
         np.sum(d * d, axis=1),
+        reps,
     )
 
 
@@ -286,12 +290,14 @@ def registered_on(
     t0 = time.monotonic()
     assert fitted.params is not None
     reps, fit_rows = [], []
-    for q, tip, held in runs_full:
-        rep = replay(
-            ForwardStepper(fitted.params, replay_fit.effects_of(fitted.params, effects)), q
-        )
-        reps.append(rep.tip_mm)
-        ok = np.all(np.isfinite(tip), axis=1) & np.all(np.isfinite(rep.tip_mm), axis=1)
+    for i, (q, tip, held) in enumerate(runs_full):
+        if fitted.tips_full is not None:
+            tips = fitted.tips_full[i]
+        else:
+            eff = replay_fit.effects_of(fitted.params, effects)
+            tips = replay(ForwardStepper(fitted.params, eff), q).tip_mm
+        reps.append(tips)
+        ok = np.all(np.isfinite(tip), axis=1) & np.all(np.isfinite(tips), axis=1)
         fit_rows.append(ok & ~held)
     a = np.vstack([r[f] for r, f in zip(reps, fit_rows, strict=True)])
     b = np.vstack([t[f] for (_, t, _), f in zip(runs_full, fit_rows, strict=True)])
@@ -310,4 +316,5 @@ def registered_on(
         fitted.seconds + time.monotonic() - t0,
         fitted.params,
         np.sum(d * d, axis=1),
+        [r @ R.T + t for r in reps],
     )

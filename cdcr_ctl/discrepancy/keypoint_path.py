@@ -45,6 +45,7 @@ from cdcr_ctl.discrepancy.keypoint_effects import (
     registered_on,
     replay_fit_effect,
 )
+from cdcr_ctl.discrepancy.keypoint_rigid import frame_rigidity
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.keypoint_gate import heldout_gain
@@ -265,6 +266,14 @@ def analyse_keypoints(
                     winner, nested = nested_test(best, tie, joint)
                     if winner is not None:
                         named, best, tie = winner, winner, None
+                if tie is not None and ev is not None and "registration" in (best.name, tie.name):
+                    rows = [np.asarray(r.rows, dtype=int) for r in runs]
+                    winner, lines = registration_test(
+                        ranked, best, tie, joint, (TM, TIP, F, H), rows, noise
+                    )
+                    nested += lines
+                    if winner is not None:
+                        named, best, tie = winner, winner, None
     if named is not None and tie is not None:
         verdict = (
             f"TWO EFFECTS EXPLAIN IT ALIKE, NONE NAMED: {best.title} ({best.name}, "
@@ -332,6 +341,49 @@ def _joint_fit(
         return registered_on(other, eff, full, base)
     say(f"candidates {a.name} and {b.name} tie: fitting them together")
     return replay_fit_effect(ev, params, eff, f"{a.name}+{b.name}", full, cpu, base, say)
+
+
+def registration_test(
+    ranked: Sequence[EffectFit],
+    a: EffectFit,
+    b: EffectFit,
+    joint: EffectFit | None,
+    rows_data: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    rows: Sequence[np.ndarray],
+    noise_mm: float,
+) -> tuple[EffectFit | None, list[str]]:
+    """A tie of ``registration`` with a replayed candidate X that the joint fit did not
+    separate: whether registration is one rigid frame (:mod:`.keypoint_rigid`, the rows split
+    by how far X's fit moves the tip from the config's). ``rows_data``: (config's tips, logged
+    tips, fitted-row mask, held-out mask) at every point row; ``rows``: each run's point rows
+    in its path. When registration alone is not one frame, it cannot be the effect and X is
+    named, if X shrinks the held-out RMSE by ``NAME_SHRINK`` and beats the next candidate by
+    the paired test; the frame's rigidity on top of X's replay is reported (one frame that
+    still helps: a tracker error may be present as well). Returns the winner (or None) and the
+    report's lines."""
+    x = b if a.name == "registration" else a
+    if x.tips_full is None:
+        return None, []
+    TM, TIP, F, H = rows_data
+    TX = np.vstack([t[r] for t, r in zip(x.tips_full, rows, strict=True)])
+    split = np.linalg.norm(TX - TM, axis=1)
+    what = f"how far {x.name} moves the tip"
+    alone = frame_rigidity(TM, TIP, F, H, split, noise_mm, TIE_SE)
+    lines = ["registration alone: " + alone.line(what)]
+    if joint is not None and joint.name == f"{x.name}+registration":
+        on_x = frame_rigidity(TX, TIP, F, H, split, noise_mm, TIE_SE)
+        lines.append(f"registration on top of {x.name}: " + on_x.line(what))
+    if alone.rigid or x.shrink < NAME_SHRINK:
+        return None, lines
+    rest = [f for f in ranked if f.name not in (x.name, "registration") and "+" not in f.name]
+    if rest:
+        g, se = _paired_gain(rest[0], x)
+        if not g > TIE_SE * se:
+            lines.append(
+                f"{x.name} against {rest[0].name}: {g:.3g} mm^2 (SE {se:.2g}), not beyond the noise"
+            )
+            return None, lines
+    return x, lines
 
 
 def nested_test(a: EffectFit, b: EffectFit, joint: EffectFit) -> tuple[EffectFit | None, list[str]]:
