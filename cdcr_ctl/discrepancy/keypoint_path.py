@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.config.build_model import build_model, friction_law
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.keypoint_effects import (
     EFFECTS,
@@ -53,7 +53,7 @@ from cdcr_ctl.identify.keypoints import HOLDOUT_FRACTION, _choose_rows, _load, _
 from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind, split_by_time
 from cdcr_ctl.identify.replay_fit import Evaluator
 from cdcr_ctl.identify.rowselect import rows_for_budget
-from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward import replay
 from cdcr_ctl.runlog.reader import load_run
 
 
@@ -183,7 +183,7 @@ def analyse_keypoints(
     t0 = time.monotonic()
     say = progress or (lambda _l: None)
     model = build_model(cfg)
-    params, eff = model.params, model.effects
+    params, eff, law = model.params, model.effects, friction_law(cfg.robot)
     if model_switches:
         eff = dataclasses.replace(eff, **model_switches)
     reversals: dict[str, list[int]] = {}
@@ -202,7 +202,7 @@ def analyse_keypoints(
     full, xs, tm, tips, fmask, hmask = [], [], [], [], [], []
     c_rep = time.process_time()
     for r in runs:
-        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, eff)), r.q_path)
+        rep = replay(replay_fit.stepper(params, eff, law), r.q_path)
         rows = np.asarray(r.rows, dtype=int)
         tip = np.array([p.tip_mm for p in r.points])
         xs.append(rep.x[rows])
@@ -243,7 +243,7 @@ def analyse_keypoints(
             spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
             n_fit = sum(len(r.rows) for r in rr)
             noise = max(_noise(runs)[0], 0.01)
-            ev = stack.enter_context(Evaluator(problem_of(params, eff, rr, noise), nj))
+            ev = stack.enter_context(Evaluator(problem_of(params, eff, rr, noise, law), nj))
             for name in rep_effects:
                 say(f"candidate {name}: fitting {n_fit} rows")
                 cpu = math.inf if max_points else EFFECT_BUDGET_S
@@ -338,7 +338,7 @@ def _joint_fit(
         return None
     if "registration" in names:
         other = a if b.name == "registration" else b
-        return registered_on(other, eff, full, base)
+        return registered_on(other, full, base)
     say(f"candidates {a.name} and {b.name} tie: fitting them together")
     return replay_fit_effect(ev, params, eff, f"{a.name}+{b.name}", full, cpu, base, say)
 
