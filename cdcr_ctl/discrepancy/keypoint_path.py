@@ -19,7 +19,10 @@ neither: every row is settled, so
   rows better than the runner-up beyond their noise: the paired drop of the squared tip error
   runner-up -> best, averaged in blocks of 10 consecutive rows, exceeds ``TIE_SE`` standard
   errors (:func:`cdcr_ctl.identify.keypoint_gate.heldout_gain`, the test of ``identify``'s
-  gate). Otherwise both are reported and none is named.
+  gate). A tie is fitted jointly (:func:`nested_test`); a tie of ``registration`` with a
+  replayed candidate that the joint fit leaves open is decided by whether the registration is
+  one rigid frame across the poses (:func:`registration_test`, :mod:`.keypoint_rigid`).
+  Otherwise both are reported and none is named.
 """
 
 from __future__ import annotations

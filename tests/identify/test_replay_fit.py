@@ -170,15 +170,14 @@ def test_the_replay_follows_the_configs_friction_law(tmp_path):
     doubled = dataclasses.replace(
         p, cables=tuple(dataclasses.replace(c, mu_disk=2 * c.mu_disk) for c in p.cables)
     )
-    # each segment's first tendon pulled to 3 mm and back, then two together
-    up = np.linspace(0.0, 3.0, 7)
+    # the first tendons of segments 1 and 3 pulled to 3 mm and back
+    up = np.linspace(0.0, 3.0, 5)
     rows = []
-    for k in (0, 3, 6):
+    for k in (0, 6):
         for v in np.concatenate([up, up[::-1]]):
             q = np.zeros(p.n_cables)
             q[k] = v
             rows.append(q)
-    rows += [np.where(np.isin(np.arange(p.n_cables), (0, 4)), v, 0.0) for v in up]
     q = np.array(rows)
     t_law = replay(stepper(p, m.effects, law), q).tip_mm
     t_mu2 = replay(stepper(doubled, m.effects), q).tip_mm
@@ -187,9 +186,9 @@ def test_the_replay_follows_the_configs_friction_law(tmp_path):
     assert np.max(np.linalg.norm(t_law - t_cap, axis=1)) > 0.05
     idx = np.arange(len(q))
     rr = RunRows("r", q, idx, np.zeros((len(q), 3)), np.full((len(q), p.n_cables), np.nan))
+    # the fit's residuals (tips against 0, noise 1 mm) and the held-out check replay the law
     r_law = ReplayProblem(p, m.effects, (rr,), (), 1.0, 0.02, law).residuals_of(p)[0]
-    r_mu2 = ReplayProblem(doubled, m.effects, (rr,), (), 1.0, 0.02).residuals_of(doubled)[0]
-    assert np.max(np.abs(r_law - r_mu2)) < 1e-4
+    assert np.max(np.abs(r_law - t_law.ravel())) < 1e-9
     pts = [types.SimpleNamespace(tip_mm=np.zeros(3), run="r", index=i) for i in idx]
     run = types.SimpleNamespace(name="r", q_path=q, points=pts, rows=list(idx))
     e_law = heldout_errors(p, m.effects, [run], law)[0][0]
