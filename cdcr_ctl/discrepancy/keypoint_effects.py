@@ -47,7 +47,8 @@ from cdcr_ctl.identify.keypoints import candidates
 from cdcr_ctl.identify.observability import tolerance
 from cdcr_ctl.identify.parameters import FitParameter
 from cdcr_ctl.identify.replay_fit import Evaluator, ReplayProblem, RunRows
-from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward import replay
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.identification import ParamRef
 from cdcr_ctl.model.cc_disk.kinematics import rotation
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
@@ -77,6 +78,8 @@ class EffectFit:
     seconds: float
     params: RobotParams | None = None  # for replay effects: the fitted parameters
     err2_heldout: np.ndarray | None = None
+    #: for replay effects: the fitted replay's tips (N, 3) mm at every row of each run's path
+    tips_full: list[np.ndarray] | None = None
 
     @property
     def title(self) -> str:
@@ -250,10 +253,11 @@ def replay_fit_effect(
     scales = [tolerance(fp, 0.25, math.radians(1.0)) for fp in fps]
     sol = replay_fit.fit(ev, fps, scales, 20, None, progress=say, cpu_budget_s=cpu_budget_s)
     fitted = ev.prob.params_of(fps, sol.x)
-    d_all = []
+    d_all, reps = [], []
     for q, tip, held in runs_full:
-        rep = replay(ForwardStepper(fitted, replay_fit.effects_of(fitted, effects)), q)
+        rep = replay(replay_fit.stepper(fitted, effects, ev.prob.friction_law), q)
         d_all.append((rep.tip_mm - tip)[held])
+        reps.append(rep.tip_mm)
     d = np.vstack(d_all)
     rm = _rmse(d)
     return EffectFit(
@@ -265,33 +269,37 @@ def replay_fit_effect(
         time.monotonic() - t0,
         fitted,
         np.sum(d * d, axis=1),
+        reps,
     )
 
 
 def problem_of(
-    params: RobotParams, effects: Effects, rows: Sequence[RunRows], noise_mm: float
+    params: RobotParams,
+    effects: Effects,
+    rows: Sequence[RunRows],
+    noise_mm: float,
+    law: FrictionLawShape | None = None,
 ) -> EffectProblem:
-    return EffectProblem(params, effects, tuple(rows), (), noise_mm, 0.02)
+    """The replay fit of the candidates on ``rows``, tips only, under the disk friction's
+    ``law`` (the config's ``robot.friction_law``; None: capstan)."""
+    return EffectProblem(params, effects, tuple(rows), (), noise_mm, 0.02, law)
 
 
 def registered_on(
     fitted: EffectFit,
-    effects: Effects,
     runs_full: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
     base_rmse: float,
 ) -> EffectFit:
     """The ``registration`` candidate on top of a replayed one: the replay of ``fitted``'s
-    parameters, its tips registered to the logged ones (Kabsch) on the rows before the cut,
-    scored on the held-out rows (the joint fit of the two, "<name>+registration")."""
+    parameters (kept from its fit, ``tips_full``), its tips registered to the logged ones
+    (Kabsch) on the rows before the cut, scored on the held-out rows (the joint fit of the two,
+    "<name>+registration")."""
     t0 = time.monotonic()
-    assert fitted.params is not None
+    assert fitted.params is not None and fitted.tips_full is not None
     reps, fit_rows = [], []
-    for q, tip, held in runs_full:
-        rep = replay(
-            ForwardStepper(fitted.params, replay_fit.effects_of(fitted.params, effects)), q
-        )
-        reps.append(rep.tip_mm)
-        ok = np.all(np.isfinite(tip), axis=1) & np.all(np.isfinite(rep.tip_mm), axis=1)
+    for tips, (_, tip, held) in zip(fitted.tips_full, runs_full, strict=True):
+        reps.append(tips)
+        ok = np.all(np.isfinite(tip), axis=1) & np.all(np.isfinite(tips), axis=1)
         fit_rows.append(ok & ~held)
     a = np.vstack([r[f] for r, f in zip(reps, fit_rows, strict=True)])
     b = np.vstack([t[f] for (_, t, _), f in zip(runs_full, fit_rows, strict=True)])
@@ -310,4 +318,5 @@ def registered_on(
         fitted.seconds + time.monotonic() - t0,
         fitted.params,
         np.sum(d * d, axis=1),
+        [r @ R.T + t for r in reps],
     )

@@ -19,7 +19,10 @@ neither: every row is settled, so
   rows better than the runner-up beyond their noise: the paired drop of the squared tip error
   runner-up -> best, averaged in blocks of 10 consecutive rows, exceeds ``TIE_SE`` standard
   errors (:func:`cdcr_ctl.identify.keypoint_gate.heldout_gain`, the test of ``identify``'s
-  gate). Otherwise both are reported and none is named.
+  gate). A tie is fitted jointly (:func:`nested_test`); a tie of ``registration`` with a
+  replayed candidate that the joint fit leaves open is decided by whether the registration is
+  one rigid frame across the poses (:func:`registration_test`, :mod:`.keypoint_rigid`).
+  Otherwise both are reported and none is named.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cdcr_ctl.config.build_model import build_model
+from cdcr_ctl.config.build_model import build_model, friction_law
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.discrepancy.keypoint_effects import (
     EFFECTS,
@@ -45,6 +48,7 @@ from cdcr_ctl.discrepancy.keypoint_effects import (
     registered_on,
     replay_fit_effect,
 )
+from cdcr_ctl.discrepancy.keypoint_rigid import frame_rigidity
 from cdcr_ctl.errors import RigError
 from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.keypoint_gate import heldout_gain
@@ -52,7 +56,7 @@ from cdcr_ctl.identify.keypoints import HOLDOUT_FRACTION, _choose_rows, _load, _
 from cdcr_ctl.identify.logkind import KEYPOINT_DIRECTION_EPS_MM, detect_kind, split_by_time
 from cdcr_ctl.identify.replay_fit import Evaluator
 from cdcr_ctl.identify.rowselect import rows_for_budget
-from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward import replay
 from cdcr_ctl.runlog.reader import load_run
 
 
@@ -182,7 +186,7 @@ def analyse_keypoints(
     t0 = time.monotonic()
     say = progress or (lambda _l: None)
     model = build_model(cfg)
-    params, eff = model.params, model.effects
+    params, eff, law = model.params, model.effects, friction_law(cfg.robot)
     if model_switches:
         eff = dataclasses.replace(eff, **model_switches)
     reversals: dict[str, list[int]] = {}
@@ -201,7 +205,7 @@ def analyse_keypoints(
     full, xs, tm, tips, fmask, hmask = [], [], [], [], [], []
     c_rep = time.process_time()
     for r in runs:
-        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, eff)), r.q_path)
+        rep = replay(replay_fit.stepper(params, eff, law), r.q_path)
         rows = np.asarray(r.rows, dtype=int)
         tip = np.array([p.tip_mm for p in r.points])
         xs.append(rep.x[rows])
@@ -242,7 +246,7 @@ def analyse_keypoints(
             spreads = [ln.strip() for s_ in sp for ln in s_.lines()[1:]]
             n_fit = sum(len(r.rows) for r in rr)
             noise = max(_noise(runs)[0], 0.01)
-            ev = stack.enter_context(Evaluator(problem_of(params, eff, rr, noise), nj))
+            ev = stack.enter_context(Evaluator(problem_of(params, eff, rr, noise, law), nj))
             for name in rep_effects:
                 say(f"candidate {name}: fitting {n_fit} rows")
                 cpu = math.inf if max_points else EFFECT_BUDGET_S
@@ -263,6 +267,14 @@ def analyse_keypoints(
                 if joint is not None:
                     fits.append(joint)
                     winner, nested = nested_test(best, tie, joint)
+                    if winner is not None:
+                        named, best, tie = winner, winner, None
+                if tie is not None and ev is not None and "registration" in (best.name, tie.name):
+                    rows = [np.asarray(r.rows, dtype=int) for r in runs]
+                    winner, lines = registration_test(
+                        ranked, best, tie, joint, (TM, TIP, F, H), rows, noise
+                    )
+                    nested += lines
                     if winner is not None:
                         named, best, tie = winner, winner, None
     if named is not None and tie is not None:
@@ -329,9 +341,52 @@ def _joint_fit(
         return None
     if "registration" in names:
         other = a if b.name == "registration" else b
-        return registered_on(other, eff, full, base)
+        return registered_on(other, full, base)
     say(f"candidates {a.name} and {b.name} tie: fitting them together")
     return replay_fit_effect(ev, params, eff, f"{a.name}+{b.name}", full, cpu, base, say)
+
+
+def registration_test(
+    ranked: Sequence[EffectFit],
+    a: EffectFit,
+    b: EffectFit,
+    joint: EffectFit | None,
+    rows_data: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    rows: Sequence[np.ndarray],
+    noise_mm: float,
+) -> tuple[EffectFit | None, list[str]]:
+    """A tie of ``registration`` with a replayed candidate X that the joint fit did not
+    separate: whether registration is one rigid frame (:mod:`.keypoint_rigid`, the rows split
+    by how far X's fit moves the tip from the config's). ``rows_data``: (config's tips, logged
+    tips, fitted-row mask, held-out mask) at every point row; ``rows``: each run's point rows
+    in its path. When registration alone is not one frame, it cannot be the effect and X is
+    named, if X shrinks the held-out RMSE by ``NAME_SHRINK`` and beats the next candidate by
+    the paired test; the frame's rigidity on top of X's replay is reported (one frame that
+    still helps: a tracker error may be present as well). Returns the winner (or None) and the
+    report's lines."""
+    x = b if a.name == "registration" else a
+    if x.tips_full is None:
+        return None, []
+    TM, TIP, F, H = rows_data
+    TX = np.vstack([t[r] for t, r in zip(x.tips_full, rows, strict=True)])
+    split = np.linalg.norm(TX - TM, axis=1)
+    what = f"how far {x.name} moves the tip"
+    alone = frame_rigidity(TM, TIP, F, H, split, noise_mm, TIE_SE)
+    lines = ["registration alone: " + alone.line(what)]
+    if joint is not None and joint.name == f"{x.name}+registration":
+        on_x = frame_rigidity(TX, TIP, F, H, split, noise_mm, TIE_SE)
+        lines.append(f"registration on top of {x.name}: " + on_x.line(what))
+    if alone.rigid or x.shrink < NAME_SHRINK:
+        return None, lines
+    rest = [f for f in ranked if f.name not in (x.name, "registration") and "+" not in f.name]
+    if rest:
+        g, se = _paired_gain(rest[0], x)
+        if not g > TIE_SE * se:
+            lines.append(
+                f"{x.name} against {rest[0].name}: {g:.3g} mm^2 (SE {se:.2g}), not beyond the noise"
+            )
+            return None, lines
+    return x, lines
 
 
 def nested_test(a: EffectFit, b: EffectFit, joint: EffectFit) -> tuple[EffectFit | None, list[str]]:

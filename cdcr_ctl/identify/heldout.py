@@ -14,19 +14,24 @@ import numpy as np
 
 from cdcr_ctl.identify import replay_fit
 from cdcr_ctl.identify.replay_fit import Evaluator
-from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
+from cdcr_ctl.model.cc_disk.forward import replay
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, RobotParams
 
 
 def heldout_errors(
-    params: RobotParams, effects: Effects, runs: Sequence[Any]
+    params: RobotParams,
+    effects: Effects,
+    runs: Sequence[Any],
+    law: FrictionLawShape | None = None,
 ) -> tuple[list[np.ndarray], list[str]]:
     """Per run, the squared tip error (mm^2) of the forward replay at every point (NaN where
-    the replay has no solution), and the rows with no solution."""
+    the replay has no solution), and the rows with no solution; ``law``: the disk friction's
+    law (:func:`cdcr_ctl.identify.replay_fit.stepper`)."""
     out: list[np.ndarray] = []
     failed: list[str] = []
     for rdat in runs:
-        rep = replay(ForwardStepper(params, replay_fit.effects_of(params, effects)), rdat.q_path)
+        rep = replay(replay_fit.stepper(params, effects, law), rdat.q_path)
         failed += [f"{rdat.name} row {i}: {why}" for i, why in rep.failed]
         tips = np.array([p.tip_mm for p in rdat.points])
         d = rep.tip_mm[np.asarray(rdat.rows, dtype=int)] - tips
@@ -39,9 +44,10 @@ def heldout_rmse(
     effects: Effects,
     runs: Sequence[Any],
     held: set[tuple[str, int]],
+    law: FrictionLawShape | None = None,
 ) -> tuple[float, float, list[str]]:
     """Tip RMSE (mm) of the forward replay over held-out and over other point rows."""
-    errs, failed = heldout_errors(params, effects, runs)
+    errs, failed = heldout_errors(params, effects, runs, law)
     h, o = _split_errors(runs, errs, held)
     return _rms(h), _rms(o), failed
 
@@ -67,9 +73,10 @@ def _errors_task(args: tuple) -> tuple[tuple[list[np.ndarray], list[str]], float
 
 
 def _errors_both(ev: Evaluator, plist, effects, runs) -> list:
-    """:func:`heldout_errors` for each parameter set, in the evaluator's workers; the CPU
-    time of the replays is added to ``ev.cpu_s``."""
-    tasks = [(p, effects, runs) for p in plist]
+    """:func:`heldout_errors` for each parameter set, in the evaluator's workers, under the
+    friction law of the evaluator's problem; the CPU time of the replays is added to
+    ``ev.cpu_s``."""
+    tasks = [(p, effects, runs, ev.prob.friction_law) for p in plist]
     ev.n_replays += len(tasks)
     if ev.pool is None:
         outs = [_errors_task(t) for t in tasks]

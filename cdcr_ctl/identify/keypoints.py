@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cdcr_ctl.config.build_model import build_model, loadcell_locations
+from cdcr_ctl.config.build_model import build_model, friction_law, loadcell_locations
 from cdcr_ctl.config.registry import design_of
 from cdcr_ctl.config.schema import RigConfig
 from cdcr_ctl.errors import ConfigError, RigError
@@ -253,7 +253,7 @@ def identify_keypoint_runs(
     say = opt.progress or (lambda _line: None)
     model = build_model(cfg)
     params, effects = model.params, model.effects
-    locs = tuple(loadcell_locations(cfg))
+    locs, law = tuple(loadcell_locations(cfg)), friction_law(cfg.robot)
     runs, kinds, warnings = _load(run_dirs, opt.kind, params.n_segments)
     points = [p for r in runs for p in r.points]
     if not points:
@@ -270,7 +270,7 @@ def identify_keypoint_runs(
     scales = [tolerance(fp, opt.max_rel, opt.max_offset_rad) for fp in fps]
     jobs = max(1, min(opt.jobs or (os.cpu_count() or 1), 8))
     with Evaluator(
-        ReplayProblem(params, effects, (), locs, tip_noise, opt.tension_noise_N), jobs
+        ReplayProblem(params, effects, (), locs, tip_noise, opt.tension_noise_N, law), jobs
     ) as ev:
         # the config's replay of every row: held-out baseline and the cost of one row
         (err_nom, _failed) = _errors_both(ev, [params], effects, runs)[0]
@@ -286,7 +286,7 @@ def identify_keypoint_runs(
             why = f"--max-points {opt.max_points}"
         else:
             cells = any(np.isfinite(p.tension_N).any() for p in points)
-            sens = replay_fit.analytic_jacobian(params, fps, cells)
+            sens = replay_fit.analytic_jacobian(params, fps, cells, law)
             plan = replay_fit.planned_replays(len(fps), sens, FIT_ITERATIONS)
             n_want = rows_for_budget(opt.budget_s, s_row, plan)
             why = (
@@ -299,7 +299,7 @@ def identify_keypoint_runs(
         if n_fit < 10:
             raise RigError(f"identification: only {n_fit} rows to fit from")
         say(f"fitting {n_fit} of {n_cand} rows ({why})")
-        prob = ReplayProblem(params, effects, tuple(rr), locs, tip_noise, opt.tension_noise_N)
+        prob = ReplayProblem(params, effects, tuple(rr), locs, tip_noise, opt.tension_noise_N, law)
         ev.set_problem(prob)
         # observability: the replay's sensitivity to every candidate at the config's values
         x0 = np.array([fp.to_var(fp.nominal) for fp in fps])

@@ -44,6 +44,8 @@ from cdcr_ctl.identify.parameters import FitParameter, apply_values
 from cdcr_ctl.model.cc_disk.effects import BacklashPlay, with_cable_play
 from cdcr_ctl.model.cc_disk.forward import ForwardStepper, replay
 from cdcr_ctl.model.cc_disk.forward.sensitivity import replay_sensitivity
+from cdcr_ctl.model.cc_disk.friction_law import LawTransfer
+from cdcr_ctl.model.cc_disk.friction_shape import FrictionLawShape
 from cdcr_ctl.model.cc_disk.params import Effects, Location, RobotParams
 
 #: Step of the forward differences in the fit variables (ln value, or rad): small next to a
@@ -90,6 +92,8 @@ class ReplayProblem:
     locations: tuple[Location, ...]  # load-cell location per cable
     tip_noise_mm: float
     tension_noise_N: float
+    #: the disk friction's law (``robot.friction_law``; None: the capstan law), see :func:`stepper`
+    friction_law: FrictionLawShape | None = None
 
     def params_of(self, fps: Sequence[FitParameter], x: Sequence[float]) -> RobotParams:
         return apply_values(self.base, fps, [fp.from_var(v) for fp, v in zip(fps, x, strict=True)])
@@ -99,9 +103,8 @@ class ReplayProblem:
         out: list[np.ndarray] = []
         is_tip: list[np.ndarray] = []
         failed = 0
-        effects = effects_of(params, self.effects)
         for r in self.runs:
-            rep = replay(ForwardStepper(params, effects), r.q_path)
+            rep = replay(stepper(params, self.effects, self.friction_law), r.q_path)
             failed += len(rep.failed)
             d = (rep.tip_mm[r.rows] - r.tip_mm) / self.tip_noise_mm
             out.append(np.where(np.isfinite(d), d, FAILED_ROW_RESIDUAL).ravel())
@@ -119,7 +122,7 @@ class ReplayProblem:
     def analytic(self, fps: Sequence[FitParameter]) -> bool:
         """Whether the sensitivity replay gives the Jacobian (:func:`analytic_jacobian`)."""
         cells = any(np.isfinite(r.tension_N).any() for r in self.runs)
-        return analytic_jacobian(self.base, fps, cells)
+        return analytic_jacobian(self.base, fps, cells, self.friction_law)
 
     def is_tip(self) -> np.ndarray:
         """Which entries of the residual vector are tip residuals (the others: load cells)."""
@@ -133,11 +136,19 @@ class ReplayProblem:
         return self.residuals_of(self.params_of(fps, x))[0]
 
 
-def analytic_jacobian(params: RobotParams, fps: Sequence[FitParameter], cells: bool) -> bool:
+def analytic_jacobian(
+    params: RobotParams,
+    fps: Sequence[FitParameter],
+    cells: bool,
+    law: FrictionLawShape | None = None,
+) -> bool:
     """Whether the Jacobian comes from the sensitivity replay (module docstring): no load-cell
-    residuals (``cells``), no parameter of the actuator effects (play), elastic cables."""
+    residuals (``cells``), no parameter of the actuator effects (play), elastic cables, and the
+    capstan law (the sensitivity replay differentiates the capstan chain; another ``law`` is
+    differentiated by forward differences of :func:`stepper`'s replays)."""
     return (
         not cells
+        and (law is None or law.capstan)
         and not any(fp.kind == "backlash" for fp in fps)
         and all(math.isfinite(c.EA_N) for c in params.cables)
     )
@@ -158,6 +169,21 @@ def effects_of(params: RobotParams, effects: Effects) -> Effects:
     of any play built from the config's values, so a fitted play takes effect."""
     rest = tuple(e for e in effects.actuator if not isinstance(e, BacklashPlay))
     return with_cable_play(params, replace(effects, actuator=rest))
+
+
+def stepper(
+    params: RobotParams, effects: Effects, law: FrictionLawShape | None = None
+) -> ForwardStepper:
+    """The forward stepper of a replay: ``params`` with the play of their cables
+    (:func:`effects_of`) and the disk friction's ``law`` (the config's ``robot.friction_law``;
+    None or the capstan shape: Qi et al. 2023 eq. 16-24). Another law replaces the stepper's
+    force-transfer chain by its :class:`~cdcr_ctl.model.cc_disk.friction_law.LawTransfer` at
+    rest: a keypoint row is settled, the cables do not slide while it is logged (as the
+    tension-log fit's dwells, :func:`cdcr_ctl.identify.problem.dwell_transfer`)."""
+    st = ForwardStepper(params, effects_of(params, effects))
+    if law is not None and not law.capstan:
+        st.model.ft = LawTransfer(params, st.model.effects, law)
+    return st
 
 
 # --- the Jacobian, one replay per column, in worker processes ------------------------------

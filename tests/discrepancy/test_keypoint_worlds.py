@@ -33,7 +33,7 @@ def nominal():
 def worlds(nominal, tmp_path_factory):
     out = tmp_path_factory.mktemp("worlds")
     specs = hidden_effect_worlds(seed=2)
-    return {k: make_world_log(nominal, specs[k], out, 120, name=k) for k in ("registration",)}
+    return {k: make_world_log(nominal, specs[k], out, 80, name=k) for k in ("registration",)}
 
 
 def _run(args, capsys):
@@ -65,7 +65,7 @@ def test_every_option_is_honoured_or_refused(worlds, tmp_path, capsys):
     assert code != 0 and not ov.exists() and "base_from_tracker" in err
 
 
-# the config's replay of 120 rows and the kinematic fits; the limit guards a hang
+# the config's replay of 80 rows and the kinematic fits; the limit guards a hang
 @pytest.mark.timeout(600)
 @pytest.mark.parametrize("effect", ["registration"])
 def test_hidden_kinematic_effect_is_named(worlds, effect, tmp_path, capsys):

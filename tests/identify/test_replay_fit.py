@@ -141,3 +141,55 @@ def test_sensitivity_replay_matches_central_differences_of_the_replay(model, tmp
         assert scale > 0
         assert np.max(np.abs(fd - dtip[:, :, j])[same]) < 1e-4 * scale + 1e-4, fps[j].name
     assert skipped < 0.1 * len(q) * len(fps)
+
+
+def test_the_replay_follows_the_configs_friction_law(tmp_path):
+    """A config whose ``robot.friction_law`` has a breakaway b = 1 (m(v) = 1 + b at rest, p = 1):
+    a keypoint row is settled, so the law's replay (:func:`replay_fit.stepper`, the fit's
+    residuals and the held-out check) is the capstan replay with every ``mu_disk`` doubled, to
+    the solver's tolerance (1e-11 scaled residual: tips agree to ~1e-6 mm; 1e-4 asserted), and
+    differs from the capstan replay of the same config (by up to 0.95 mm on this path; > 0.05 mm
+    asserted)."""
+    import types
+
+    import yaml
+
+    from cdcr_ctl.config.build_model import friction_law
+    from cdcr_ctl.identify.heldout import heldout_errors
+    from cdcr_ctl.identify.replay_fit import RunRows, stepper
+    from cdcr_ctl.model.cc_disk.forward import replay
+
+    rig = tmp_path / "law.yaml"
+    rig.write_text(
+        yaml.safe_dump({"extends": str(CONFIG), "robot": {"friction_law": {"breakaway": 1.0}}})
+    )
+    cfg = load_rig_config(rig)
+    m, law = build_model(cfg), friction_law(cfg.robot)
+    p = m.params
+    assert law is not None and not law.capstan
+    doubled = dataclasses.replace(
+        p, cables=tuple(dataclasses.replace(c, mu_disk=2 * c.mu_disk) for c in p.cables)
+    )
+    # the first tendons of segments 1 and 3 pulled to 3 mm and back
+    up = np.linspace(0.0, 3.0, 5)
+    rows = []
+    for k in (0, 6):
+        for v in np.concatenate([up, up[::-1]]):
+            q = np.zeros(p.n_cables)
+            q[k] = v
+            rows.append(q)
+    q = np.array(rows)
+    t_law = replay(stepper(p, m.effects, law), q).tip_mm
+    t_mu2 = replay(stepper(doubled, m.effects), q).tip_mm
+    t_cap = replay(stepper(p, m.effects), q).tip_mm
+    assert np.all(np.isfinite(t_law)) and np.max(np.abs(t_law - t_mu2)) < 1e-4
+    assert np.max(np.linalg.norm(t_law - t_cap, axis=1)) > 0.05
+    idx = np.arange(len(q))
+    rr = RunRows("r", q, idx, np.zeros((len(q), 3)), np.full((len(q), p.n_cables), np.nan))
+    # the fit's residuals (tips against 0, noise 1 mm) and the held-out check replay the law
+    r_law = ReplayProblem(p, m.effects, (rr,), (), 1.0, 0.02, law).residuals_of(p)[0]
+    assert np.max(np.abs(r_law - t_law.ravel())) < 1e-9
+    pts = [types.SimpleNamespace(tip_mm=np.zeros(3), run="r", index=i) for i in idx]
+    run = types.SimpleNamespace(name="r", q_path=q, points=pts, rows=list(idx))
+    e_law = heldout_errors(p, m.effects, [run], law)[0][0]
+    assert np.allclose(e_law, np.sum(t_law * t_law, axis=1), rtol=0, atol=1e-6)
