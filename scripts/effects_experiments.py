@@ -23,9 +23,11 @@ drive count, :func:`cdcr_ctl.config.build_model.reversal_hysteresis_mm`; 0 is th
 sample-to-sample rule) to measure what the threshold does; ``--only ref`` runs case 1 alone.
 
 Printed per run: mean and max tip error (mm) over the whole run (cdcr_ctl.analysis.tip_errors)
-and max/mean, and the ratio of run 2's mean to run 1's (acceptance: <= 1.5). ``--name-hidden``:
-``cdcr-ctl discrepancy`` on run 3 (the payload hidden from the config), its named effect and
-fitted payload.
+and max/mean; whether the reference run's max stays within 3 times its mean through the
+circle's cable reversals at the paper's rate or slower (exit status 1 when it does not); and
+the ratio of run 2's mean to run 1's (acceptance: <= 1.5). ``--name-hidden``: ``cdcr-ctl
+discrepancy`` on run 3 (the payload hidden from the config), its named effect and fitted
+payload.
 """
 
 from __future__ import annotations
@@ -38,6 +40,11 @@ from pathlib import Path
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The compensated max tip error through the circle's slow cable reversals stays within this
+#: many times the run's mean, at the paper's circle rate or slower (exit status 1 otherwise).
+REVERSAL_MAX_OVER_MEAN = 3.0
+#: The circle's rate in Qi et al. 2023 section 5.2 (rad/s): one turn in 20 s.
+PAPER_PHI_RATE = math.pi / 10
 sys.path.insert(0, str(ROOT))
 
 from cdcr_ctl.analysis import tip_errors  # noqa: E402
@@ -109,11 +116,11 @@ def name_hidden(run: Path) -> str:
     return f"named {r['effect']} ({r['verdict']}); fitted {fitted}"
 
 
-def main() -> None:
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sim-config", type=Path, default=ROOT / "config/sim/qi2023-truth.yaml")
     ap.add_argument("--payload-kg", type=float, default=0.005)
-    ap.add_argument("--phi-rate", type=float, default=math.pi / 10, help="circle rate, rad/s")
+    ap.add_argument("--phi-rate", type=float, default=PAPER_PHI_RATE, help="circle rate, rad/s")
     ap.add_argument("--out", type=Path, default=Path("effects-experiments"))
     ap.add_argument("--reversal-threshold-mm", type=float, default=None)
     ap.add_argument("--only", choices=["ref"], default=None)
@@ -146,8 +153,16 @@ def main() -> None:
         res[tag] = s
         m, x = s["mean_mm"], s["max_mm"]
         print(f"{label:44s} {m:8.3f} {x:8.3f} {x / m:8.2f}", flush=True)
+    ratio = res["ref"]["max_mm"] / res["ref"]["mean_mm"]
+    if a.phi_rate <= PAPER_PHI_RATE * (1 + 1e-9):
+        reversals_hold = ratio <= REVERSAL_MAX_OVER_MEAN
+        verdict = f"<= {REVERSAL_MAX_OVER_MEAN:g} holds: {reversals_hold}"
+    else:  # the criterion is the slow circle's: a faster turn leaves the reversals sooner
+        reversals_hold = True
+        verdict = f"the <= {REVERSAL_MAX_OVER_MEAN:g} criterion is the paper's slow circle's"
+    print(f"reference run through the reversals: max / mean {ratio:.2f} ({verdict})")
     if a.only:
-        return
+        return 0 if reversals_hold else 1
     if a.name_hidden:
         print(f"payload hidden: cdcr-ctl discrepancy {name_hidden(runs['payload-hidden'])}")
     r = res["payload-cfg"]["mean_mm"] / res["ref"]["mean_mm"]
@@ -155,7 +170,8 @@ def main() -> None:
         f"mean with the payload in the config / mean without payload: {r:.2f} (<= 1.5 holds: "
         f"{r <= 1.5})"
     )
+    return 0 if reversals_hold else 1
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -15,11 +15,11 @@ ROOT = Path(__file__).resolve().parents[2]
 
 @pytest.mark.timeout(600)
 def test_payload_in_the_config_keeps_the_error_of_no_payload(tmp_path):
-    """Hard world, quick circle: with the 5 g payload in the config the mean tip error is within
-    1.5x the no-payload figure; hidden from the config it is larger (the payload acts). Through
-    the circle's cable reversals the compensated max error of the reference run stays within 3x
-    its mean (2.94x at this rate, about twice the paper's; the paper's slow circle with
-    identified parameters, 2.6x, is the effects page's command)."""
+    """Hard world, quick circle (twice the paper's rate): with the 5 g payload in the config the
+    mean tip error is within 1.5x the no-payload figure; hidden from the config it is larger
+    (the payload acts). The reversals' max within 3x the mean is the slow circle's criterion:
+    the effects page's ``--only ref`` command exits 1 when it fails, and the doc runner runs it
+    (tests/docs); here the quick run prints its ratio without judging it."""
     out = subprocess.run(
         [sys.executable, "scripts/effects_experiments.py", "--phi-rate", "0.6", "--out",
          str(tmp_path / "effects-quick")],
@@ -27,8 +27,8 @@ def test_payload_in_the_config_keeps_the_error_of_no_payload(tmp_path):
     ).stdout  # fmt: skip
     rows = re.findall(r"^(?:no payload|payload).*?\s([\d.]+)\s+([\d.]+)\s+[\d.]+$", out, re.M)
     assert len(rows) == 3, out
-    (ref, ref_max), (with_cfg, _), (hidden, _) = [(float(a), float(b)) for a, b in rows]
-    assert ref_max <= 3.0 * ref, out
+    (ref, _), (with_cfg, _), (hidden, _) = [(float(a), float(b)) for a, b in rows]
+    assert "criterion is the paper's slow circle's" in out  # not judged at this rate
     assert with_cfg <= 1.5 * ref
     assert hidden > with_cfg + 0.05  # 5 g on the 90 mm robot: ~0.14 mm of mean error
     assert "holds: True" in out
