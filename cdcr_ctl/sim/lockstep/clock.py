@@ -12,12 +12,12 @@ idle the loop thread waits for the next command (it polls ``busy`` every
 :data:`IDLE_POLL_S` of wall time or at once on :meth:`SimClock.wake`); that is waiting for work,
 not pacing simulated time.
 
-The drive layer's sequences (enable, homing, fault reset, the settle on close) run off the loop
-thread and clock their own SYNCs while the loop is idle; each such SYNC comes after
-:meth:`SimClock.step`, which advances the world one period as a cycle does. Their timeouts are
-measured on this clock (the drive group's ``watch_clock``): a starved host delays them but
-cannot make them expire, and a drive that never answers still times out after the same
-simulated time.
+The drive layer's sequences (enable, fault reset, the settle on close) run off the loop thread
+and clock their own SYNCs while the loop is idle, with the world standing still: how many such
+SYNCs a sequence sends depends on how fast the host answers, so none of them may move the world.
+Their timeouts are measured on this clock (the drive group's ``watch_clock``), which stands
+still meanwhile: a starved host delays them but cannot make them expire, and a drive that never
+answers ends on the group's wall-clock backstop.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ Advance = Callable[[float, float], None]
 class SimClock:
     """Loop clock on simulated time (s), starting at ``t0_s``. ``advance(t0, t1)`` moves the
     world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always).
-    Time is ``t0_s`` + the periods advanced so far (the loop's cycles after its first, and the
-    :meth:`step` calls) times the period."""
+    Time is ``t0_s`` + the periods advanced so far (the loop's cycles after its first) times
+    the period."""
 
     def __init__(
         self,
@@ -59,12 +59,10 @@ class SimClock:
         self.busy = busy
         self.stats = LatenessStats()
         self.cycles = 0
-        #: Periods advanced by :meth:`step` (the drive layer's own SYNCs while the loop idles).
-        self.steps = 0
         self.t0_s = float(t0_s)
         self._periods = 0
         self._t = self.t0_s
-        #: One advance of the world at a time (the loop's cycle, a sequence's :meth:`step`).
+        #: One advance of the world at a time.
         self._advance_lock = threading.Lock()
         self._wake = threading.Event()
         #: Set while the loop waits for work (it has ended its run, say), clear while it has
@@ -97,16 +95,6 @@ class SimClock:
         self.cycles += 1
         self.stats.add(0.0)
         return self._t, 0.0
-
-    def step(self) -> None:
-        """(Off the loop thread: the drive group's ``idle_sync``.) Advance the world one period,
-        as a cycle does, before a SYNC the drive layer clocks itself while the loop has no work
-        (a drive sequence waiting for feedback: enable, homing, fault reset, the settle on
-        close). The number of these is a function of the drives' answers, not of the host's
-        timing: the group clocks each only when the drives' feedback has not yet shown what it
-        waits for."""
-        self._advance_one()
-        self.steps += 1
 
     def _advance_one(self) -> None:
         with self._advance_lock:

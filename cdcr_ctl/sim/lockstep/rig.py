@@ -15,18 +15,16 @@ in it. Every rate and latency is in simulated time; the random streams are seede
 logs byte for byte whatever the machine load.
 
 Set-up (boot, SDO configuration) waits on the wall clock, with the simulated world standing
-still. The drive sequences (enable, homing, fault reset, the settle on close) clock their own
-SYNCs while the loop idles, and each advances the world one period first
-(:meth:`SimClock.step`, the group's ``idle_sync``); their timeouts are measured on simulated time
-(the group's ``watch_clock``), so a starved host (a loaded machine, a starved truth worker)
-delays an enable but does not fail it, and a drive that never answers times out after the same
-simulated time as on an idle machine (a wall-clock backstop,
-:data:`~cdcr_ctl.drives.group.common.WALL_BACKSTOP_FACTOR` times the timeout, ends a wait whose
-simulated time stands still). The number of those SYNCs follows from the drives'
-answers, so a command sequence gives the same logs on every run. The attitude sensors (vertebra arm)
-and the network joystick (a ``joystick`` session's stick script) run on the simulated clock
-(:mod:`.attitude`, :mod:`.joystick`; the daemon's joystick opener is
-:meth:`LockstepRig.open_joystick`).
+still. The drive sequences (enable, fault reset, the settle on close) clock their own SYNCs while
+the loop idles, with the world standing still too: how many such SYNCs a sequence sends depends
+on how fast the host answers, so moving the world on them would make the logs depend on the
+machine's load. Their timeouts are measured on simulated time (the group's ``watch_clock``),
+which stands still meanwhile, so a starved host (a loaded machine, a starved truth worker)
+delays an enable but does not fail it; a drive that never answers ends on the wall-clock
+backstop, :data:`~cdcr_ctl.drives.group.common.WALL_BACKSTOP_FACTOR` times the timeout.
+The attitude sensors (vertebra arm) and the network joystick (a ``joystick`` session's stick
+script) run on the simulated clock (:mod:`.attitude`, :mod:`.joystick`; the daemon's joystick
+opener is :meth:`LockstepRig.open_joystick`).
 
 Build with :meth:`LockstepRig.open`; hand :attr:`clock`, :attr:`drives`, :attr:`tensions` and
 :attr:`tip` to the loop (the daemon's ``RigIO``); set :attr:`SimClock.busy` to the loop's
@@ -214,7 +212,6 @@ class LockstepRig:
             ctl.can,
             [by_cable[c.name] for c in ctl.robot.cables],
             watch_clock=self.clock.now,
-            idle_sync=self.clock.step,
             file=ctl_file,
         )
         group.watchdog_period_s = LOCKSTEP_WATCHDOG_S
