@@ -33,6 +33,7 @@ from typing import Any
 import click
 import yaml
 
+from cdcr_ctl.cli.runwait import RUN_SLACK_S, run_deadline
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import CommError, RigError
 
@@ -284,9 +285,11 @@ def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str)
 
     with ControlClient(sock) as c:
         res = c.call("trajectory", name=name, samples=samples, compensation=comp, log=True)
-        end = time.monotonic() + res["duration_s"] + 60.0
+        end = time.monotonic() + res["duration_s"] + RUN_SLACK_S
+        elapsed = -1.0
         while time.monotonic() < end:
             st = c.call("status")
+            end, elapsed = run_deadline(st, res["run"], end, elapsed)
             done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
             if done is not None:
                 # Ended in the loop; its log is complete once the writer has closed it (the

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from cdcr_ctl.cli.runwait import RUN_SLACK_S, run_deadline
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 
@@ -21,8 +22,6 @@ if TYPE_CHECKING:
     from cdcr_ctl.identify.estimator import FitOptions
 
 ROOT_CONFIG = Path(__file__).resolve().parents[2] / "config"
-#: Extra time allowed beyond a run's duration before giving up on it (s).
-RUN_SLACK_S = 60.0
 #: Compensation modes of the experiments, in table order.
 MODES = ("off", "model", "measured")
 #: Default controller setting for the experiments: cable-material travel over which friction
@@ -41,8 +40,10 @@ def run_trajectory(
     with ControlClient(sock) as c:
         res = c.call("trajectory", name=name, samples=rows, compensation=comp, log=log)
         end = time.monotonic() + res["duration_s"] + RUN_SLACK_S
+        elapsed = -1.0
         while time.monotonic() < end:
             st = c.call("status")
+            end, elapsed = run_deadline(st, res["run"], end, elapsed)
             done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
             if done is not None:
                 # The run has ended in the loop; its log is complete once the writer (a
@@ -51,7 +52,7 @@ def run_trajectory(
                     wait_run_closed(res["log_dir"], max(0.0, end - time.monotonic()))
                 return {**res, "state": done["state"], "end_reason": done["end_reason"]}
             time.sleep(0.25)
-    raise RigError(f"run {name} did not finish within {res['duration_s'] + RUN_SLACK_S:.0f} s")
+    raise RigError(f"run {name} did not finish: no progress for {RUN_SLACK_S:.0f} s")
 
 
 def run_sweep(
