@@ -41,9 +41,7 @@ Advance = Callable[[float, float], None]
 
 class SimClock:
     """Loop clock on simulated time (s), starting at ``t0_s``. ``advance(t0, t1)`` moves the
-    world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always).
-    Time is ``t0_s`` + the periods advanced so far (the loop's cycles after its first) times
-    the period."""
+    world from ``t0`` to ``t1``; ``busy()`` says whether the loop has work (default: always)."""
 
     def __init__(
         self,
@@ -60,10 +58,7 @@ class SimClock:
         self.stats = LatenessStats()
         self.cycles = 0
         self.t0_s = float(t0_s)
-        self._periods = 0
         self._t = self.t0_s
-        #: One advance of the world at a time.
-        self._advance_lock = threading.Lock()
         self._wake = threading.Event()
         #: Set while the loop waits for work (it has ended its run, say), clear while it has
         #: some: a caller waiting for a run's end waits on this, not polling the loop.
@@ -91,18 +86,13 @@ class SimClock:
                 self._wake.clear()
             self.idle.clear()
         if self.cycles > 0:
-            self._advance_one()
-        self.cycles += 1
-        self.stats.add(0.0)
-        return self._t, 0.0
-
-    def _advance_one(self) -> None:
-        with self._advance_lock:
-            self._periods += 1
-            t0, t1 = self._t, self.t0_s + self._periods * self.period_s
+            t0, t1 = self._t, self.t0_s + self.cycles * self.period_s
             if self.advance is not None:
                 self.advance(t0, t1)
             self._t = t1
+        self.cycles += 1
+        self.stats.add(0.0)
+        return self._t, 0.0
 
     def wait_settled(self, timeout_s: float) -> bool:
         """(Not on the loop thread.) Wait, on the wall clock, until the loop has taken up every
