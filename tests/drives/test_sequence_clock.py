@@ -1,6 +1,6 @@
 """The sequences' waits on the drives' time: a group whose drives live on a clock of their own
-(``watch_clock``, advanced one SYNC period by ``idle_sync`` before each SYNC the group clocks
-while idle, as the lock-step rig does) measures each 402 step's timeout on that clock. A starved
+(``watch_clock``, here advanced one SYNC period by each SYNC the group clocks while idle)
+measures each 402 step's timeout on that clock. A starved
 host, on which much wall time passes per SYNC, delays an enable but cannot fail it; a drive
 that never answers still times out after the same time of its own; a clock that never advances
 is ended by the wall-clock backstop, which names itself.
@@ -34,9 +34,11 @@ class HoldingBus(can.BusABC):
     for ``hold_syncs`` SYNCs (None: for ever) before they go on the wire: nodes that take N SYNC
     periods to answer a controlword."""
 
-    def __init__(self, ch: str, cob_ids: set[int], hold_syncs: int | None) -> None:
+    def __init__(
+        self, ch: str, cob_ids: set[int], hold_syncs: int | None, on_sync=lambda: None
+    ) -> None:
         self._inner = can.Bus(interface="virtual", channel=ch)
-        self.cob_ids, self.hold_syncs = cob_ids, hold_syncs
+        self.cob_ids, self.hold_syncs, self.on_sync = cob_ids, hold_syncs, on_sync
         self._held: list[tuple[int, can.Message]] = []
         self.syncs = 0
         super().__init__(channel=ch)
@@ -44,6 +46,7 @@ class HoldingBus(can.BusABC):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.arbitration_id == 0x080:
             self.syncs += 1
+            self.on_sync()
             if self.hold_syncs is not None:
                 due = [m for at, m in self._held if self.syncs - at >= self.hold_syncs]
                 self._held = [(at, m) for at, m in self._held if self.syncs - at < self.hold_syncs]
@@ -73,7 +76,7 @@ class StarvedHost:
         self.wall_per_sync_s = wall_per_sync_s
         self.drive_clock_advances = drive_clock_advances
 
-    def idle_sync(self) -> None:
+    def sync_sent(self) -> None:
         self.syncs += 1
 
     @property
@@ -106,12 +109,11 @@ def make_group():
         sim = SimDriveBus(drives, "virtual", ch, sync_period_s=PERIOD_S).start()
         opened.append(sim)
         group = DriveGroup(
-            HoldingBus(ch, {CW_COB_ID[n] for n in held}, hold_syncs),
+            HoldingBus(ch, {CW_COB_ID[n] for n in held}, hold_syncs, host.sync_sent),
             cfg,
             drives,
             clock=host.wall_clock,
             watch_clock=host.drive_clock if on_drive_time else None,
-            idle_sync=host.idle_sync,
         )
         opened.insert(0, group)
         group.boot()
@@ -120,6 +122,7 @@ def make_group():
         # states, and only a state change restarts a step's timeout.
         group.send_sync()
         assert wait_until(lambda: State.UNKNOWN not in [f.state for f in group.feedback()])
+        host.syncs = 0  # both clocks start with the sequence under test
         return group
 
     yield make
@@ -169,7 +172,7 @@ def test_a_node_that_never_answers_times_out_on_the_drives_time(make_group):
 
 
 def test_a_drive_clock_that_stands_still_is_ended_by_the_wall_backstop(make_group):
-    # The drives' clock never advances (a caller without idle_sync's advance): a 62.5 ms step
+    # The drives' clock never advances (a caller whose drives' time stands still): a 62.5 ms step
     # ends after 30 x 62.5 ms = 1.875 s of wall time, on the first look past it (16 SYNCs of
     # 0.125 s; both exact in binary), and says it was the backstop.
     host = StarvedHost(wall_per_sync_s=0.125, drive_clock_advances=False)

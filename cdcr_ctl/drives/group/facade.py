@@ -65,11 +65,8 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
     and the sequences' waits for the drives' state (each 402 step, fault reset, homing, moves,
     the settle on close) are measured on it, with a backstop of
     :data:`~cdcr_ctl.drives.group.common.WALL_BACKSTOP_FACTOR` times each timeout on ``clock``.
-    A caller whose drives run on simulated time (the lock-step rig) passes that time, and
-    ``idle_sync``: called before each SYNC the group clocks itself while no cycle runs (a
-    sequence waiting for feedback), it advances that time (and the caller's world) by one SYNC
-    period. So a host that stalls while simulated time stands still trips and times out
-    nothing, and a drive that never answers still times out after the same simulated time.
+    A caller whose drives run on simulated time (the lock-step rig) passes that time, so a host
+    that stalls while simulated time stands still trips and times out nothing.
     ``file`` names the config file in errors. The cyclic PDO set must fit
     ``bus_cfg.max_bus_load`` (ConfigError otherwise).
     """
@@ -82,14 +79,12 @@ class DriveGroup(_Wire, _Supervision, _Startup, _Sequences, _Cycle):
         clock: Callable[[], float] = time.monotonic,
         *,
         watch_clock: Callable[[], float] | None = None,
-        idle_sync: Callable[[], None] | None = None,
         file: str = "",
         react_to_faults: bool = True,
     ) -> None:
         self.bus_cfg = bus_cfg
         self.clock = clock
         self.watch_clock = clock if watch_clock is None else watch_clock
-        self.idle_sync = idle_sync
         self.file = file
         self.react_to_faults = react_to_faults
         try:

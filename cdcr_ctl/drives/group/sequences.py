@@ -125,16 +125,13 @@ class _Sequences:
 
     def _await_feedback(self, max_wait_s: float) -> None:
         """Wait for the next TPDO (at most ``max_wait_s``, and a SYNC period, of wall time);
-        clock SYNC if no cycle runs, at most one per period of wall time, each after
-        ``idle_sync`` (the drives' time advanced one period where the caller keeps it)."""
+        clock SYNC if no cycle runs, at most one per period of wall time."""
         now = self.clock()
         if (
             now - self._last_cycle_s > IDLE_PERIODS * self.period_s
             and now >= self._next_self_sync_s
         ):
             self._next_self_sync_s = now + self.period_s
-            if self.idle_sync is not None:
-                self.idle_sync()
             if self._sync_source is not None:
                 self._sync_source()
             else:
