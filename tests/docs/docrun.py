@@ -28,6 +28,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -48,8 +49,21 @@ DEFAULT_WORLD = "config/sim/qi2023-truth-clean.yaml"
 MARK = re.compile(r"^<!--\s*cmd:\s*(.*?)\s*-->\s*$")
 #: Words that are the shell's or the interpreter's, not the command's (for ``covered-by``).
 NOT_WORDS = {"cdcr-ctl", "sudo", "nice", "python", "time", "env", "bin", "venv"}
-#: One command's time limit (s): the runner's whole budget is about a minute.
+#: One command's time limit (s, wall clock): the runner's whole budget is about a minute. Past it
+#: a command still computing goes on (:func:`run_guarded`): a lock-step script's wall time is its
+#: CPU time stretched by the machine's load (7 s idle, over 90 s in the suite beside ``stress-ng
+#: --cpu 2``); a hung command computes nothing.
 COMMAND_TIMEOUT_S = 90.0
+#: Past :data:`COMMAND_TIMEOUT_S`, a command whose processes used less CPU than
+#: :data:`STALL_CPU_S` over the last :data:`STALL_WINDOW_S` of wall time is given up on (s).
+#: A hung command uses no CPU; a lock-step run computes 7 s in its 23 s beside ``stress-ng --cpu
+#: 2`` alone, and starved to a twentieth of a core (the shared rig's real-time threads and the
+#: load) still 1.5 s in 30 s. A client polling a daemon that never answers uses a few ms a second
+#: and ends on the backstop.
+STALL_WINDOW_S = 30.0
+STALL_CPU_S = 0.3
+#: Any command is given up on after this (s, wall clock), computing or not.
+COMMAND_BACKSTOP_S = 360.0
 #: Trips that a loaded machine causes on the simulated rig, not the documented command: the
 #: stand-in drives' heartbeats and feedback and the stand-in sensors' samples come late when the
 #: simulator gets no CPU (the system tests retry a run for the same causes).
@@ -286,15 +300,7 @@ class DocRig:
         return words[:1] == ["cdcr-ctl"] and ("sim" in words or "daemon" in words)
 
     def run(self, cmd: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            ["bash", "-o", "pipefail", "-c", cmd],
-            cwd=self.cwd,
-            env=self.env(),
-            capture_output=True,
-            text=True,
-            timeout=COMMAND_TIMEOUT_S,
-            stdin=subprocess.DEVNULL,
-        )
+        return run_guarded(cmd, self.cwd, self.env())
 
     @contextlib.contextmanager
     def background(self, cmd: str, log: Path) -> Iterator[subprocess.Popen]:
@@ -322,6 +328,73 @@ class DocRig:
     def shutdown(self) -> None:
         self.close()
         shutil.rmtree(self.work, ignore_errors=True)
+
+
+def session_cpu_s(sid: int) -> float:
+    """CPU time (s, user + system) of the live processes of session ``sid`` and of the children
+    they have reaped, from ``/proc/PID/stat`` (fields 6 session, 14-17 utime, stime, cutime,
+    cstime, in clock ticks)."""
+    ticks = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            rest = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue  # the process ended while we looked
+        if int(rest[3]) == sid:
+            ticks += sum(int(v) for v in rest[11:15])
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def run_guarded(
+    cmd: str,
+    cwd: Path,
+    env: dict[str, str],
+    limit_s: float = COMMAND_TIMEOUT_S,
+    window_s: float = STALL_WINDOW_S,
+    stall_cpu_s: float = STALL_CPU_S,
+    backstop_s: float = COMMAND_BACKSTOP_S,
+    poll_s: float = 1.0,
+) -> subprocess.CompletedProcess:
+    """``cmd`` in ``bash -o pipefail`` in a session of its own, its output captured. Given up on
+    (the session killed, :class:`subprocess.TimeoutExpired` raised with the reason as its
+    ``output``) once past ``limit_s`` of wall time it used less than ``stall_cpu_s`` of CPU over
+    the last ``window_s``, or past ``backstop_s`` whatever it does."""
+    proc = subprocess.Popen(
+        ["bash", "-o", "pipefail", "-c", cmd],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+    )
+    t0 = time.monotonic()
+    marks: list[tuple[float, float]] = []  # (wall s since start, session CPU s)
+    while True:
+        try:
+            out, err = proc.communicate(timeout=poll_s)
+            return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+        except subprocess.TimeoutExpired:
+            pass
+        now = time.monotonic() - t0
+        marks.append((now, session_cpu_s(proc.pid)))
+        why = None
+        if now > backstop_s:
+            why = f"ran over {backstop_s:g} s"
+        elif now > limit_s:
+            past = [m for m in marks if m[0] <= now - window_s]
+            if past and marks[-1][1] - past[-1][1] < stall_cpu_s:
+                used = marks[-1][1] - past[-1][1]
+                why = (
+                    f"ran over {limit_s:g} s and used {used:.2f} s of CPU in the last "
+                    f"{window_s:g} s (stalled)"
+                )
+        if why:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            raise subprocess.TimeoutExpired(proc.args, now, output=why)
 
 
 def run_page(rig: DocRig, page: Path) -> list[str]:
@@ -369,8 +442,8 @@ def run_page(rig: DocRig, page: Path) -> list[str]:
                 t0 = time.monotonic()
                 try:
                     res = rig.run(cmd)
-                except subprocess.TimeoutExpired:
-                    failures.append(f"{rel}:{c.line}: `{c.text}` ran over {COMMAND_TIMEOUT_S} s")
+                except subprocess.TimeoutExpired as exc:
+                    failures.append(f"{rel}:{c.line}: `{c.text}` {exc.output}")
                     continue
                 print(f"{rel}:{c.line}: {time.monotonic() - t0:5.1f} s  {c.text}")
                 if res.returncode != 0 and (note := rig.recover_load_trip(c.text, res.stderr)):
