@@ -15,11 +15,11 @@ solves the truth at 200 Hz on the wall clock and every message crosses a process
 lock-step the truth is solved right after each SYNC that moved a drive. The real-time run goes
 as a lab PC runs it: the daemon and the stand-in rig at SCHED_FIFO (``syshelp.realtime``), so
 another job's CPU-bound work does not distort the reference. It is a reference only if it kept
-its 250 Hz: when the machine is too busy for that (the loop skipped
-more than 1 % of its deadlines, or its cycles ran late: a lateness p99 over a quarter period,
-so the real-time run itself is distorted), the comparison is skipped with the figures, not
-loosened; so is a real-time run that trips because its stand-in rig fell silent (a starved
-machine: ``faulthelp.STARVED_CAUSES``). Measured on fresh clones: idle, the
+its 250 Hz. A run that skipped more than 1 % of its deadlines or ran late (a
+lateness p99 over a quarter period: the real-time run itself is distorted), or that tripped
+because its stand-in rig fell silent (a starved machine: ``faulthelp.STARVED_CAUSES``), is no
+reference: a second session is tried, and when it is no reference either, the comparison is
+skipped with the reasons, not loosened. Measured on fresh clones: idle, the
 real-time runs' lateness p99 was 199-426 us and the max tip errors within 2.5 %; beside
 ``stress-ng --cpu 2`` it was 1374-1381 us (26-34 cycles over 1 ms) and the compensated max
 7.7 % over lock-step's, and one real-time run tripped (no TPDO for 0.25 s). This trajectory,
@@ -61,6 +61,8 @@ MODES = ("off", "model")
 #: A real-time run is a reference only if its loop's lateness p99 (``lateness_us``) stays within
 #: this fraction of the period (1 ms at 250 Hz).
 LATE_P99_FRACTION = 0.25
+#: Real-time sessions tried for a reference before the comparison is skipped.
+REFERENCE_ATTEMPTS = 2
 #: Longest wall time for a run's log to close after the run ended (s): its writer is a process
 #: at a low priority, seconds behind on a loaded machine (as ``cdcr-ctl identify`` allows).
 LOG_CLOSE_S = 60.0
@@ -114,12 +116,41 @@ def _measure(
             res = _follow(work, f"bend-{comp}", traj.rows(), comp)
             reason = str(res.get("end_reason") or "")
             if not lockstep and res["state"] == "tripped" and reason.startswith(STARVED_CAUSES):
-                pytest.skip(f"the real-time reference's rig was starved on this machine: {res}")
+                raise NotAReference(f"the real-time reference's rig was starved: {res}")
             assert res["state"] == "completed", res
             e = tip_errors(res["log_dir"], settle_s=0.0).summary()
             kept = e["samples"] / (res["duration_s"] * 250.0)
             out[comp] = (e["mean_mm"], e["max_mm"], kept, _late_p99_s(res["log_dir"]))
     return out
+
+
+class NotAReference(Exception):
+    """A real-time run that says nothing of the timing it was meant to show (its rig starved)."""
+
+
+def _realtime_reference(tmp_path) -> tuple[dict | None, list[str]]:
+    """The real-time figures (as :func:`_measure`) of the first of :data:`REFERENCE_ATTEMPTS`
+    sessions that kept its 250 Hz, with what was wrong with the ones before; (None, reasons)
+    when none did. A burst of other work (in the suite, a previous test's processes still
+    ending) can cost one run its rate on an idle machine; the next one is a fresh session."""
+    why: list[str] = []
+    for k in range(REFERENCE_ATTEMPTS):
+        (tmp_path / f"rt{k}").mkdir()
+        with session(tmp_path / f"rt{k}") as (work, rig, sim, _runs):
+            try:
+                real = _measure(work, rig, sim, lockstep=False)
+            except NotAReference as exc:
+                why.append(str(exc))
+                continue
+        kept = {m: real[m][2] for m in MODES}
+        late = {m: real[m][3] for m in MODES}
+        if min(kept.values()) < 0.99:
+            why.append(f"it could not keep 250 Hz (rows kept {kept})")
+        elif max(late.values()) > LATE_P99_FRACTION / 250.0:
+            why.append(f"its cycles ran late (lateness p99 {late} s)")
+        else:
+            return real, why
+    return None, why
 
 
 @pytest.mark.slow
@@ -128,16 +159,11 @@ def _measure(
 def test_lockstep_and_real_time_give_the_same_tip_errors(tmp_path):
     with session(tmp_path) as (work, rig, sim, _runs):
         lock = _measure(work, rig, sim, lockstep=True)
-    (tmp_path / "rt").mkdir()
-    with session(tmp_path / "rt") as (work, rig, sim, _runs):
-        real = _measure(work, rig, sim, lockstep=False)
+    assert all(lock[m][2] > 0.99 for m in MODES), lock  # lock-step never skips a cycle
+    real, why = _realtime_reference(tmp_path)
+    if real is None:
+        pytest.skip(f"no real-time reference on this machine in {REFERENCE_ATTEMPTS} runs: {why}")
     figures = {m: {"lockstep": lock[m][:2], "realtime": real[m][:2]} for m in MODES}
-    assert all(lock[m][2] > 0.99 for m in MODES), figures  # lock-step never skips a cycle
-    if min(real[m][2] for m in MODES) < 0.99:
-        pytest.skip(f"the real-time run could not keep 250 Hz on this machine: {figures}")
-    late = {m: real[m][3] for m in MODES}
-    if max(late.values()) > LATE_P99_FRACTION / 250.0:
-        pytest.skip(f"the real-time run's cycles ran late (lateness p99 {late} s): {figures}")
     for m in MODES:
         for i, what in enumerate(("mean", "max")):
             ls, rt = lock[m][i], real[m][i]
