@@ -58,7 +58,8 @@ def make_run(variant: str, out: Path, seed: int) -> Path:
 
 def daemon_run(sim_yaml: Path, out: Path, seed: int, duration_s: float = 60.0) -> Path:
     """Record one run through ``cdcr-ctl sim`` + ``cdcr-ctl daemon`` (see module doc)."""
-    from cdcr_ctl.cli.demo import make_session, rig_running, run_experiment
+    from cdcr_ctl.cli.demo import make_session, rig_running
+    from cdcr_ctl.cli.runwait import follow_run
     from cdcr_ctl.config import load_rig_config
     from cdcr_ctl.config.build_model import build_cc_disk_model
     from cdcr_ctl.daemon.client import ControlClient
@@ -75,9 +76,7 @@ def daemon_run(sim_yaml: Path, out: Path, seed: int, duration_s: float = 60.0) -
         )
         sock = work / "control.sock"
         with rig_running(sim_path, rig_path, sock, out):
-            res = run_experiment(
-                sock, f"{sim_yaml.stem}-daemon", traj.rows(), cfg.control.compensation
-            )
+            res = follow_run(sock, f"{sim_yaml.stem}-daemon", traj.rows(), cfg.control.compensation)
             with ControlClient(sock) as c:
                 c.call("disable")
         print(

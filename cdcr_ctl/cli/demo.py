@@ -33,7 +33,7 @@ from typing import Any
 import click
 import yaml
 
-from cdcr_ctl.cli.runwait import RUN_SLACK_S, run_deadline
+from cdcr_ctl.cli.runwait import follow_run
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import CommError, RigError
 
@@ -278,29 +278,6 @@ def recover(sock: Path, attempts: int = 3) -> None:
     raise RigError(f"could not recover from {st.get('fault')}")
 
 
-def run_experiment(sock: Path, name: str, samples: list[list[float]], comp: str) -> dict[str, Any]:
-    """Run one trajectory through the daemon and wait for it and its log; return the run's log
-    dir and state."""
-    from cdcr_ctl.runlog.reader import wait_run_closed
-
-    with ControlClient(sock) as c:
-        res = c.call("trajectory", name=name, samples=samples, compensation=comp, log=True)
-        end = time.monotonic() + res["duration_s"] + RUN_SLACK_S
-        elapsed = -1.0
-        while time.monotonic() < end:
-            st = c.call("status")
-            end, elapsed = run_deadline(st, res["run"], end, elapsed)
-            done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
-            if done is not None:
-                # Ended in the loop; its log is complete once the writer has closed it (the
-                # writer may be behind: a loaded machine, or lock-step's idle-priority writer).
-                if not wait_run_closed(res["log_dir"], max(0.0, end - time.monotonic())):
-                    raise RigError(f"run {name}: its log {res['log_dir']} was not closed")
-                return {**res, "state": done["state"], "end_reason": done["end_reason"]}
-            time.sleep(0.2)
-    raise RigError(f"run {name} did not finish")
-
-
 def sim_config_of(design: str) -> Path:
     """The simulator config a design's demo runs on by default (the design registry's
     ``sim_config``, in the checkout's ``config/``)."""
@@ -391,7 +368,7 @@ def demo(
         for exp, traj in experiments.items():
             for comp in ("off", "model"):
                 for _attempt in range(2):
-                    res = run_experiment(sock, f"{exp}-{comp}", traj.rows(), comp)
+                    res = follow_run(sock, f"{exp}-{comp}", traj.rows(), comp)
                     if res["state"] != "completed":
                         # Keep the log of the tripped run, clear the trip, go on.
                         click.echo(f"  {exp}-{comp}: {res['end_reason']}", err=True)

@@ -23,11 +23,9 @@ from cdcr_ctl.cli.identify_runs import (
     MODES,
     REVERSAL_BAND_MM,
     ROOT_CONFIG,
-    RUN_SLACK_S,
     _run_recovering,
     fit_and_write,
     run_sweep,
-    run_trajectory,
 )
 
 __all__ = [
@@ -35,12 +33,10 @@ __all__ = [
     "MODES",
     "REVERSAL_BAND_MM",
     "ROOT_CONFIG",
-    "RUN_SLACK_S",
     "_run_recovering",
     "fit_and_write",
     "identify_cmd",
     "run_sweep",
-    "run_trajectory",
 ]
 
 

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from cdcr_ctl.cli.runwait import RUN_SLACK_S, run_deadline
+from cdcr_ctl.cli.runwait import follow_run
 from cdcr_ctl.daemon.client import ControlClient
 from cdcr_ctl.errors import RigError
 
@@ -29,30 +29,6 @@ MODES = ("off", "model", "measured")
 REVERSAL_BAND_MM = 0.01
 #: Tries per experiment run (a trip on a loaded machine is retried after recovery).
 ATTEMPTS = 5
-
-
-def run_trajectory(
-    sock: str | Path, name: str, rows: list[list[float]], comp: str, log: bool = True
-) -> dict[str, Any]:
-    """Run one trajectory through the daemon, wait for its end; the run's record + log dir."""
-    from cdcr_ctl.runlog.reader import wait_run_closed
-
-    with ControlClient(sock) as c:
-        res = c.call("trajectory", name=name, samples=rows, compensation=comp, log=log)
-        end = time.monotonic() + res["duration_s"] + RUN_SLACK_S
-        elapsed = -1.0
-        while time.monotonic() < end:
-            st = c.call("status")
-            end, elapsed = run_deadline(st, res["run"], end, elapsed)
-            done = next((r for r in st["runs"] if r["id"] == res["run"]), None)
-            if done is not None:
-                # The run has ended in the loop; its log is complete once the writer (a
-                # process at low priority, seconds behind on a loaded machine) has closed it.
-                if log and res.get("log_dir"):
-                    wait_run_closed(res["log_dir"], max(0.0, end - time.monotonic()))
-                return {**res, "state": done["state"], "end_reason": done["end_reason"]}
-            time.sleep(0.25)
-    raise RigError(f"run {name} did not finish: no progress for {RUN_SLACK_S:.0f} s")
 
 
 def run_sweep(
@@ -171,14 +147,14 @@ def fit_and_write(
 def _run_recovering(
     sock: Path, name: str, rows: list[list[float]], comp: str, log: bool = True
 ) -> dict[str, Any]:
-    """:func:`run_trajectory`; if the daemon refuses it because of a latched trip (one that
-    happened between runs), recover first and try again."""
+    """:func:`~cdcr_ctl.cli.runwait.follow_run`; if the daemon refuses it because of a latched
+    trip (one that happened between runs), recover first and try again."""
     from cdcr_ctl.cli.demo import recover
     from cdcr_ctl.daemon.client import DaemonError
 
     for attempt in range(ATTEMPTS):
         try:
-            return run_trajectory(sock, name, rows, comp, log)
+            return follow_run(sock, name, rows, comp, log)
         except DaemonError as exc:
             if attempt == ATTEMPTS - 1 or not any(w in str(exc) for w in ("tripped", "disabled")):
                 raise
